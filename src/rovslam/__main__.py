@@ -1,0 +1,3 @@
+from rovslam.cli import main
+
+main()

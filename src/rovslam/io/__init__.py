@@ -1,0 +1,25 @@
+"""Input and output: sequence folders (format v1), result files."""
+
+from rovslam.io.sequence import (
+    Frame,
+    FrameRow,
+    GroundTruth,
+    Sequence,
+    SequenceInfo,
+    SequenceWriter,
+    open_sequence,
+    read_groundtruth,
+    read_image,
+)
+
+__all__ = [
+    "Frame",
+    "FrameRow",
+    "GroundTruth",
+    "Sequence",
+    "SequenceInfo",
+    "SequenceWriter",
+    "open_sequence",
+    "read_groundtruth",
+    "read_image",
+]
