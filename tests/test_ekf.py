@@ -1,0 +1,409 @@
+"""EKF-SLAM core: equations (1)-(4) against a dense reference, consistency (NEES), revisits, bad input."""
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from rovslam.camera import Camera, ground_to_pixels, rot2
+from rovslam.config import SlamConfig
+from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError
+from rovslam.slam import EkfSlam, UpdateResult, landmark_from_mn, observation_noise_px2, observe_mn, pixels_to_mn
+
+Z, F, W, H, DT = 1.31, 1075.0, 360, 272, 0.2
+
+
+# ---------------------------------------------------------------- dense reference (textbook, O(n^3))
+def dense_update(x, p, k, mn, psi, z, f, r_m):
+    """Full-matrix EKF update with the Joseph form, for comparison."""
+    n = len(x)
+    a = (f / z) * rot2(psi).T
+    h_full = np.zeros((2, n))
+    h_full[:, 0:2] = -a
+    h_full[:, k : k + 2] = a
+    h = a @ (x[k : k + 2] - x[0:2])
+    s = h_full @ p @ h_full.T + r_m
+    gain = p @ h_full.T @ np.linalg.inv(s)
+    i_kh = np.eye(n) - gain @ h_full
+    return x + gain @ (mn - h), i_kh @ p @ i_kh.T + gain @ r_m @ gain.T
+
+
+def random_filter(rng, n_landmarks, config=SlamConfig()):
+    ekf = EkfSlam(config, initial_capacity=2)
+    for _ in range(n_landmarks):
+        ekf.predict(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT)
+        ekf.augment(rng.uniform(-120, 120, 2), rng.uniform(-3, 3), Z, F, altitude_sigma_m=0.02)
+    return ekf
+
+
+def snapshot(ekf):
+    return ekf.state_m, ekf.covariance_m2
+
+
+# ---------------------------------------------------------------- (1), (2)
+def test_predict_moves_by_equation_1_and_projects_q():
+    ekf = EkfSlam(SlamConfig(heading_sigma_rad=0.0), initial_xy_m=(1.0, 2.0), initial_cov_m2=np.eye(2) * 1e-4)
+    q = np.array([[4e-6, 1e-6], [1e-6, 9e-6]])
+    psi = 0.6
+    ekf.predict(0.1, -0.03, q, psi, DT)
+    r = rot2(psi)
+    np.testing.assert_allclose(ekf.vehicle_xy_m, [1.0, 2.0] + r @ [0.1, -0.03] * DT, atol=1e-15)
+    np.testing.assert_allclose(ekf.vehicle_cov_m2, np.eye(2) * 1e-4 + DT**2 * r @ q @ r.T, atol=1e-18)
+    # Heading noise adds sigma^2 J J^T with J = dR/dpsi [u, v] dt.
+    ekf2 = EkfSlam(SlamConfig(), initial_cov_m2=np.eye(2) * 1e-4)
+    ekf2.predict(0.1, -0.03, q, psi, DT, heading_sigma_rad=0.01)
+    dr = np.array([[-np.sin(psi), -np.cos(psi)], [np.cos(psi), -np.sin(psi)]])
+    j = dr @ [0.1, -0.03] * DT
+    np.testing.assert_allclose(
+        ekf2.vehicle_cov_m2, np.eye(2) * 1e-4 + DT**2 * r @ q @ r.T + 1e-4 * np.outer(j, j), atol=1e-18
+    )
+
+
+def test_predict_leaves_landmarks_and_cross_terms_except_process_noise():
+    rng = np.random.default_rng(1)
+    ekf = random_filter(rng, 5)
+    x0, p0 = snapshot(ekf)
+    ekf.predict(0.1, 0.0, np.eye(2) * 1e-6, 0.3, DT)
+    x1, p1 = snapshot(ekf)
+    np.testing.assert_array_equal(x1[2:], x0[2:])  # (2): static landmarks
+    np.testing.assert_array_equal(p1[2:, :], p0[2:, :])
+    noisy = EkfSlam(SlamConfig(landmark_process_sigma_m=0.001))
+    for _ in range(3):
+        noisy.augment(rng.uniform(-50, 50, 2), 0.0, Z, F)
+    before = noisy.landmarks_cov_m2()
+    noisy.predict(0.0, 0.0, np.zeros((2, 2)), 0.0, DT)
+    grown = noisy.landmarks_cov_m2() - before
+    np.testing.assert_allclose(grown, np.broadcast_to(np.eye(2) * 1e-6, (3, 2, 2)), atol=1e-18)
+
+
+# ---------------------------------------------------------------- (3)
+def test_update_equals_the_dense_joseph_form():
+    rng = np.random.default_rng(2)
+    ekf = random_filter(rng, 12)
+    x0, p0 = snapshot(ekf)
+    psi, i = 0.8, 7
+    k = 2 + 2 * i
+    mn_pred, s_pred = ekf.predict_observation(i, psi, Z, F, altitude_sigma_m=0.03)
+    mn = mn_pred + np.array([0.7, -0.4])
+    r_m = observation_noise_px2(mn_pred, SlamConfig().pixel_sigma_px, Z, 0.03)
+    res = ekf.update(i, mn, psi, Z, F, altitude_sigma_m=0.03)
+    assert isinstance(res, UpdateResult) and res.accepted and res.reason == ""
+    x_ref, p_ref = dense_update(x0, p0, k, mn, psi, Z, F, r_m)
+    x1, p1 = snapshot(ekf)
+    np.testing.assert_allclose(x1, x_ref, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(p1, p_ref, rtol=0, atol=1e-9 * np.abs(p_ref).max())
+    np.testing.assert_allclose(res.innovation_px, [0.7, -0.4], atol=1e-12)
+    np.testing.assert_allclose(res.innovation_cov_px2, s_pred, rtol=1e-12)
+    assert res.nis == pytest.approx(np.array([0.7, -0.4]) @ np.linalg.solve(s_pred, [0.7, -0.4]), rel=1e-10)
+    report = ekf.check_consistency()
+    assert report.min_eigenvalue > 0 and report.max_asymmetry < 1e-18
+
+
+def test_innovation_gate_rejects_and_leaves_the_state_untouched():
+    rng = np.random.default_rng(3)
+    ekf = random_filter(rng, 6)
+    x0, p0 = snapshot(ekf)
+    mn_pred, s = ekf.predict_observation(2, 0.1, Z, F)
+    sigma = np.sqrt(s[0, 0])
+    res = ekf.update(2, mn_pred + [6.0 * sigma, 0.0], 0.1, Z, F)  # a wrong correlation match
+    assert not res.accepted and res.nis > SlamConfig().innovation_gate and "innovation" in res.reason
+    x1, p1 = snapshot(ekf)
+    np.testing.assert_array_equal(x1, x0)
+    np.testing.assert_array_equal(p1, p0)
+    ok = ekf.update(2, mn_pred + [2.0 * sigma, 0.0], 0.1, Z, F)
+    assert ok.accepted and ok.nis == pytest.approx(4.0 * s[0, 0] * np.linalg.inv(s)[0, 0], rel=1e-9)
+
+
+def test_observation_model_and_tilted_landmark_pixels():
+    cam = Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5)
+    vehicle, psi = np.array([2.0, -1.0]), 0.9
+    landmark = vehicle + np.array([0.07, -0.05])
+    mn = observe_mn(landmark, vehicle, psi, Z, F)[0]
+    np.testing.assert_allclose(landmark_from_mn(mn, vehicle, psi, Z, F)[0], landmark, atol=1e-15)
+    # A rolled and pitched camera sees the landmark elsewhere; mapping its pixel through the
+    # tilted camera onto the seabed gives back the level-equivalent [m, n] of (3).
+    g = (landmark - vehicle) @ rot2(psi)
+    for att in [(0.0, 0.0), (0.05, -0.03), (-0.08, 0.06)]:
+        uv = ground_to_pixels(cam, g[None], Z, *att)
+        np.testing.assert_allclose(pixels_to_mn(cam, uv, Z, *att)[0], mn, atol=1e-9)
+    uv_tilted = ground_to_pixels(cam, g[None], Z, 0.05, -0.03)
+    naive = pixels_to_mn(cam, uv_tilted, Z)[0]  # assuming a level camera
+    assert np.linalg.norm(naive - mn) > 40.0  # ~3 deg at f = 1075 px: tens of pixels
+
+
+def test_observation_noise_includes_altitude_and_heading():
+    mn = np.array([100.0, -50.0])
+    r = observation_noise_px2(mn, 0.5, Z, altitude_sigma_m=0.0262, heading_sigma_rad=0.002)
+    expected = 0.25 * np.eye(2) + 0.02**2 * np.outer(mn, mn) + 0.002**2 * np.outer([-50.0, -100.0], [-50.0, -100.0])
+    np.testing.assert_allclose(r, expected, rtol=1e-12)
+
+
+# ---------------------------------------------------------------- (4)
+def test_full_augmentation_carries_the_cross_covariances():
+    rng = np.random.default_rng(4)
+    ekf = random_filter(rng, 4)
+    x0, p0 = snapshot(ekf)
+    mn, psi = np.array([60.0, -30.0]), 1.1
+    i = ekf.augment(mn, psi, Z, F, altitude_sigma_m=0.02)
+    assert i == 4 and ekf.n_landmarks == 5 and ekf.landmark_ids == [0, 1, 2, 3, 4]
+    x1, p1 = snapshot(ekf)
+    g = Z / F * rot2(psi)
+    np.testing.assert_allclose(x1[10:12], x0[0:2] + g @ mn, atol=1e-15)  # (4)
+    np.testing.assert_array_equal(p1[:10, :10], p0)
+    np.testing.assert_array_equal(p1[10:12, :10], p0[0:2, :])  # cov(X_new, .) = cov(x, .)
+    r_m = observation_noise_px2(mn, 0.5, Z, 0.02)
+    np.testing.assert_allclose(p1[10:12, 10:12], p0[0:2, 0:2] + g @ r_m @ g.T, rtol=1e-12)
+    np.testing.assert_allclose(ekf.landmark_cov_m2(4), p1[10:12, 10:12])
+    np.testing.assert_allclose(ekf.landmark_xy_m(4), x1[10:12])
+    ekf.check_consistency()
+
+
+def test_paper_augmentation_is_the_diagonal_block_only():
+    rng = np.random.default_rng(4)
+    ekf = random_filter(rng, 4, SlamConfig(augmentation="paper"))
+    x0, p0 = snapshot(ekf)
+    mn, psi = np.array([60.0, -30.0]), 1.1
+    ekf.augment(mn, psi, Z, F)
+    x1, p1 = snapshot(ekf)
+    g = Z / F * rot2(psi)
+    np.testing.assert_array_equal(p1[10:12, :10], 0.0)
+    np.testing.assert_array_equal(p1[:10, 10:12], 0.0)
+    # P_Xi = P_x + Z^2/f^2 R_m (R_m = sigma^2 I is rotation invariant).
+    np.testing.assert_allclose(p1[10:12, 10:12], p0[0:2, 0:2] + (Z / F) ** 2 * 0.25 * np.eye(2), rtol=1e-12)
+
+
+def test_capacity_growth_preserves_the_state():
+    rng = np.random.default_rng(5)
+    small = EkfSlam(initial_capacity=1)
+    big = EkfSlam(initial_capacity=100)
+    for _ in range(37):
+        u, psi, mn = rng.uniform(0, 0.1), rng.uniform(-3, 3), rng.uniform(-100, 100, 2)
+        for ekf in (small, big):
+            ekf.predict(u, 0.0, np.eye(2) * 1e-6, psi, DT)
+            ekf.augment(mn, psi, Z, F)
+    for i in (0, 17, 36):
+        mn_pred, _ = big.predict_observation(i, 0.2, Z, F)
+        for ekf in (small, big):
+            ekf.update(i, mn_pred + 0.3, 0.2, Z, F)
+    np.testing.assert_array_equal(small.state_m, big.state_m)
+    np.testing.assert_allclose(small.covariance_m2, big.covariance_m2, rtol=0, atol=1e-15)
+    assert small.n_landmarks == 37 and small.landmarks_xy_m().shape == (37, 2)
+    assert small.landmarks_cov_m2().shape == (37, 2, 2)
+    np.testing.assert_allclose(small.landmarks_cov_m2()[17], small.landmark_cov_m2(17))
+
+
+# ---------------------------------------------------------------- revisit and dead reckoning
+def test_revisit_shrinks_the_vehicle_covariance_dead_reckoning_grows():
+    rng = np.random.default_rng(6)
+    sig0 = 1e-3
+    q = np.eye(2) * 0.002**2
+    slam = EkfSlam(SlamConfig(heading_sigma_rad=0.0), initial_cov_m2=np.eye(2) * sig0**2)
+    dr = EkfSlam(SlamConfig(heading_sigma_rad=0.0), initial_cov_m2=np.eye(2) * sig0**2)
+    truth = np.zeros(2)
+    landmark = np.array([0.02, -0.01])
+    slam.augment(observe_mn(landmark, truth, 0.0, Z, F)[0] + rng.normal(0, 0.5, 2), 0.0, Z, F)
+    # A 2 m x 2 m square at 0.1 m/s: 4 legs of 100 steps, heading 0, 90, 180, 270 deg.
+    sigma_dr = []
+    for leg in range(4):
+        psi = leg * np.pi / 2
+        for _ in range(100):
+            truth = truth + rot2(psi) @ [0.1, 0.0] * DT
+            u, v = np.array([0.1, 0.0]) + rng.normal(0, 0.002, 2)
+            slam.predict(u, v, q, psi, DT)
+            dr.predict(u, v, q, psi, DT)
+            sigma_dr.append(np.sqrt(np.trace(dr.vehicle_cov_m2) / 2))
+    sigma_before = np.sqrt(np.trace(slam.vehicle_cov_m2) / 2)
+    # Dead reckoning: variance grows linearly with time, without bound.
+    assert sigma_dr[99] ** 2 == pytest.approx(sig0**2 + 100 * (DT * 0.002) ** 2, rel=1e-9)
+    assert sigma_dr[399] ** 2 == pytest.approx(sig0**2 + 400 * (DT * 0.002) ** 2, rel=1e-9)
+    assert sigma_dr[399] > 8.0 * sig0  # 8.06 mm after 80 s
+    assert np.all(np.diff(sigma_dr) > 0)
+    # Back over the first landmark: one observation pulls the vehicle back to ~its initial size.
+    assert np.linalg.norm(truth) < 1e-9
+    psi_back = 3 * np.pi / 2
+    res = slam.update(0, observe_mn(landmark, truth, psi_back, Z, F)[0] + rng.normal(0, 0.5, 2), psi_back, Z, F)
+    assert res.accepted
+    sigma_after = np.sqrt(np.trace(slam.vehicle_cov_m2) / 2)
+    assert sigma_before == pytest.approx(sigma_dr[399], rel=1e-9)
+    print(
+        f"\nrevisit: sigma dead reckoning {sigma_dr[399] * 1e3:.2f} mm, "
+        f"before {sigma_before * 1e3:.2f} mm, after {sigma_after * 1e3:.2f} mm"
+    )
+    assert sigma_after < 1.5 * sig0  # 1.32 mm = landmark 1.17 mm (+) observation 0.61 mm
+    assert sigma_before / sigma_after > 6.0
+    assert np.linalg.norm(slam.vehicle_xy_m - truth) < 3 * sigma_after
+    # Dead reckoning keeps growing: twice the time, twice the variance.
+    for _ in range(400):
+        dr.predict(0.0, 0.0, q, 0.0, DT)
+    assert np.trace(dr.vehicle_cov_m2) / 2 - sig0**2 == pytest.approx(2 * (sigma_dr[399] ** 2 - sig0**2), rel=1e-9)
+
+
+# ---------------------------------------------------------------- Monte Carlo consistency (NEES)
+SIG_V, SIG_PSI, SIG_PX = 2e-3, 1e-3, 0.5
+
+
+def lawnmower_headings(n_legs=5, leg_steps=70, cross_steps=15, psi0=0.4):
+    """True heading per step of a grid survey: legs 1.4 m long, lanes 0.3 m apart (footprint 0.44 m wide)."""
+    heads = []
+    for leg in range(n_legs):
+        heads += [psi0 + (np.pi if leg % 2 else 0.0)] * leg_steps
+        if leg < n_legs - 1:
+            heads += [psi0 + np.pi / 2] * cross_steps
+    return np.array(heads)
+
+
+def survey_nees(seed, augmentation="full"):
+    """One seeded run: returns the vehicle NEES per step, landmarks mapped, updates, rejections.
+
+    0.1 m/s at 5 Hz, Z = 1.31 m, f = 1075 px, 360x272 image, ~30 landmarks per m^2 at random;
+    a landmark is observed when it passes the gate (5) and is truly inside the image;
+    a new one is added (the unmapped one nearest the image centre) when none was updated and
+    the test (6) allows it. Speed, heading and pixel noises match what the filter is told.
+    """
+    rng = np.random.default_rng(seed)
+    psi_true = lawnmower_headings()
+    k_steps = len(psi_true)
+    steps = (np.array([0.1, 0.0]) @ np.stack([rot2(p).T for p in psi_true])) * DT  # R(psi) v dt per step
+    pos = np.vstack([[0.0, 0.0], np.cumsum(steps, axis=0)])
+    lo, hi = pos.min(0) - 0.4, pos.max(0) + 0.4
+    landmarks = rng.uniform(lo, hi, (int(30 * np.prod(hi - lo)), 2))
+    mapped = np.zeros(len(landmarks), dtype=bool)
+    truth_of = []
+    ekf = EkfSlam(SlamConfig(heading_sigma_rad=SIG_PSI, pixel_sigma_px=SIG_PX, augmentation=augmentation))
+    q = np.eye(2) * SIG_V**2
+    psi_frame = np.append(psi_true, psi_true[-1])
+    psi_meas = psi_frame + rng.normal(0.0, SIG_PSI, k_steps + 1)
+    speed_meas = np.array([0.1, 0.0]) + rng.normal(0.0, SIG_V, (k_steps, 2))
+    lim = np.array([H / 2 - 16, W / 2 - 16])
+    nees = np.empty(k_steps)
+    n_upd = n_rej = 0
+    for k in range(k_steps):
+        ekf.predict(speed_meas[k, 0], speed_meas[k, 1], q, psi_meas[k], DT)
+        mn_all = observe_mn(landmarks, pos[k + 1], psi_frame[k + 1], Z, F)
+        inside = np.all(np.abs(mn_all) < lim, axis=1)
+        noise = rng.normal(0.0, SIG_PX, (8, 2))
+        updated = False
+        for j, i in enumerate(ekf.visible_landmarks(psi_meas[k + 1], Z, F, W, H)):
+            t = truth_of[i]
+            if inside[t]:
+                res = ekf.update(i, mn_all[t] + noise[j % 8], psi_meas[k + 1], Z, F)
+                n_upd += 1
+                n_rej += not res.accepted
+                updated |= res.accepted
+        if not updated and ekf.may_add_landmark():
+            cand = np.flatnonzero(inside & ~mapped)
+            if len(cand):
+                t = cand[np.argmin(np.sum(mn_all[cand] ** 2, axis=1))]
+                ekf.augment(mn_all[t] + noise[7], psi_meas[k + 1], Z, F)
+                mapped[t] = True
+                truth_of.append(t)
+        e = pos[k + 1] - ekf.vehicle_xy_m
+        nees[k] = e @ np.linalg.solve(ekf.vehicle_cov_m2, e)
+    ekf.check_consistency()
+    return nees, ekf.n_landmarks, n_upd, n_rej
+
+
+def monte_carlo(augmentation, runs=50):
+    out = [survey_nees(1000 + s, augmentation) for s in range(runs)]
+    nees = np.array([o[0] for o in out])
+    mean = nees.mean(axis=0)
+    lo, hi = chi2.ppf([0.025, 0.975], 2 * runs) / runs  # [1.484, 2.591] for 50 runs
+    inside = float(np.mean((mean >= lo) & (mean <= hi)))
+    stats = dict(
+        landmarks=np.mean([o[1] for o in out]), updates=np.mean([o[2] for o in out]),
+        rejected=np.mean([o[3] for o in out]), mean_nees=float(mean.mean()), steps=nees.shape[1],
+    )
+    return inside, stats
+
+
+def test_monte_carlo_nees_is_consistent_with_full_augmentation():
+    inside, stats = monte_carlo("full")
+    print(f"\nfull augmentation: average NEES inside the 95% interval for {inside:.1%} of steps; {stats}")
+    assert stats["steps"] == 410 and stats["landmarks"] > 10 and stats["updates"] > 100
+    assert inside >= 0.90
+    assert 1.7 < stats["mean_nees"] < 2.4
+
+
+def test_monte_carlo_nees_of_the_paper_augmentation_is_reported():
+    inside_paper, stats_paper = monte_carlo("paper")
+    print(
+        f"\npaper (diagonal) augmentation: average NEES inside the 95% interval for {inside_paper:.1%} "
+        f"of steps; {stats_paper}"
+    )
+    # Dropping the cross-covariances makes the filter overconfident: NEES well above 2.
+    assert stats_paper["mean_nees"] > 2.6
+    assert inside_paper < 0.90
+
+
+# ---------------------------------------------------------------- bad input
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda e: e.predict(np.nan, 0.0, np.eye(2) * 1e-6, 0.0, DT),
+        lambda e: e.predict(0.1, np.inf, np.eye(2) * 1e-6, 0.0, DT),
+        lambda e: e.predict(0.1, 0.0, np.eye(2) * 1e-6, np.nan, DT),
+        lambda e: e.predict(0.1, 0.0, np.eye(2) * np.nan, 0.0, DT),
+        lambda e: e.predict(0.1, 0.0, np.eye(2) * 1e-6, 0.0, np.inf),
+        lambda e: e.predict(0.1, 0.0, np.eye(2) * 1e-6, 0.0, 0.0),
+        lambda e: e.predict(0.1, 0.0, -np.eye(2), 0.0, DT),
+        lambda e: e.predict(0.1, 0.0, np.eye(2) * 1e-6, 0.0, DT, heading_sigma_rad=np.nan),
+        lambda e: e.update(0, [np.nan, 1.0], 0.0, Z, F),
+        lambda e: e.update(0, [1.0, 1.0], np.inf, Z, F),
+        lambda e: e.update(0, [1.0, 1.0], 0.0, np.nan, F),
+        lambda e: e.update(0, [1.0, 1.0], 0.0, -1.0, F),
+        lambda e: e.update(0, [1.0, 1.0], 0.0, Z, F, altitude_sigma_m=np.inf),
+        lambda e: e.update(5, [1.0, 1.0], 0.0, Z, F),
+        lambda e: e.augment([1.0, np.inf], 0.0, Z, F),
+        lambda e: e.augment([1.0, 1.0], np.nan, Z, F),
+        lambda e: e.augment([1.0, 1.0], 0.0, np.inf, F),
+        lambda e: e.predict_observation(0, 0.0, np.nan, F),
+        lambda e: e.visible_landmarks(np.nan, Z, F, W, H),
+    ],
+)
+def test_nan_or_inf_input_is_rejected_before_the_state_changes(call):
+    rng = np.random.default_rng(7)
+    ekf = random_filter(rng, 3)
+    x0, p0 = snapshot(ekf)
+    with pytest.raises(InvalidMeasurementError):
+        call(ekf)
+    x1, p1 = snapshot(ekf)
+    np.testing.assert_array_equal(x1, x0)
+    np.testing.assert_array_equal(p1, p0)
+    assert ekf.n_landmarks == 3
+
+
+def test_bad_config_and_initial_covariance():
+    with pytest.raises(ConfigError, match="augmentation"):
+        EkfSlam(SlamConfig(augmentation="diagonal"))
+    with pytest.raises(ConfigError, match="gate_covariance"):
+        EkfSlam(SlamConfig(gate_covariance="x"))
+    with pytest.raises(ConfigError, match="pixel_sigma_px"):
+        EkfSlam(SlamConfig(pixel_sigma_px=0.0))
+    with pytest.raises(InvalidMeasurementError, match="semi-definite"):
+        EkfSlam(initial_cov_m2=[[1.0, 2.0], [2.0, 1.0]])
+    with pytest.raises(InvalidMeasurementError):
+        EkfSlam(initial_xy_m=(0.0, np.nan))
+
+
+def test_a_broken_covariance_is_reported_loudly():
+    rng = np.random.default_rng(8)
+    ekf = random_filter(rng, 3)
+    ekf.check_consistency()
+    ekf._P[4, 4] = -1.0  # corrupt landmark 1's variance (simulates a numerical breakdown)
+    with pytest.raises(FilterInconsistencyError, match="FILTER INCONSISTENT"):
+        ekf.check_consistency()
+    mn = observe_mn(ekf.landmark_xy_m(0), ekf.vehicle_xy_m, 0.0, Z, F)[0]
+    with pytest.raises(FilterInconsistencyError, match="variance of state entry 4"):
+        ekf.update(0, mn, 0.0, Z, F)  # the cheap per-update check catches it too
+
+
+def test_long_run_stays_symmetric_and_positive():
+    rng = np.random.default_rng(9)
+    ekf = random_filter(rng, 40)
+    for step in range(600):
+        ekf.predict(0.05, 0.0, np.eye(2) * 1e-6, 0.1 * step, DT)
+        i = int(rng.integers(40))
+        mn, s = ekf.predict_observation(i, 0.1 * step, Z, F)
+        ekf.update(i, mn + rng.normal(0, 0.5, 2), 0.1 * step, Z, F)
+    report = ekf.check_consistency(repair=False)
+    assert report.max_asymmetry < 1e-12 * report.max_eigenvalue
+    assert report.min_eigenvalue > 0.0

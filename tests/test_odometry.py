@@ -1,0 +1,295 @@
+"""Motion-from-tokens speed estimator: geometry, mirrored motion, tilt, robustness, Q, gaps."""
+
+import time
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rovslam.camera import Camera, ground_to_pixels, pixels_to_ground, rot2
+from rovslam.config import OdometryConfig
+from rovslam.errors import ConfigError, InvalidMeasurementError
+from rovslam.odometry import SpeedEstimator, SpeedMeasurement, speed_from_tokens
+
+CAM = Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5)
+Z = 1.31
+DT = 0.2
+
+
+def make_tokens(camera, rng, n, d_body_m, dpsi_rad=0.0, z_prev=Z, z_curr=Z, att_prev=(0.0, 0.0), att_curr=(0.0, 0.0)):
+    """Token pixels in two frames for a vehicle displaced by ``d_body_m`` (level frame of the previous step).
+
+    A fixed seabed point P = pos_k + R(psi_k) g_prev = pos_k+1 + R(psi_k+1) g_curr with
+    pos_k+1 = pos_k + R(psi_k) d, so g_curr = R(dpsi)^T (g_prev - d).
+    """
+    uv_prev = rng.uniform([30.0, 30.0], [camera.width_px - 30.0, camera.height_px - 30.0], size=(n, 2))
+    g_prev = pixels_to_ground(camera, uv_prev, z_prev, *att_prev)
+    g_curr = (g_prev - np.asarray(d_body_m)) @ rot2(dpsi_rad)  # row form of R(dpsi)^T (g - d)
+    uv_curr = ground_to_pixels(camera, g_curr, z_curr, *att_curr)
+    return uv_prev, uv_curr
+
+
+def test_pure_surge_is_mirrored_motion():
+    rng = np.random.default_rng(1)
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])  # 2 cm forward in 0.2 s
+    # The seabed moves opposite to the vehicle: forward motion moves the image down (v grows).
+    dv = uv1[:, 1] - uv0[:, 1]
+    np.testing.assert_allclose(dv, 0.02 * 1075.0 / Z, rtol=1e-9)  # 16.41 px
+    m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT)
+    assert m.ok and m.reason == ""
+    assert m.surge_mps == pytest.approx(0.1, abs=1e-12)
+    assert m.sway_mps == pytest.approx(0.0, abs=1e-12)
+    assert m.n_tokens == 8 and m.n_inliers == 8 and m.inlier_mask.all()
+    np.testing.assert_allclose(m.speed_mps, [0.1, 0.0], atol=1e-12)
+
+
+def test_sway_starboard_moves_image_left():
+    rng = np.random.default_rng(2)
+    uv0, uv1 = make_tokens(CAM, rng, 6, [0.0, 0.01])
+    assert np.all(uv1[:, 0] < uv0[:, 0])
+    m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT)
+    assert (m.surge_mps, m.sway_mps) == (pytest.approx(0.0, abs=1e-12), pytest.approx(0.05, abs=1e-12))
+
+
+def test_yaw_offset_distortion_heading_change_and_altitude_change():
+    cam = Camera(360, 272, 1070.0, 1080.0, 181.0, 134.0, distortion=(-0.12, 0.05, 0.001, -0.0005, 0.0),
+                 yaw_offset_rad=0.3)
+    rng = np.random.default_rng(3)
+    d = np.array([0.018, -0.007])
+    uv0, uv1 = make_tokens(cam, rng, 8, d, dpsi_rad=0.05, z_prev=1.30, z_curr=1.36)
+    m = speed_from_tokens(cam, uv0, uv1, 1.30, 1.36, DT, dpsi_rad=0.05)
+    np.testing.assert_allclose(m.speed_mps, d / DT, atol=1e-8)
+    # Forgetting the camera's yaw offset would rotate the speed by 0.3 rad.
+    cam0 = Camera(360, 272, 1070.0, 1080.0, 181.0, 134.0, distortion=cam.distortion)
+    wrong = speed_from_tokens(cam0, uv0, uv1, 1.30, 1.36, DT, dpsi_rad=0.05)
+    assert np.linalg.norm(wrong.speed_mps - d / DT) > 0.02
+
+
+def test_tilt_is_compensated_for_speed_tokens():
+    rng = np.random.default_rng(4)
+    d = np.array([0.02, 0.004])
+    att0, att1 = (0.03, -0.02), (0.05, 0.01)  # roll, pitch (rad) change over the step
+    uv0, uv1 = make_tokens(CAM, rng, 8, d, att_prev=att0, att_curr=att1)
+    m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, attitude_prev_rad=att0, attitude_curr_rad=att1)
+    np.testing.assert_allclose(m.speed_mps, [0.1, 0.02], atol=1e-9)
+    # Assuming a level camera (the paper) is off by ~Z * d(attitude) / dt = 0.2 m/s here.
+    level = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT)
+    assert np.linalg.norm(level.speed_mps - [0.1, 0.02]) > 0.1
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(
+    u=st.floats(-0.3, 0.3), v=st.floats(-0.2, 0.2), dpsi=st.floats(-0.1, 0.1),
+    yaw=st.floats(-3.1, 3.1), roll=st.floats(-0.08, 0.08), pitch=st.floats(-0.08, 0.08),
+    z=st.floats(0.8, 3.0),
+)
+def test_noise_free_motion_is_recovered_exactly(u, v, dpsi, yaw, roll, pitch, z):
+    cam = Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5, yaw_offset_rad=yaw)
+    rng = np.random.default_rng(5)
+    d = np.array([u, v]) * DT
+    att = (roll, pitch)
+    uv0, uv1 = make_tokens(cam, rng, 8, d, dpsi, z, z, att, att)
+    m = speed_from_tokens(cam, uv0, uv1, z, z, DT, dpsi_rad=dpsi, attitude_prev_rad=att, attitude_curr_rad=att,
+                          config=OdometryConfig(outlier_threshold_px=1.0))
+    assert m.ok
+    np.testing.assert_allclose(m.speed_mps, [u, v], atol=1e-8)
+
+
+def test_wrong_matches_are_outliers():
+    rng = np.random.default_rng(6)
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])
+    uv1 = uv1 + rng.normal(0.0, 0.1, uv1.shape)
+    bad = np.array([1, 4, 6])
+    uv1[bad] += np.array([[7.0, -3.0], [-12.0, 20.0], [4.0, 5.0]])  # wrong correlation peaks
+    m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT)
+    assert m.ok
+    assert m.n_inliers == 5
+    np.testing.assert_array_equal(np.flatnonzero(~m.inlier_mask), bad)
+    assert m.surge_mps == pytest.approx(0.1, abs=2e-3)
+    assert m.sway_mps == pytest.approx(0.0, abs=2e-3)
+
+
+def test_consensus_beats_the_median_with_a_majority_of_scattered_outliers():
+    rng = np.random.default_rng(7)
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])
+    bad = np.arange(3, 8)  # 5 of 8 tokens wrong, scattered
+    uv1[bad] += rng.uniform(-25.0, 25.0, size=(5, 2)) + np.array([10.0, 10.0])
+    m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT)
+    assert m.ok and m.n_inliers == 3
+    np.testing.assert_array_equal(np.flatnonzero(m.inlier_mask), [0, 1, 2])
+    np.testing.assert_allclose(m.speed_mps, [0.1, 0.0], atol=1e-9)
+
+
+def test_failures_are_return_values():
+    rng = np.random.default_rng(8)
+    empty = np.zeros((0, 2))
+    m = speed_from_tokens(CAM, empty, empty, Z, Z, DT)
+    assert (m.ok, m.reason, m.n_tokens, m.inlier_mask.shape) == (False, "no tokens", 0, (0,))
+    uv0, uv1 = make_tokens(CAM, rng, 4, [0.02, 0.0])
+    lost = uv1.copy()
+    lost[:] = np.nan  # every track lost
+    assert speed_from_tokens(CAM, uv0, lost, Z, Z, DT).reason == "no tokens"
+    assert speed_from_tokens(CAM, uv0[:1], uv1[:1], Z, Z, DT).reason == "too few tokens"
+    two = uv1[:2].copy()
+    two[1] += [15.0, 0.0]
+    assert speed_from_tokens(CAM, uv0[:2], two, Z, Z, DT).reason == "no consensus"
+    amb = uv1.copy()
+    amb[2:] += [20.0, 0.0]  # two groups of two that disagree
+    res = speed_from_tokens(CAM, uv0, amb, Z, Z, DT)
+    assert (res.ok, res.reason, res.n_inliers) == (False, "ambiguous consensus", 0)
+    assert not res.inlier_mask.any()
+
+
+def test_lost_track_rows_are_skipped_and_flagged():
+    rng = np.random.default_rng(9)
+    uv0, uv1 = make_tokens(CAM, rng, 6, [0.01, 0.01])
+    uv1[2] = np.nan
+    m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT)
+    assert m.ok and m.n_tokens == 6 and m.n_inliers == 5 and not m.inlier_mask[2]
+    np.testing.assert_allclose(m.speed_mps, [0.05, 0.05], atol=1e-12)
+
+
+def test_dropped_frames_use_the_real_time_step():
+    rng = np.random.default_rng(10)
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.06, 0.0])  # 3 frame periods at 0.1 m/s
+    m = speed_from_tokens(CAM, uv0, uv1, Z, Z, 0.6)
+    assert m.surge_mps == pytest.approx(0.1, abs=1e-12)
+
+
+def test_covariance_floors_and_altitude_scale_term():
+    rng = np.random.default_rng(11)
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])
+    cfg = OdometryConfig()
+    m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, config=cfg)
+    # Perfect tokens: per-token variance floored at (0.15 px * Z/f / dt)^2, /8 -> sigma 3.2e-4 m/s,
+    # below the 5e-4 m/s floor, so Q = floor^2 I.
+    np.testing.assert_allclose(m.cov_mps2, np.eye(2) * 0.0005**2, rtol=1e-9, atol=1e-18)
+    # Altitude sigma 5 cm at Z = 1.31 m: a scale error of 0.1 * 0.05 / 1.31 = 3.82e-3 m/s along the speed.
+    m2 = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, altitude_sigma_m=0.05, config=cfg)
+    expected_surge_var = (0.1 * 0.05 / Z) ** 2 + (0.15 * Z / 1075.0 / DT) ** 2 / 8
+    assert m2.cov_mps2[0, 0] == pytest.approx(expected_surge_var, rel=1e-9)
+    assert m2.cov_mps2[1, 1] == pytest.approx(0.0005**2, rel=1e-9)
+    assert m2.cov_mps2[0, 1] == pytest.approx(0.0, abs=1e-15)
+
+
+def test_covariance_matches_the_scatter_of_the_estimate():
+    """Q from the token spread predicts the real variance of the estimate (seeded Monte Carlo)."""
+    rng = np.random.default_rng(12)
+    sigma_px = 0.3  # localisation noise of each token centre, in both frames
+    trials = 600
+    est = np.empty((trials, 2))
+    covs = np.empty((trials, 2, 2))
+    cfg = OdometryConfig(outlier_threshold_px=3.0)
+    for t in range(trials):
+        uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.005])
+        uv0 = uv0 + rng.normal(0.0, sigma_px, uv0.shape)
+        uv1 = uv1 + rng.normal(0.0, sigma_px, uv1.shape)
+        m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, config=cfg)
+        est[t] = m.speed_mps
+        covs[t] = m.cov_mps2
+    emp = np.var(est - [0.1, 0.025], axis=0)
+    pred = covs.mean(axis=0).diagonal()
+    # Per-token displacement sigma sqrt(2)*0.3 px -> 2.59e-3 m/s, /sqrt(8) -> 9.1e-4 m/s.
+    np.testing.assert_allclose(np.sqrt(emp), 9.14e-4, rtol=0.1)
+    ratio = emp / pred
+    assert np.all((ratio > 0.8) & (ratio < 1.25)), ratio
+
+
+def test_estimator_holds_the_last_speed_and_grows_the_covariance():
+    rng = np.random.default_rng(13)
+    est = SpeedEstimator(OdometryConfig(gap_speed_sigma_mps=0.02, initial_speed_sigma_mps=0.2))
+    empty = np.zeros((0, 2))
+    first = est.measure(CAM, empty, empty, Z, Z, DT)
+    assert (first.ok, first.surge_mps, first.sway_mps) == (False, 0.0, 0.0)
+    np.testing.assert_allclose(first.cov_mps2, np.eye(2) * (0.2**2 + (0.02 * 0.2) ** 2))
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, -0.004])
+    good = est.measure(CAM, uv0, uv1, Z, Z, DT)
+    assert good.ok and est.gap_s == 0.0 and est.last_good is good
+    held = est.measure(CAM, empty, empty, Z, Z, DT)
+    assert (held.ok, held.reason) == (False, "no tokens")
+    assert (held.surge_mps, held.sway_mps) == (good.surge_mps, good.sway_mps)
+    np.testing.assert_allclose(held.cov_mps2, good.cov_mps2 + np.eye(2) * (0.02 * 0.2) ** 2)
+    # A longer gap (two dropped frames: 0.6 s) grows it for 0.8 s in total.
+    held2 = est.measure(CAM, empty, empty, Z, Z, 0.6)
+    np.testing.assert_allclose(held2.cov_mps2, good.cov_mps2 + np.eye(2) * (0.02 * 0.8) ** 2)
+    assert est.gap_s == pytest.approx(0.8)
+    again = est.measure(CAM, uv0, uv1, Z, Z, DT)
+    assert again.ok and est.gap_s == 0.0
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(altitude_prev_m=np.nan), dict(altitude_curr_m=np.inf), dict(altitude_curr_m=-1.0),
+        dict(dt_s=0.0), dict(dt_s=np.nan), dict(dpsi_rad=np.inf), dict(altitude_sigma_m=np.nan),
+        dict(attitude_curr_rad=(np.nan, 0.0)), dict(attitude_prev_rad=(0.0,)),
+    ],
+)
+def test_bad_inputs_raise_typed_errors(kwargs):
+    rng = np.random.default_rng(14)
+    uv0, uv1 = make_tokens(CAM, rng, 4, [0.02, 0.0])
+    args = dict(altitude_prev_m=Z, altitude_curr_m=Z, dt_s=DT)
+    args.update(kwargs)
+    with pytest.raises(InvalidMeasurementError):
+        speed_from_tokens(CAM, uv0, uv1, **args)
+
+
+def test_bad_shapes_and_config():
+    rng = np.random.default_rng(15)
+    uv0, uv1 = make_tokens(CAM, rng, 4, [0.02, 0.0])
+    with pytest.raises(InvalidMeasurementError, match="same tokens"):
+        speed_from_tokens(CAM, uv0, uv1[:3], Z, Z, DT)
+    with pytest.raises(InvalidMeasurementError, match=r"\(N, 2\)"):
+        speed_from_tokens(CAM, uv0.ravel(), uv1.ravel(), Z, Z, DT)
+    with pytest.raises(ConfigError, match="outlier_threshold_px"):
+        SpeedEstimator(OdometryConfig(outlier_threshold_px=0.0))
+    with pytest.raises(ConfigError, match="min_inliers"):
+        speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, config=OdometryConfig(min_inliers=0))
+
+
+def test_result_is_frozen():
+    rng = np.random.default_rng(16)
+    uv0, uv1 = make_tokens(CAM, rng, 4, [0.02, 0.0])
+    m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT)
+    assert isinstance(m, SpeedMeasurement)
+    with pytest.raises(AttributeError):
+        m.ok = False  # type: ignore[misc]
+    with pytest.raises(ValueError):
+        m.cov_mps2[0, 0] = 1.0
+
+
+def test_per_frame_cost_is_small():
+    rng = np.random.default_rng(17)
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])
+    uv1[3] += 9.0
+    for _ in range(20):
+        speed_from_tokens(CAM, uv0, uv1, Z, Z, DT)
+    times = []
+    for _ in range(200):
+        t0 = time.perf_counter()
+        speed_from_tokens(CAM, uv0, uv1, Z, Z, DT)
+        times.append(time.perf_counter() - t0)
+    # 400 frames/s leaves 2.5 ms for the whole frame; the speed estimate takes a small share.
+    assert np.median(times) < 0.5e-3
+
+
+def test_held_speed_drives_the_filter_through_a_gap():
+    from rovslam.slam import EkfSlam
+
+    rng = np.random.default_rng(18)
+    est = SpeedEstimator(OdometryConfig(gap_speed_sigma_mps=0.02))
+    ekf = EkfSlam()
+    empty = np.zeros((0, 2))
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])
+    growth = []
+    for uv_a, uv_b in [(uv0, uv1), (empty, empty), (empty, empty)]:
+        m = est.measure(CAM, uv_a, uv_b, Z, Z, DT)
+        before = ekf.vehicle_cov_m2
+        ekf.predict(m.surge_mps, m.sway_mps, m.cov_mps2, 0.0, DT)
+        growth.append(ekf.vehicle_cov_m2 - before)
+    # The filter keeps moving at the held 0.1 m/s through the gap...
+    np.testing.assert_allclose(ekf.vehicle_xy_m, [0.06, 0.0], atol=1e-12)
+    # ...with a variance that grows by (dt * 0.02 * gap)^2 more at each dropped step.
+    np.testing.assert_allclose(growth[1] - growth[0], np.eye(2) * (DT * 0.02 * 0.2) ** 2, atol=1e-18)
+    np.testing.assert_allclose(growth[2] - growth[0], np.eye(2) * (DT * 0.02 * 0.4) ** 2, atol=1e-18)
