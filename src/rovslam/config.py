@@ -71,8 +71,11 @@ class TrackerConfig:
     min_correlation: float = 0.89  # paper: 0.89
     max_second_peak_ratio: float = 0.98  # reject if the 2nd peak >= ratio * 1st (ambiguous)
     second_peak_exclusion_px: int = 3  # the 2nd peak is sought outside this radius of the 1st
-    subpixel: str = "parabolic"  # "parabolic" | "gaussian" | "none"
+    subpixel: str = "parabolic"  # "parabolic" | "gaussian" (2-D fit on the 3x3 peak) | "none"
     global_search: bool = True  # phase correlation prior when tracks are lost
+    global_search_radius_px: int = 12  # search radius around the phase-correlation prior
+    min_global_confidence: float = 0.08  # phase-correlation peak response below this: no prior
+    min_tracked_fraction: float = 0.5  # fewer tracked with the prediction -> global search
 
 
 @dataclass(frozen=True)
@@ -88,6 +91,8 @@ class LaserConfig:
     spot_sigma_px: float = 0.3  # centroid noise used for the altitude variance
     sonar_sigma_m: float = 0.05
     fixed_altitude_sigma_m: float = 0.10
+    min_altitude_m: float = 0.05  # triangulated depths outside this range are rejected
+    max_altitude_m: float = 30.0
 
 
 @dataclass(frozen=True)
@@ -99,6 +104,7 @@ class OdometryConfig:
     min_speed_sigma_mps: float = 0.0005  # floor of the speed standard deviation
     token_sigma_px: float = 0.15  # one token's displacement noise
     gap_speed_sigma_mps: float = 0.02  # added per second without tokens
+    initial_speed_sigma_mps: float = 0.2  # speed sigma held before the first good measurement
 
 
 @dataclass(frozen=True)
@@ -114,6 +120,7 @@ class SlamConfig:
     new_landmark_spacing_m: float = 0.10  # L = spacing^2 I
     innovation_gate: float = 13.82  # chi-square 2 dof, 99.9 %
     augmentation: str = "full"  # "full" (correct cross-covariances) | "paper" (eq. 4 diagonal block)
+    gate_covariance: str = "relative"  # (5), (6): "relative" (P_Xi + P_x - C - C^T) | "paper" (P_Xi + P_x)
 
 
 @dataclass(frozen=True)
