@@ -1,0 +1,572 @@
+"""Laser-triangulation altimeter (paper, section 2 and Fig. 1: the red channel gives the image depth Z).
+
+Pipeline step 1: the laser spots are detected in the red channel, associated with their
+pointers by the positions predicted from the last altitude, and each spot is triangulated
+by intersecting its laser ray with the camera ray through the spot. The per-spot altitudes
+are checked against each other (outliers dropped), combined (a seabed plane when three or
+more spots agree: altitude and slope), fused with the sonar altitude when there is one
+(variance-weighted), and replaced by the sonar or the configured fixed altitude when no spot
+is usable. The estimate says which source it used and returns the spot pixels, which the
+pipeline inhibits for template extraction (step 2).
+
+Frames: laser origins and directions are in the body frame from the camera centre (x
+forward, y starboard, z down, ``sequence.toml`` ``[[laser]]``); triangulated points are in
+the level frame (roll and pitch removed), so their z is the vertical depth below the camera.
+Altitude = vertical distance from the camera down to the seabed (plane) below it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from rovslam.camera import Camera, LaserPointer, ground_to_pixels, level_from_body, pixel_rays_level
+from rovslam.config import LaserConfig
+from rovslam.errors import ConfigError, ImageReadError, InvalidMeasurementError
+
+SOURCE_LASER = "laser"
+SOURCE_LASER_SONAR = "laser+sonar"
+SOURCE_SONAR = "sonar"
+SOURCE_FIXED = "fixed"
+
+_ONES3 = np.ones((3, 3), np.uint8)
+
+
+@dataclass(frozen=True, eq=False)
+class AltitudeEstimate:
+    """Image depth Z of one frame.
+
+    Attributes
+    ----------
+    altitude_m: vertical distance camera -> seabed.
+    sigma_m: its standard deviation.
+    source: ``"laser"``, ``"laser+sonar"``, ``"sonar"`` or ``"fixed"``.
+    spots_uv_px: ``(K, 2)`` every laser spot detected in the frame (outliers included: they
+        are still bright blobs to keep templates away from).
+    n_spots: number of spots that agreed and were used for the laser altitude.
+    slope_rad: seabed slope ``(along forward, along starboard)`` from the plane fit of three
+        or more spots (positive = the seabed gets deeper forward / to starboard), else None.
+    laser_altitude_m: the laser-only altitude before the sonar fusion (NaN when none).
+    """
+
+    altitude_m: float
+    sigma_m: float
+    source: str
+    spots_uv_px: np.ndarray
+    n_spots: int
+    slope_rad: tuple[float, float] | None = None
+    laser_altitude_m: float = float("nan")
+
+
+def _laser_arrays(lasers: Sequence[LaserPointer], roll_rad: float, pitch_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    """(L, 3) origins and (L, 3) unit directions in the level frame."""
+    if len(lasers) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    origins, dirs = _rig_body(tuple(lasers))
+    if roll_rad == 0.0 and pitch_rad == 0.0:
+        return origins, dirs
+    rot = level_from_body(roll_rad, pitch_rad)
+    return origins @ rot.T, dirs @ rot.T
+
+
+@lru_cache(maxsize=16)
+def _rig_body(lasers: tuple[LaserPointer, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """(L, 3) origins and unit directions in the body frame, computed once per rig (read-only)."""
+    origins = np.array([las.origin_m for las in lasers], dtype=np.float64)
+    dirs = np.array([las.unit_direction for las in lasers], dtype=np.float64)
+    origins.setflags(write=False)
+    dirs.setflags(write=False)
+    return origins, dirs
+
+
+def _check_attitude(roll_rad: float, pitch_rad: float) -> None:
+    if not (np.isfinite(roll_rad) and np.isfinite(pitch_rad)):
+        raise InvalidMeasurementError(
+            f"roll and pitch must be finite radians, got roll={roll_rad}, pitch={pitch_rad}"
+        )
+
+
+def predict_spot_pixels(
+    camera: Camera,
+    lasers: Sequence[LaserPointer],
+    altitude_m: float,
+    roll_rad: float = 0.0,
+    pitch_rad: float = 0.0,
+) -> np.ndarray:
+    """Pixels where the laser spots appear over a horizontal seabed ``altitude_m`` below the camera.
+
+    Each ray ``o + t d`` (level frame) is cut with the plane ``z = altitude_m`` and the hit
+    point projected with :func:`rovslam.camera.ground_to_pixels` (tilt and distortion
+    included).
+
+    Returns
+    -------
+    ``(L, 2) float64`` (u, v); NaN for a ray that does not reach the seabed ahead of the camera.
+    """
+    if not (np.isfinite(altitude_m) and altitude_m > 0):
+        raise InvalidMeasurementError(f"altitude_m must be a positive finite number, got {altitude_m}")
+    _check_attitude(roll_rad, pitch_rad)
+    origins, dirs = _laser_arrays(lasers, roll_rad, pitch_rad)
+    if len(origins) == 0:
+        return np.zeros((0, 2))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (altitude_m - origins[:, 2]) / dirs[:, 2]
+    hits = origins + t[:, None] * dirs
+    uv = ground_to_pixels(camera, hits[:, :2], altitude_m, roll_rad, pitch_rad)
+    uv[~(t > 0)] = np.nan
+    return uv
+
+
+def red_excess(image_rgb: np.ndarray) -> np.ndarray:
+    """``(H, W) uint8`` red dominance ``max(0, R - max(G, B))`` of an ``(H, W, 3) uint8`` RGB image."""
+    img = np.asarray(image_rgb)
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
+        raise ImageReadError(
+            f"laser spots need an (H, W, 3) uint8 RGB image, got shape {img.shape} dtype {img.dtype}"
+        )
+    r = np.ascontiguousarray(img[:, :, 0])
+    gb = cv2.max(np.ascontiguousarray(img[:, :, 1]), np.ascontiguousarray(img[:, :, 2]))
+    return cv2.subtract(r, gb)
+
+
+def _spot_candidates(
+    image_rgb: np.ndarray, config: LaserConfig, near_uv_px: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 2) weighted centroids and (K,) total weights of the red blobs, strongest first.
+
+    With ``near_uv_px`` (N, 2), only the bounding box of these points grown by the search
+    radius (plus the largest spot) is processed, and blobs whose centroid is farther than
+    the search radius from every point are dropped.
+    """
+    h, w = image_rgb.shape[:2]
+    u0, v0, u1, v1 = 0, 0, w, h
+    near = None
+    if near_uv_px is not None:
+        near = near_uv_px[np.all(np.isfinite(near_uv_px), axis=1)]
+        if len(near) == 0:
+            return np.zeros((0, 2)), np.zeros(0)
+        reach = config.search_radius_px + np.sqrt(max(config.max_spot_area_px, 1)) + 2.0
+        lo = np.floor(near.min(axis=0) - reach)
+        hi = np.ceil(near.max(axis=0) + reach) + 1
+        u0, v0 = int(max(0, lo[0])), int(max(0, lo[1]))
+        u1, v1 = int(min(w, hi[0])), int(min(h, hi[1]))
+        if u0 >= u1 or v0 >= v1:
+            return np.zeros((0, 2)), np.zeros(0)
+    excess = red_excess(image_rgb[v0:v1, u0:u1])
+    thr = int(np.clip(np.ceil(config.min_red_excess), 1, 255))
+    _, mask = cv2.threshold(excess, thr - 1, 1, cv2.THRESH_BINARY)
+    if cv2.countNonZero(mask) == 0:
+        return np.zeros((0, 2)), np.zeros(0)
+    # Close 1-px gaps of the speckle so one spot is one blob; the weights use the raw mask.
+    grown = cv2.dilate(mask, _ONES3)
+    n, labels = cv2.connectedComponents(grown, connectivity=8)
+    # Only the pixels above the threshold carry weight: sums per blob over them alone.
+    pix = cv2.findNonZero(mask).reshape(-1, 2)
+    us, vs = pix[:, 0], pix[:, 1]
+    lab = labels[vs, us]
+    weight = excess[vs, us].astype(np.float64)
+    area = np.bincount(lab, minlength=n)  # pixels above the threshold
+    total = np.bincount(lab, weight, minlength=n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cu = np.bincount(lab, weight * us, minlength=n) / total + u0
+        cv = np.bincount(lab, weight * vs, minlength=n) / total + v0
+    keep = (area >= config.min_spot_area_px) & (area <= config.max_spot_area_px) & (total > 0)
+    keep[0] = False  # background
+    cents = np.column_stack([cu, cv])[keep]
+    weights = total[keep]
+    if near is not None and len(cents):
+        dist = np.linalg.norm(cents[:, None, :] - near[None, :, :], axis=2)
+        close = np.any(dist <= config.search_radius_px, axis=1)
+        cents, weights = cents[close], weights[close]
+    order = np.argsort(-weights, kind="stable")
+    return cents[order], weights[order]
+
+
+def detect_laser_spots(
+    image_rgb: np.ndarray, predicted_uv_px: np.ndarray | None, config: LaserConfig
+) -> np.ndarray:
+    """Detect the laser spots in the red channel and associate them with their pointers.
+
+    A pixel belongs to a spot when its red dominance ``R - max(G, B)`` is at least
+    ``config.min_red_excess`` (8-bit units). Such pixels are grouped into blobs (8-connected
+    after closing 1-px gaps; ``min_spot_area_px`` to ``max_spot_area_px``) and each blob's
+    centre is the centroid of its pixels weighted by their red dominance (sub-pixel). Blobs
+    are assigned one-to-one to the predicted spots by minimum total distance (Hungarian),
+    only within ``config.search_radius_px``.
+
+    Parameters
+    ----------
+    image_rgb: ``(H, W, 3) uint8`` RGB.
+    predicted_uv_px: ``(L, 2)`` predicted spot pixels (NaN rows: that laser is not
+        searched), or None to return every blob unassociated.
+    config: thresholds.
+
+    Returns
+    -------
+    ``(L, 2) float64`` spot centres in laser order, NaN where not found; with
+    ``predicted_uv_px=None``, ``(K, 2)`` all blobs, strongest first.
+    """
+    img = np.asarray(image_rgb)
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
+        raise ImageReadError(
+            f"laser spots need an (H, W, 3) uint8 RGB image, got shape {img.shape} dtype {img.dtype}"
+        )
+    if predicted_uv_px is None:
+        return _spot_candidates(img, config)[0]
+    pred = np.asarray(predicted_uv_px, dtype=np.float64)
+    if pred.ndim != 2 or pred.shape[1] != 2:
+        raise ConfigError(f"predicted_uv_px must be (L, 2), got shape {pred.shape}")
+    cents, _ = _spot_candidates(img, config, pred)
+    out = np.full(pred.shape, np.nan)
+    if len(cents) == 0 or len(pred) == 0:
+        return out
+    dist = np.linalg.norm(pred[:, None, :] - cents[None, :, :], axis=2)
+    dist[~np.isfinite(dist)] = np.inf
+    gate = float(config.search_radius_px)
+    big = 1e6
+    cost = np.where(dist <= gate, dist, big)
+    rows, cols = linear_sum_assignment(cost)
+    ok = cost[rows, cols] < big
+    out[rows[ok]] = cents[cols[ok]]
+    return out
+
+
+def triangulate_points(
+    camera: Camera,
+    lasers: Sequence[LaserPointer],
+    spots_uv_px: np.ndarray,
+    roll_rad: float = 0.0,
+    pitch_rad: float = 0.0,
+    min_altitude_m: float = 0.0,
+    max_altitude_m: float = np.inf,
+) -> np.ndarray:
+    """Seabed points of the spots: each laser ray intersected with the camera ray of its spot.
+
+    With the camera ray ``s r`` (level frame, through the spot pixel, undistorted) and the
+    laser ray ``o + t d``, ``(s, t)`` minimise ``|s r - o - t d|^2`` (closest approach; the
+    rays meet exactly for a noise-free spot) and the point is taken on the laser ray,
+    ``o + t d``, whose geometry is known; pixel noise across the epipolar line is thus
+    projected out. Works for pointers parallel to the optical axis and for tilted ones.
+
+    Returns
+    -------
+    ``(L, 3) float64`` level-frame points (forward, starboard, down) in metres; NaN rows for
+    a missing spot, a laser through the camera centre (no baseline), rays that do not cross
+    ahead of the camera, or a depth outside ``[min_altitude_m, max_altitude_m]``.
+    """
+    _check_attitude(roll_rad, pitch_rad)
+    spots = np.asarray(spots_uv_px, dtype=np.float64).reshape(-1, 2)
+    if len(spots) != len(lasers):
+        raise ConfigError(
+            f"spots_uv_px has {len(spots)} rows but there are {len(lasers)} lasers; pass one row "
+            "per laser (NaN for a missing spot)"
+        )
+    out = np.full((len(spots), 3), np.nan)
+    if len(spots) == 0:
+        return out
+    origins, dirs = _laser_arrays(lasers, roll_rad, pitch_rad)
+    finite = np.all(np.isfinite(spots), axis=1)
+    if not finite.any():
+        return out
+    rays = np.full((len(spots), 3), np.nan)
+    rays[finite] = pixel_rays_level(camera, spots[finite], roll_rad, pitch_rad)
+    a = np.einsum("ij,ij->i", rays, rays)
+    b = np.einsum("ij,ij->i", rays, dirs)
+    c = np.einsum("ij,ij->i", dirs, dirs)
+    e = np.einsum("ij,ij->i", rays, origins)
+    f = np.einsum("ij,ij->i", dirs, origins)
+    den = a * c - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (b * e - a * f) / den
+        s = (e + b * t) / a
+    pts = origins + t[:, None] * dirs
+    # The baseline must be seen from the camera: rays not (nearly) parallel, point ahead.
+    good = (
+        finite
+        & (den > 1e-12 * a * c)
+        & (s > 0)
+        & np.isfinite(pts[:, 2])
+        & (pts[:, 2] >= min_altitude_m)
+        & (pts[:, 2] <= max_altitude_m)
+    )
+    out[good] = pts[good]
+    return out
+
+
+def triangulate_spots(
+    camera: Camera,
+    lasers: Sequence[LaserPointer],
+    spots_uv_px: np.ndarray,
+    roll_rad: float = 0.0,
+    pitch_rad: float = 0.0,
+) -> np.ndarray:
+    """``(L,)`` altitude of each spot's seabed point (vertical depth below the camera), NaN if none.
+
+    See :func:`triangulate_points`.
+    """
+    return triangulate_points(camera, lasers, spots_uv_px, roll_rad, pitch_rad)[:, 2]
+
+
+def spot_altitude_sigmas(
+    camera: Camera,
+    lasers: Sequence[LaserPointer],
+    spots_uv_px: np.ndarray,
+    spot_sigma_px: float,
+    roll_rad: float = 0.0,
+    pitch_rad: float = 0.0,
+) -> np.ndarray:
+    """``(L,)`` standard deviation of each spot's altitude for an isotropic centroid noise.
+
+    First-order propagation by finite differences: ``sigma_Z^2 = sigma_px^2 ((dZ/du)^2 +
+    (dZ/dv)^2)``. For a pointer parallel to the optical axis at distance ``b`` from it this
+    is ``Z^2 sigma_px / (f b)``. NaN where the spot is missing.
+    """
+    return _points_and_sigmas(camera, lasers, spots_uv_px, spot_sigma_px, roll_rad, pitch_rad)[1]
+
+
+def _points_and_sigmas(
+    camera: Camera,
+    lasers: Sequence[LaserPointer],
+    spots_uv_px: np.ndarray,
+    spot_sigma_px: float,
+    roll_rad: float,
+    pitch_rad: float,
+    min_altitude_m: float = 0.0,
+    max_altitude_m: float = np.inf,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(L, 3) triangulated points and (L,) altitude sigmas from one stacked triangulation."""
+    if not (np.isfinite(spot_sigma_px) and spot_sigma_px > 0):
+        raise ConfigError(f"spot_sigma_px must be positive, got {spot_sigma_px}")
+    spots = np.asarray(spots_uv_px, dtype=np.float64).reshape(-1, 2)
+    n = len(spots)
+    if n != len(lasers):
+        raise ConfigError(
+            f"spots_uv_px has {n} rows but there are {len(lasers)} lasers; pass one row "
+            "per laser (NaN for a missing spot)"
+        )
+    step = 0.1
+    stacked = np.concatenate([spots, spots + [step, 0.0], spots + [0.0, step]])
+    pts3 = triangulate_points(camera, tuple(lasers) * 3, stacked, roll_rad, pitch_rad)
+    z = pts3[:, 2]
+    dz_du = (z[n : 2 * n] - z[:n]) / step
+    dz_dv = (z[2 * n :] - z[:n]) / step
+    pts = pts3[:n].copy()
+    pts[~((pts[:, 2] >= min_altitude_m) & (pts[:, 2] <= max_altitude_m))] = np.nan
+    return pts, spot_sigma_px * np.hypot(dz_du, dz_dv)
+
+
+def _fit_plane(points: np.ndarray, sigmas: np.ndarray) -> tuple[float, float, tuple[float, float]] | None:
+    """Weighted LS plane ``z = a + b x + c y``: (a, sigma_a, (atan b, atan c)) or None if degenerate."""
+    design = np.column_stack([np.ones(len(points)), points[:, 0], points[:, 1]])
+    w = 1.0 / sigmas**2
+    normal = design.T @ (design * w[:, None])
+    if np.linalg.cond(normal) > 1e12:
+        return None  # collinear spots: no plane
+    cov = np.linalg.inv(normal)
+    coef = cov @ (design.T @ (w * points[:, 2]))
+    return float(coef[0]), float(np.sqrt(cov[0, 0])), (float(np.arctan(coef[1])), float(np.arctan(coef[2])))
+
+
+def _consistent(alts: np.ndarray, valid: np.ndarray, sonar: float | None, rel: float) -> np.ndarray:
+    """Inlier mask: spots within ``rel`` (relative) of the others' median (or of the sonar)."""
+    idx = np.flatnonzero(valid)
+    inl = np.zeros(len(alts), dtype=bool)
+    if len(idx) == 0:
+        return inl
+    if len(idx) >= 3:
+        ref = float(np.median(alts[idx]))
+    elif sonar is not None:
+        ref = sonar
+    elif len(idx) == 2:
+        ref = float(np.mean(alts[idx]))
+    else:
+        inl[idx] = True
+        return inl
+    inl[idx] = np.abs(alts[idx] - ref) <= rel * ref
+    if len(idx) == 2 and sonar is None and inl.sum() < 2:
+        inl[:] = False  # two spots that disagree: no way to tell which one is right
+    return inl
+
+
+def fuse_altitude(
+    laser_altitudes_m: np.ndarray,
+    laser_sigmas_m: np.ndarray,
+    sonar_altitude_m: float | None,
+    fallback_altitude_m: float,
+    config: LaserConfig,
+    spots_uv_px: np.ndarray | None = None,
+    points_level_m: np.ndarray | None = None,
+) -> AltitudeEstimate:
+    """Combine the per-spot altitudes, the sonar and the fallback into one image depth Z.
+
+    1. Outliers: with three or more spots, a spot farther than
+       ``config.max_relative_disagreement`` (relative) from the median is dropped; with one
+       or two spots the sonar value is the reference when there is one; two spots that
+       disagree with no sonar are both dropped.
+    2. Laser altitude: with three or more agreeing spots and their level-frame points, the
+       weighted least-squares seabed plane ``z = a + b x + c y``: altitude ``a`` (the plane
+       straight below the camera) and slope ``(atan b, atan c)``; otherwise the
+       inverse-variance weighted mean of the spot altitudes.
+    3. Sonar (NaN or None = no reading): variance-weighted mean with the laser altitude
+       (``config.sonar_sigma_m``), or the sonar alone when no spot agreed.
+    4. Neither: ``fallback_altitude_m`` with ``config.fixed_altitude_sigma_m``.
+
+    Parameters
+    ----------
+    laser_altitudes_m, laser_sigmas_m: ``(L,)`` per spot, NaN for missing spots.
+    sonar_altitude_m: the altimeter reading of frames.csv, None or NaN when empty.
+    fallback_altitude_m: the configured fixed altitude (sequence.toml ``[vehicle]``).
+    config: thresholds and sigmas.
+    spots_uv_px: ``(L, 2)`` the spot pixels (NaN rows dropped), returned for the
+        inhibition mask.
+    points_level_m: ``(L, 3)`` triangulated points (for the plane fit), optional.
+
+    Returns
+    -------
+    :class:`AltitudeEstimate`.
+    """
+    alts = np.asarray(laser_altitudes_m, dtype=np.float64).reshape(-1)
+    sigs = np.asarray(laser_sigmas_m, dtype=np.float64).reshape(-1)
+    if sigs.shape != alts.shape:
+        raise ConfigError(
+            f"laser_sigmas_m has shape {sigs.shape}, laser_altitudes_m {alts.shape}: give one sigma per spot"
+        )
+    if not (np.isfinite(fallback_altitude_m) and fallback_altitude_m > 0):
+        raise InvalidMeasurementError(
+            f"fallback altitude must be a positive finite number of metres, got {fallback_altitude_m}; "
+            "set [vehicle] altitude_m in sequence.toml"
+        )
+    sonar: float | None = None
+    if sonar_altitude_m is not None and not np.isnan(sonar_altitude_m):
+        if not (np.isfinite(sonar_altitude_m) and sonar_altitude_m > 0):
+            raise InvalidMeasurementError(
+                f"sonar altitude must be a positive finite number of metres (or empty), got {sonar_altitude_m}"
+            )
+        sonar = float(sonar_altitude_m)
+    if spots_uv_px is None:
+        spots = np.zeros((0, 2))
+    else:
+        spots = np.asarray(spots_uv_px, dtype=np.float64).reshape(-1, 2)
+        spots = spots[np.all(np.isfinite(spots), axis=1)]
+
+    valid = np.isfinite(alts) & np.isfinite(sigs) & (sigs > 0) & (alts > 0)
+    inl = _consistent(alts, valid, sonar, float(config.max_relative_disagreement))
+    n_in = int(inl.sum())
+    laser_alt, laser_sig, slope = float("nan"), float("nan"), None
+    if n_in >= 3 and points_level_m is not None:
+        pts = np.asarray(points_level_m, dtype=np.float64).reshape(-1, 3)
+        if len(pts) == len(alts) and np.all(np.isfinite(pts[inl])):
+            fit = _fit_plane(pts[inl], sigs[inl])
+            if fit is not None:
+                laser_alt, laser_sig, slope = fit
+    if n_in >= 1 and not np.isfinite(laser_alt):
+        w = 1.0 / sigs[inl] ** 2
+        laser_alt = float(np.sum(w * alts[inl]) / np.sum(w))
+        laser_sig = float(1.0 / np.sqrt(np.sum(w)))
+
+    if np.isfinite(laser_alt) and sonar is not None:
+        w_l, w_s = 1.0 / laser_sig**2, 1.0 / config.sonar_sigma_m**2
+        alt = (w_l * laser_alt + w_s * sonar) / (w_l + w_s)
+        return AltitudeEstimate(alt, float(1.0 / np.sqrt(w_l + w_s)), SOURCE_LASER_SONAR, spots,
+                                n_in, slope, laser_alt)
+    if np.isfinite(laser_alt):
+        return AltitudeEstimate(laser_alt, laser_sig, SOURCE_LASER, spots, n_in, slope, laser_alt)
+    if sonar is not None:
+        return AltitudeEstimate(sonar, float(config.sonar_sigma_m), SOURCE_SONAR, spots, 0)
+    return AltitudeEstimate(float(fallback_altitude_m), float(config.fixed_altitude_sigma_m),
+                            SOURCE_FIXED, spots, 0)
+
+
+class LaserAltimeter:
+    """Stateful wrapper: remembers the last altitude to predict where the spots will be.
+
+    Parameters
+    ----------
+    camera, lasers: the rig of ``sequence.toml``.
+    config: :class:`~rovslam.config.LaserConfig`.
+    fallback_altitude_m: fixed altitude used when no spot and no sonar value is available,
+        and as the first prediction of the spot positions.
+    """
+
+    def __init__(self, camera: Camera, lasers: Sequence[LaserPointer], config: LaserConfig,
+                 fallback_altitude_m: float) -> None:
+        if not (np.isfinite(fallback_altitude_m) and fallback_altitude_m > 0):
+            raise ConfigError(
+                f"fallback altitude must be a positive number of metres, got {fallback_altitude_m}; "
+                "set [vehicle] altitude_m in sequence.toml"
+            )
+        self.camera = camera
+        self.lasers = tuple(lasers)
+        self.config = config
+        self.fallback_altitude_m = float(fallback_altitude_m)
+        self._last_altitude_m = float(fallback_altitude_m)
+
+    @property
+    def last_altitude_m(self) -> float:
+        """The altitude the next spot prediction uses (last laser or sonar value)."""
+        return self._last_altitude_m
+
+    def reset(self) -> None:
+        self._last_altitude_m = self.fallback_altitude_m
+
+    def measure(self, image_rgb: np.ndarray, sonar_altitude_m: float | None = None,
+                roll_rad: float = 0.0, pitch_rad: float = 0.0) -> AltitudeEstimate:
+        """Altitude of one frame: detect, associate, triangulate, check, fuse (see :func:`fuse_altitude`).
+
+        Parameters
+        ----------
+        image_rgb: ``(H, W, 3) uint8`` RGB frame (a grey frame has no laser channel: only the
+            sonar or the fallback can be used).
+        sonar_altitude_m: the frame's sonar altitude, None/NaN when empty.
+        roll_rad, pitch_rad: body attitude (frames.csv), 0 for a level camera.
+        """
+        cfg = self.config
+        img = np.asarray(image_rgb)
+        if img.ndim == 2 or not self.lasers:
+            n = len(self.lasers)
+            est = fuse_altitude(np.full(n, np.nan), np.full(n, np.nan), sonar_altitude_m,
+                                self.fallback_altitude_m, cfg)
+        else:
+            est = self._measure_at(img, self._last_altitude_m, sonar_altitude_m, roll_rad, pitch_rad)
+            if est.n_spots < len(self.lasers) and len(detect_laser_spots(img, None, cfg)) > len(est.spots_uv_px):
+                est = self._search_altitudes(img, est, sonar_altitude_m, roll_rad, pitch_rad)
+        if est.source != SOURCE_FIXED:
+            self._last_altitude_m = est.altitude_m
+        return est
+
+    def _measure_at(self, img: np.ndarray, predict_altitude_m: float, sonar_altitude_m: float | None,
+                    roll_rad: float, pitch_rad: float) -> AltitudeEstimate:
+        cfg = self.config
+        pred = predict_spot_pixels(self.camera, self.lasers, predict_altitude_m, roll_rad, pitch_rad)
+        spots = detect_laser_spots(img, pred, cfg)
+        pts, sig = _points_and_sigmas(self.camera, self.lasers, spots, cfg.spot_sigma_px,
+                                      roll_rad, pitch_rad, cfg.min_altitude_m, cfg.max_altitude_m)
+        return fuse_altitude(pts[:, 2], sig, sonar_altitude_m, self.fallback_altitude_m, cfg,
+                             spots_uv_px=spots, points_level_m=pts)
+
+    def _search_altitudes(self, img: np.ndarray, best: AltitudeEstimate, sonar_altitude_m: float | None,
+                          roll_rad: float, pitch_rad: float) -> AltitudeEstimate:
+        """Re-predict the spots over a ladder of altitudes (ratio 1.4), nearest the last one first.
+
+        Used only when red blobs are in the image but not where the last altitude puts the
+        spots: at start-up with a poor fallback altitude, or after a jump in altitude. Keeps
+        the estimate with the most agreeing spots.
+        """
+        lo = max(self.config.min_altitude_m, 0.25)
+        hi = min(self.config.max_altitude_m, 12.0)
+        if not lo < hi:
+            return best
+        ladder = lo * 1.4 ** np.arange(int(np.ceil(np.log(hi / lo) / np.log(1.4))) + 1)
+        ladder = ladder[np.argsort(np.abs(np.log(ladder / self._last_altitude_m)))]
+        for z in ladder:
+            trial = self._measure_at(img, float(z), sonar_altitude_m, roll_rad, pitch_rad)
+            if trial.n_spots > best.n_spots:
+                best = trial
+                if best.n_spots == len(self.lasers):
+                    break
+        return best

@@ -1,0 +1,107 @@
+"""Band-pass, local variance and channel choice (rovslam.vision.filters)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from rovslam.errors import ConfigError, ImageReadError
+from rovslam.vision.filters import bandpass, gaussian_kernel, local_variance, template_channel
+
+
+def _rgb(seed: int = 0, shape=(40, 50)) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 256, (*shape, 3), dtype=np.uint8)
+
+
+def test_template_channel_picks_green_blue_and_grey():
+    img = _rgb(1)
+    assert np.array_equal(template_channel(img, "green"), img[:, :, 1].astype(np.float32))
+    assert np.array_equal(template_channel(img, "blue"), img[:, :, 2].astype(np.float32))
+    grey = template_channel(img, "grey")
+    expected = 0.299 * img[:, :, 0] + 0.587 * img[:, :, 1] + 0.114 * img[:, :, 2]
+    assert grey.dtype == np.float32
+    assert np.max(np.abs(grey - expected)) <= 1.0  # OpenCV rounds to uint8
+
+
+def test_template_channel_grey_input_is_used_as_is():
+    g = np.arange(12, dtype=np.uint8).reshape(3, 4)
+    out = template_channel(g, "green")
+    assert out.dtype == np.float32
+    assert np.array_equal(out, g.astype(np.float32))
+
+
+def test_template_channel_refuses_red_and_bad_input():
+    with pytest.raises(ConfigError, match="reserved for the laser"):
+        template_channel(_rgb(), "red")
+    with pytest.raises(ImageReadError, match="uint8"):
+        template_channel(np.zeros((4, 4, 3), np.float32), "green")
+    with pytest.raises(ImageReadError, match="shape"):
+        template_channel(np.zeros((4, 4, 4), np.uint8), "green")
+
+
+def test_bandpass_has_zero_dc_and_matches_difference_of_gaussians():
+    rng = np.random.default_rng(2)
+    img = (rng.random((80, 90)) * 255).astype(np.float32)
+    out = bandpass(img, 1.0, 4.0)
+    ref = ndimage.gaussian_filter(img.astype(np.float64), 1.0, truncate=3.0) - ndimage.gaussian_filter(
+        img.astype(np.float64), 4.0, truncate=3.0
+    )
+    inner = (slice(15, -15), slice(15, -15))
+    assert np.max(np.abs(out[inner] - ref[inner])) < 1e-3
+    flat = bandpass(np.full((30, 30), 200.0, np.float32), 1.0, 4.0)
+    assert np.max(np.abs(flat)) < 1e-3
+
+
+def test_bandpass_gain_for_a_sinusoid_follows_the_documented_formula():
+    wavelength = 12.0
+    x = np.arange(240)
+    img = np.tile(100.0 + 50.0 * np.sin(2 * np.pi * x / wavelength), (64, 1)).astype(np.float32)
+    out = bandpass(img, 1.0, 4.0)
+    gain = np.exp(-2 * np.pi**2 * 1.0 / wavelength**2) - np.exp(-2 * np.pi**2 * 16.0 / wavelength**2)
+    measured = out[32, 60:180].std() * np.sqrt(2) / 50.0
+    assert measured == pytest.approx(gain, rel=0.02)
+    assert gain == pytest.approx(0.760, abs=0.005)
+
+
+def test_bandpass_rejects_bad_sigmas():
+    img = np.zeros((20, 20), np.float32)
+    with pytest.raises(ConfigError, match="sigma_fine_px < sigma_coarse_px"):
+        bandpass(img, 4.0, 1.0)
+    with pytest.raises(ConfigError, match="finite"):
+        bandpass(img, np.nan, 4.0)
+
+
+def test_gaussian_kernel_is_cached_and_normalised():
+    k = gaussian_kernel(4.0)
+    assert k is gaussian_kernel(4.0)
+    assert k.shape == (25, 1)
+    assert float(k.sum()) == pytest.approx(1.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("size", [16, 15, 32])
+def test_local_variance_is_the_window_variance_with_the_documented_anchor(size):
+    rng = np.random.default_rng(3)
+    img = rng.normal(0, 10, (70, 80)).astype(np.float32)
+    lv = local_variance(img, size)
+    h = size // 2
+    for v, u in [(h, h), (35, 40), (70 - size + h, 80 - size + h), (20, 57)]:
+        window = img[v - h : v - h + size, u - h : u - h + size].astype(np.float64)
+        assert lv[v, u] == pytest.approx(window.var(), rel=1e-4)
+    assert lv.dtype == np.float32
+    assert lv.min() >= 0.0
+
+
+def test_local_variance_of_flat_image_is_zero():
+    lv = local_variance(np.full((50, 50), 255.0, np.float32), 16)
+    assert np.all(lv == 0.0)
+
+
+def test_local_variance_rejects_bad_sizes():
+    img = np.zeros((20, 20), np.float32)
+    with pytest.raises(ConfigError, match=">= 2"):
+        local_variance(img, 1)
+    with pytest.raises(ConfigError, match="larger than the image"):
+        local_variance(img, 32)
+    with pytest.raises(ImageReadError, match="single-channel"):
+        local_variance(np.zeros((20, 20, 3), np.float32), 8)
