@@ -34,6 +34,7 @@ def test_footprint_matrix_numbers():
     np.testing.assert_allclose(d, d.T)
     assert np.all(np.linalg.eigvalsh(d) > 0)
     np.testing.assert_allclose(spacing_matrix_m2(0.1), np.eye(2) * 0.01)
+    np.testing.assert_allclose(spacing_matrix_m2(0.1, 4.0), np.eye(2) * 0.0025)
 
 
 def test_mahalanobis_matches_a_solve_loop():
@@ -78,22 +79,24 @@ def test_gate_widens_with_uncertainty():
 
 def test_new_landmark_test_refuses_within_the_spacing():
     cfg = SlamConfig()
-    spacing = spacing_matrix_m2(cfg.new_landmark_spacing_m)
+    mu = cfg.new_landmark_mu
+    spacing = spacing_matrix_m2(cfg.new_landmark_spacing_m, mu)  # 15 cm
     vehicle = np.array([1.0, 1.0])
-    near = vehicle + np.array([[0.06, 0.06]])  # 8.5 cm away: within the 10 cm spacing
+    near = vehicle + np.array([[0.06, 0.06]])  # 8.5 cm away: within the 15 cm spacing
     far = vehicle + np.array([[0.8, -0.3]])
     cov = TINY[None]
-    assert new_landmark_statistics(near, cov, vehicle, TINY, spacing)[0] == pytest.approx(0.72, rel=1e-6)
-    assert not new_landmark_test(near, cov, vehicle, TINY, spacing, cfg.new_landmark_mu)
-    assert new_landmark_test(far, cov, vehicle, TINY, spacing, cfg.new_landmark_mu)  # 73 >= 13.82
+    # d^T L^-1 d = 0.0072 / (0.0225 / 13.82)
+    assert new_landmark_statistics(near, cov, vehicle, TINY, spacing)[0] == pytest.approx(0.0072 / 0.0225 * mu, rel=1e-6)
+    assert not new_landmark_test(near, cov, vehicle, TINY, spacing, mu)
+    assert new_landmark_test(far, cov, vehicle, TINY, spacing, mu)
     # One near landmark among many far ones is enough to refuse.
     both = np.vstack([far, near])
-    assert not new_landmark_test(both, np.repeat(cov, 2, 0), vehicle, TINY, spacing, cfg.new_landmark_mu)
-    assert new_landmark_test(np.zeros((0, 2)), np.zeros((0, 2, 2)), vehicle, TINY, spacing, cfg.new_landmark_mu)
-    # With mu = 13.82 and L = (0.1 m)^2 I the minimum spacing of certain landmarks is 0.1 * sqrt(13.82) = 0.372 m.
-    edge = np.sqrt(cfg.new_landmark_mu) * cfg.new_landmark_spacing_m
-    assert not new_landmark_test(vehicle + [[0.99 * edge, 0.0]], cov, vehicle, TINY, spacing, cfg.new_landmark_mu)
-    assert new_landmark_test(vehicle + [[1.01 * edge, 0.0]], cov, vehicle, TINY, spacing, cfg.new_landmark_mu)
+    assert not new_landmark_test(both, np.repeat(cov, 2, 0), vehicle, TINY, spacing, mu)
+    assert new_landmark_test(np.zeros((0, 2)), np.zeros((0, 2, 2)), vehicle, TINY, spacing, mu)
+    # With a certain filter the minimum spacing is exactly new_landmark_spacing_m.
+    edge = cfg.new_landmark_spacing_m
+    assert not new_landmark_test(vehicle + [[0.99 * edge, 0.0]], cov, vehicle, TINY, spacing, mu)
+    assert new_landmark_test(vehicle + [[1.01 * edge, 0.0]], cov, vehicle, TINY, spacing, mu)
 
 
 def test_relative_covariance_uses_the_cross_terms():
@@ -113,7 +116,7 @@ def test_relative_covariance_uses_the_cross_terms():
 
 
 def test_ekf_gate_and_new_landmark_test():
-    ekf = EkfSlam(SlamConfig(pixel_sigma_px=0.5))
+    ekf = EkfSlam(SlamConfig(pixel_sigma_px=0.5, new_landmark_spacing_m=0.372))
     assert ekf.may_add_landmark()  # no landmarks yet
     assert ekf.visible_landmarks(0.0, Z, F, W, H).size == 0
     # Landmark 0 just inside the image edge ahead (m = 0.95 * H/2), landmark 1 far ahead.

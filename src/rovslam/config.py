@@ -110,6 +110,7 @@ class OdometryConfig:
     token_sigma_px: float = 0.15  # one token's displacement noise
     gap_speed_sigma_mps: float = 0.02  # added per second without tokens
     initial_speed_sigma_mps: float = 0.2  # speed sigma held before the first good measurement
+    compass_sigma_rad: float = 0.0087  # compass noise (0.5 deg); 0 uses the compass as it is (the paper)
 
 
 @dataclass(frozen=True)
@@ -122,7 +123,7 @@ class SlamConfig:
     landmark_process_sigma_m: float = 0.0  # eq. (2) process noise per step
     visibility_lambda: float = 9.21  # eq. (5): chi-square 2 dof, 99 %
     new_landmark_mu: float = 13.82  # eq. (6): chi-square 2 dof, 99.9 %
-    new_landmark_spacing_m: float = 0.10  # L = spacing^2 I
+    new_landmark_spacing_m: float = 0.15  # L = (spacing^2 / mu) I: minimum distance between landmarks
     innovation_gate: float = 13.82  # chi-square 2 dof, 99.9 %
     augmentation: str = "full"  # "full" (correct cross-covariances) | "paper" (eq. 4 diagonal block)
     gate_covariance: str = "relative"  # (5), (6): "relative" (P_Xi + P_x - C - C^T) | "paper" (P_Xi + P_x)

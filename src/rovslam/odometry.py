@@ -35,7 +35,7 @@ from rovslam.camera import Camera, pixels_to_ground, rot2
 from rovslam.config import OdometryConfig
 from rovslam.errors import ConfigError, InvalidMeasurementError
 
-__all__ = ["SpeedMeasurement", "SpeedEstimator", "speed_from_tokens"]
+__all__ = ["HeadingFilter", "SpeedMeasurement", "SpeedEstimator", "speed_from_tokens"]
 
 # At most this many single-token hypotheses are scored (plus the median); the pairwise
 # residual table is then at most 65 x N, whatever N.
@@ -66,6 +66,8 @@ class SpeedMeasurement:
     n_inliers: int
     inlier_mask: np.ndarray
     reason: str
+    dpsi_rad: float = 0.0  # heading change used (compass difference fused with the tokens' rotation)
+    dpsi_sigma_rad: float = float("inf")  # its standard deviation (inf: nothing measured it)
 
     @property
     def speed_mps(self) -> np.ndarray:
@@ -161,6 +163,7 @@ def speed_from_tokens(
     attitude_prev_rad: tuple[float, float] = (0.0, 0.0),
     attitude_curr_rad: tuple[float, float] = (0.0, 0.0),
     config: OdometryConfig = OdometryConfig(),
+    dpsi_sigma_rad: float | None = None,
 ) -> SpeedMeasurement:
     """Surge and sway from token displacements between two consecutive frames.
 
@@ -176,6 +179,11 @@ def speed_from_tokens(
         attitude_prev_rad, attitude_curr_rad: (roll, pitch) of each frame; (0, 0) assumes a
             level camera, as the paper does.
         config: thresholds, token noise and floors.
+        dpsi_sigma_rad: standard deviation of ``dpsi_rad`` (from differencing a noisy compass).
+            When given, the rotation of the inlier tokens about their centroid (a 2-D
+            Procrustes fit) is fused with ``dpsi_rad``, variance-weighted: 8 tokens spread over
+            the image measure the heading change to a few 1e-4 rad, far better than a compass
+            difference, and an error in dpsi moves every off-centre token.
 
     Returns:
         A :class:`SpeedMeasurement`; ``ok=False`` (zero speed, covariance
@@ -215,8 +223,15 @@ def speed_from_tokens(
 
     z_mean = 0.5 * (z_prev + z_curr)
     px_per_m = camera.focal_px / z_mean
-    dv_px = d_m[valid] * px_per_m  # (M, 2) displacements in pixels, for the threshold
     thr2 = config.outlier_threshold_px**2
+    if dpsi_sigma_rad is not None and n_valid >= 3:
+        # A noisy compass difference turns every off-centre token by its error (0.007 rad moves a
+        # token 150 px from the centre by 1 px): take the heading change from token pairs first.
+        dpsi = _rotation_consensus(
+            g_prev[valid], g_curr[valid], dpsi, config.outlier_threshold_px / px_per_m
+        )
+        d_m = g_prev - g_curr @ rot2(dpsi).T
+    dv_px = d_m[valid] * px_per_m  # (M, 2) displacements in pixels, for the threshold
 
     # Consensus: the median and single-token hypotheses, scored by truncated squared residuals.
     if n_valid > _MAX_HYPOTHESES:
@@ -244,6 +259,17 @@ def speed_from_tokens(
     if np.any(rivals):
         return _failure(n_tokens, "ambiguous consensus", config)
 
+    dpsi_sigma = float("inf")
+    if dpsi_sigma_rad is not None and n_inl >= 2:
+        dpsi, dpsi_sigma = _fuse_rotation(
+            g_prev[valid][inl], g_curr[valid][inl], dpsi, float(dpsi_sigma_rad), config.token_sigma_px / px_per_m
+        )
+        d_m = g_prev - g_curr @ rot2(dpsi).T
+        res = d_m[valid] * px_per_m - centre
+        inl = np.einsum("mj,mj->m", res, res) <= thr2
+        n_inl = int(inl.sum())
+        if n_inl < config.min_inliers:
+            return _failure(n_tokens, "no consensus", config)
     speeds = d_m[valid][inl] / dt  # (n_inl, 2) m/s, one per inlier token
     speed = speeds.sum(axis=0) / n_inl
     # Q: standard error of the mean from the inlier spread, each token's variance floored
@@ -260,7 +286,92 @@ def speed_from_tokens(
     mask = np.zeros(n_tokens, dtype=bool)
     mask[np.flatnonzero(valid)[inl]] = True
     mask.setflags(write=False)
-    return SpeedMeasurement(True, float(speed[0]), float(speed[1]), cov, n_tokens, n_inl, mask, "")
+    return SpeedMeasurement(
+        True, float(speed[0]), float(speed[1]), cov, n_tokens, n_inl, mask, "", float(dpsi), dpsi_sigma
+    )
+
+
+def _rotation_consensus(a_m: np.ndarray, b_m: np.ndarray, dpsi_rad: float, thr_m: float) -> float:
+    """The heading change best supported by the tokens: ``a ~ R(theta) b + d``, (M, 2) each.
+
+    Hypotheses: the prior ``dpsi_rad`` and the rotation of every token pair with a baseline
+    of at least four thresholds; each is scored by the truncated residuals about its median
+    translation. Returns the winning rotation (the prior when no pair beats it).
+    """
+    i, j = np.triu_indices(len(a_m), 1)
+    da, db = a_m[i] - a_m[j], b_m[i] - b_m[j]
+    keep = np.einsum("kj,kj->k", db, db) > (4.0 * thr_m) ** 2
+    th = np.arctan2(da[keep, 1], da[keep, 0]) - np.arctan2(db[keep, 1], db[keep, 0])
+    hyps = np.concatenate([[dpsi_rad], dpsi_rad + (th - dpsi_rad + np.pi) % (2.0 * np.pi) - np.pi])
+    c, s = np.cos(hyps)[:, None], np.sin(hyps)[:, None]
+    t = np.stack([a_m[None, :, 0] - (c * b_m[:, 0] - s * b_m[:, 1]),
+                  a_m[None, :, 1] - (s * b_m[:, 0] + c * b_m[:, 1])], axis=-1)  # (K, M, 2)
+    res = t - np.median(t, axis=1, keepdims=True)
+    score = np.minimum(np.einsum("kmj,kmj->km", res, res), thr_m**2).sum(axis=1)
+    return float(hyps[int(np.argmin(score))])
+
+
+def _fuse_rotation(
+    g_prev_m: np.ndarray, g_curr_m: np.ndarray, dpsi_rad: float, dpsi_sigma_rad: float, token_sigma_m: float
+) -> tuple[float, float]:
+    """Fuse a prior heading change with the rotation of matched seabed points.
+
+    ``g_prev ~ R(dpsi) g_curr + d`` (both (M, 2)); the least-squares rotation of the centred
+    point sets is ``atan2(sum b x a, sum b . a)`` with variance ``2 sigma_g^2 / sum |b|^2``.
+    Returns the variance-weighted (dpsi, sigma).
+    """
+    a = g_prev_m - g_prev_m.mean(axis=0)
+    b = g_curr_m - g_curr_m.mean(axis=0)
+    spread_m2 = float(np.sum(b * b))
+    if spread_m2 <= 0.0:
+        return dpsi_rad, dpsi_sigma_rad
+    theta = float(np.arctan2(np.sum(b[:, 0] * a[:, 1] - b[:, 1] * a[:, 0]), np.sum(b * a)))
+    var_tok = 2.0 * token_sigma_m**2 / spread_m2
+    var_prior = dpsi_sigma_rad**2
+    # Wrap the token rotation next to the prior so that the weighted mean is meaningful.
+    theta = dpsi_rad + (theta - dpsi_rad + np.pi) % (2.0 * np.pi) - np.pi
+    w = var_prior / (var_prior + var_tok) if np.isfinite(var_prior) else 1.0
+    fused = dpsi_rad + w * (theta - dpsi_rad)
+    var = var_tok * var_prior / (var_tok + var_prior) if np.isfinite(var_prior) else var_tok
+    return float(fused), float(np.sqrt(var))
+
+
+class HeadingFilter:
+    """Heading from the compass, smoothed with the tokens' measured heading changes (beyond the paper).
+
+    A one-state Kalman filter: predict ``psi += dpsi`` (the fused rotation of
+    :func:`speed_from_tokens`, variance ``dpsi_sigma^2``), update with the compass reading
+    (variance ``compass_sigma^2``). Without token rotations it follows the compass. The paper
+    flew at constant heading and used the compass as it is; a noisy compass then turns every
+    step by its noise, which this removes.
+    """
+
+    def __init__(self, compass_sigma_rad: float):
+        self.compass_sigma_rad = float(compass_sigma_rad)
+        self.heading_rad: float | None = None
+        self.var_rad2 = 0.0
+
+    @property
+    def sigma_rad(self) -> float:
+        return float(np.sqrt(self.var_rad2))
+
+    def update(self, compass_rad: float, dpsi_rad: float | None = None, dpsi_sigma_rad: float = float("inf")) -> float:
+        """One step: the compass reading of this frame and the measured change since the last one."""
+        c = _scalar("heading_rad", compass_rad)
+        r = self.compass_sigma_rad**2
+        if self.heading_rad is None or r == 0.0:
+            self.heading_rad, self.var_rad2 = c, r
+            return c
+        if dpsi_rad is not None and np.isfinite(dpsi_sigma_rad):
+            psi = self.heading_rad + float(dpsi_rad)
+            var = self.var_rad2 + float(dpsi_sigma_rad) ** 2
+        else:
+            psi, var = c, r  # nothing but the compass bridges this step
+        innov = (c - psi + np.pi) % (2.0 * np.pi) - np.pi
+        k = var / (var + r)
+        self.heading_rad = float((psi + k * innov + np.pi) % (2.0 * np.pi) - np.pi)
+        self.var_rad2 = (1.0 - k) * var
+        return self.heading_rad
 
 
 class SpeedEstimator:
@@ -303,11 +414,12 @@ class SpeedEstimator:
         altitude_sigma_m: float = 0.0,
         attitude_prev_rad: tuple[float, float] = (0.0, 0.0),
         attitude_curr_rad: tuple[float, float] = (0.0, 0.0),
+        dpsi_sigma_rad: float | None = None,
     ) -> SpeedMeasurement:
         """Same arguments as :func:`speed_from_tokens` (without ``config``)."""
         m = speed_from_tokens(
             camera, uv_prev_px, uv_curr_px, altitude_prev_m, altitude_curr_m, dt_s, dpsi_rad,
-            altitude_sigma_m, attitude_prev_rad, attitude_curr_rad, self.config,
+            altitude_sigma_m, attitude_prev_rad, attitude_curr_rad, self.config, dpsi_sigma_rad,
         )
         if m.ok:
             self._last = m

@@ -29,7 +29,7 @@ import numpy as np
 from rovslam.camera import ground_to_mn, ground_to_pixels, mn_to_ground, pixels_to_ground, rot2
 from rovslam.config import RunConfig
 from rovslam.io.sequence import Frame, SequenceInfo
-from rovslam.odometry import SpeedEstimator
+from rovslam.odometry import HeadingFilter, SpeedEstimator
 from rovslam.slam import EkfSlam
 from rovslam.vision.filters import bandpass, local_variance, template_channel
 from rovslam.vision.laser import LaserAltimeter
@@ -114,12 +114,14 @@ class SlamPipeline:
         self.altimeter = LaserAltimeter(info.camera, info.lasers, config.laser, fallback)
         self.tokens = TokenTracker(config.speed_templates, config.tracker)
         self.speed = SpeedEstimator(config.odometry)
+        self.heading = HeadingFilter(config.odometry.compass_sigma_rad)
         self.ekf = EkfSlam(config.slam)
         self.landmarks: list[LandmarkRecord] = []
         self.skipped: list[tuple[int, float, str]] = []
         self._prev: Frame | None = None
         self._prev_altitude_m: float | None = None
-        self._prev_heading_rad: float | None = None
+        self._prev_heading_rad: float | None = None  # filtered heading of the previous frame
+        self._prev_compass_rad: float | None = None
         self._prev_attitude = (0.0, 0.0)
         self._last_shift_uv: np.ndarray | None = None
         self._dr = np.zeros(2)
@@ -157,8 +159,11 @@ class SlamPipeline:
         cfg = self.config
         att = (frame.roll_rad, frame.pitch_rad)
         dt_s = 0.0 if self._prev is None else frame.t_s - self._prev.t_s
-        psi = frame.heading_rad
-        psi_prev = psi if self._prev_heading_rad is None else self._prev_heading_rad
+        compass = frame.heading_rad
+        compass_prev = compass if self._prev_compass_rad is None else self._prev_compass_rad
+        psi_prev = compass if self._prev_heading_rad is None else self._prev_heading_rad
+        # Until the tokens measure this step's rotation, the heading is predicted from the compass.
+        psi = psi_prev + _wrap(compass - compass_prev)
 
         reason = frame.error
         chan = bp = None
@@ -216,19 +221,27 @@ class SlamPipeline:
 
         # (5) speed templates -> surge, sway
         tracks = self.tokens.track(bp, self._predicted_shift(dt_s, Z) if self._prev is not None else None, mask)
+        sigma_c = cfg.odometry.compass_sigma_rad
         if self._prev is not None:
             speed = self.speed.measure(
                 self.camera, tracks.uv_prev_px, tracks.uv_curr_px, self._prev_altitude_m, Z, dt_s,
-                dpsi_rad=_wrap(psi - psi_prev), altitude_sigma_m=alt.sigma_m,
+                dpsi_rad=_wrap(compass - compass_prev), altitude_sigma_m=alt.sigma_m,
                 attitude_prev_rad=self._prev_attitude, attitude_curr_rad=att,
+                dpsi_sigma_rad=math.sqrt(2.0) * sigma_c if sigma_c > 0 else None,
             )
         else:
             speed = None
+        # Heading: the compass smoothed with the tokens' rotation (odometry.HeadingFilter).
+        measured = speed is not None and speed.ok and math.isfinite(speed.dpsi_sigma_rad)
+        psi = self.heading.update(
+            compass, speed.dpsi_rad if measured else None, speed.dpsi_sigma_rad if measured else math.inf
+        )
+        psi_sigma = self.heading.sigma_rad if sigma_c > 0 else None
 
         # (6) EKF prediction with the measured speed, then update with the landmarks
         observations: list[Observation] = []
         if speed is not None and dt_s > 0:
-            self.ekf.predict(speed.surge_mps, speed.sway_mps, speed.cov_mps2, psi_prev, dt_s)
+            self.ekf.predict(speed.surge_mps, speed.sway_mps, speed.cov_mps2, psi_prev, dt_s, psi_sigma)
             self._dr += rot2(psi_prev) @ np.array([speed.surge_mps, speed.sway_mps]) * dt_s
             if speed.ok and tracks.uv_curr_px.shape[0]:
                 inl = speed.inlier_mask
@@ -237,7 +250,9 @@ class SlamPipeline:
             elif not speed.ok:
                 self._last_shift_uv = None
         for rec, uv, mn, score in tracked:
-            res = self.ekf.update(rec.id, mn, psi, Z, self.focal_px, altitude_sigma_m=alt.sigma_m)
+            res = self.ekf.update(
+                rec.id, mn, psi, Z, self.focal_px, altitude_sigma_m=alt.sigma_m, heading_sigma_rad=psi_sigma
+            )
             if res.accepted:
                 rec.observations += 1
                 rec.last_seen_t_s = frame.t_s
@@ -249,7 +264,9 @@ class SlamPipeline:
         new_id = None
         if new_template is not None:
             mn = self._to_mn(new_template.centre_uv_px, Z, att)
-            new_id = self.ekf.augment(mn, psi, Z, self.focal_px, altitude_sigma_m=alt.sigma_m)
+            new_id = self.ekf.augment(
+                mn, psi, Z, self.focal_px, altitude_sigma_m=alt.sigma_m, heading_sigma_rad=psi_sigma
+            )
             self.landmarks.append(
                 LandmarkRecord(new_id, new_template.patch, float(new_template.local_variance), frame.t_s,
                                frame.index, observations=1, last_seen_t_s=frame.t_s)
@@ -262,6 +279,7 @@ class SlamPipeline:
         self._prev = frame
         self._prev_altitude_m = Z
         self._prev_heading_rad = psi
+        self._prev_compass_rad = compass
         self._prev_attitude = att
         xy = self.ekf.vehicle_xy_m
         return FrameResult(
@@ -293,14 +311,15 @@ class SlamPipeline:
         self._last_shift_uv = None
         # The next usable frame measures its speed against this frame's time: no tokens span it.
         self._prev = frame
-        self._prev_heading_rad = frame.heading_rad
+        self._prev_heading_rad = self.heading.update(frame.heading_rad)
+        self._prev_compass_rad = frame.heading_rad
         xy = self.ekf.vehicle_xy_m
         if self._prev_altitude_m is None:
             self._prev_altitude_m = self.altimeter_fallback
         Z = self._prev_altitude_m
         return FrameResult(
             index=frame.index, t_s=frame.t_s, dt_s=dt_s, x_m=float(xy[0]), y_m=float(xy[1]),
-            cov_xy_m2=self.ekf.vehicle_cov_m2.copy(), heading_rad=frame.heading_rad, altitude_m=Z,
+            cov_xy_m2=self.ekf.vehicle_cov_m2.copy(), heading_rad=self._prev_heading_rad, altitude_m=Z,
             altitude_sigma_m=float("nan"), altitude_source="none", laser_spots_uv_px=np.zeros((0, 2)),
             surge_mps=speed.surge_mps if speed else 0.0, sway_mps=speed.sway_mps if speed else 0.0,
             speed_ok=False, speed_cov_mps2=speed.cov_mps2 if speed else np.zeros((2, 2)),

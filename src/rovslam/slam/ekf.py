@@ -523,7 +523,7 @@ class EkfSlam:
         if self.n_landmarks == 0:
             return np.zeros(0)
         xy, cov, vxy, vcov, cross = self._gate_inputs()
-        spacing = gating.spacing_matrix_m2(self.config.new_landmark_spacing_m)
+        spacing = gating.spacing_matrix_m2(self.config.new_landmark_spacing_m, self.config.new_landmark_mu)
         return gating.new_landmark_statistics(xy, cov, vxy, vcov, spacing, cross)
 
     def may_add_landmark(self) -> bool:

@@ -8,7 +8,8 @@ Both tests are Mahalanobis distances of the landmark-to-vehicle offset ``d = X_i
   ``diag(H/2, W/2)`` without the squares and without the trailing ``R^T``, which is
   dimensionally wrong (metres, not metres squared); DESIGN.md uses the squared form.
 * (6) ``d^T (P_Xi + P_x + L)^-1 d >= mu`` for every i: the vehicle is far enough from all
-  landmarks to add a new one; ``L = spacing^2 I`` fixes the minimum spacing.
+  landmarks to add a new one; ``L = (spacing^2 / mu) I`` fixes the minimum spacing, so that
+  with a certain filter a new landmark is allowed exactly ``spacing`` metres from the others.
 
 The paper adds the two marginal covariances. The covariance of ``d`` is really
 ``P_Xi + P_x - C_i - C_i^T`` with ``C_i = cov(x, X_i)``; pass ``cross_cov_m2`` to use it
@@ -48,9 +49,9 @@ def footprint_matrix_m2(
     return (r * (s * s * np.array([(0.5 * height_px) ** 2, (0.5 * width_px) ** 2]))) @ r.T
 
 
-def spacing_matrix_m2(spacing_m: float) -> np.ndarray:
-    """L of (6): (2, 2) ``spacing^2 I``."""
-    return np.eye(2) * float(spacing_m) ** 2
+def spacing_matrix_m2(spacing_m: float, mu: float = 1.0) -> np.ndarray:
+    """L of (6): (2, 2) ``(spacing^2 / mu) I``: with zero covariance, (6) holds iff |d| >= spacing."""
+    return np.eye(2) * float(spacing_m) ** 2 / float(mu)
 
 
 def offset_covariances_m2(
