@@ -44,6 +44,7 @@ class BandpassConfig:
     sigma_fine_px: float = 1.0  # removes wavelengths shorter than ~2*pi*sigma_fine (noise)
     sigma_coarse_px: float = 4.0  # removes wavelengths longer than ~2*pi*sigma_coarse (illumination)
     channel: str = "green"  # "grey" | "green" | "blue"; red is reserved for the lasers
+    despeckle_px: int = 0  # >= 2: remove bright specks (marine snow) narrower than this first
 
 
 @dataclass(frozen=True)

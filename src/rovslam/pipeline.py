@@ -24,6 +24,7 @@ import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from rovslam.camera import ground_to_mn, ground_to_pixels, mn_to_ground, pixels_to_ground, rot2
@@ -31,10 +32,14 @@ from rovslam.config import RunConfig
 from rovslam.io.sequence import Frame, SequenceInfo
 from rovslam.odometry import HeadingFilter, SpeedEstimator
 from rovslam.slam import EkfSlam
-from rovslam.vision.filters import bandpass, local_variance, template_channel
+from rovslam.vision.filters import bandpass, local_variance, remove_specks, template_channel
 from rovslam.vision.laser import LaserAltimeter
 from rovslam.vision.templates import extract_templates, inhibit_boxes, inhibition_mask
 from rovslam.vision.tracking import TokenTracker, match_template
+
+# Landmark templates are re-oriented when the heading differs from the one they were cut at
+# by more than this (beyond the paper, which flew at constant heading).
+_ROTATE_TEMPLATE_RAD = math.radians(0.5)
 
 # A frame whose template channel has less contrast than this (8-bit units, std of the
 # band-passed image) carries no texture to track: black, saturated or flat.
@@ -97,6 +102,8 @@ class LandmarkRecord:
     local_variance: float
     first_t_s: float
     first_frame: int
+    heading_rad: float = 0.0  # heading when the template was cut
+    patch_wide: np.ndarray | None = None  # (S, S) float32, S > 32 * sqrt(2): rotated on re-observation
     observations: int = 0
     rejected: int = 0
     last_seen_t_s: float = math.nan
@@ -149,6 +156,30 @@ class SlamPipeline:
             and half_px <= uv_px[1] <= self.camera.height_px - 1 - half_px
         )
 
+    def _oriented_patch(self, rec: LandmarkRecord, heading_rad: float) -> np.ndarray:
+        """The landmark template as the camera sees it at ``heading_rad``: rotated by the heading change."""
+        dpsi = _wrap(heading_rad - rec.heading_rad)
+        if abs(dpsi) < _ROTATE_TEMPLATE_RAD or rec.patch_wide is None:
+            return rec.patch
+        n = rec.patch_wide.shape[0]
+        c = (n - 1) / 2.0
+        # The seabed turns by -dpsi in the (m, n) frame, i.e. by +dpsi in OpenCV's (u, v-down) angle.
+        rot = cv2.getRotationMatrix2D((c, c), math.degrees(dpsi), 1.0)
+        turned = cv2.warpAffine(rec.patch_wide, rot, (n, n), flags=cv2.INTER_LINEAR)
+        k = (n - rec.patch.shape[0]) // 2
+        return turned[k : k + rec.patch.shape[0], k : k + rec.patch.shape[1]]
+
+    def _rotation_offsets(self, dpsi_rad: float, att: tuple[float, float]) -> np.ndarray | None:
+        """(N, 2) image motion of each speed token caused by a heading change and a change of tilt."""
+        toks = self.tokens.tokens
+        if not toks or self._prev_altitude_m is None or (abs(dpsi_rad) < 1e-4 and att == self._prev_attitude):
+            return None
+        uv0 = np.array([t.centre_uv_px for t in toks])
+        g0 = pixels_to_ground(self.camera, uv0, self._prev_altitude_m, *self._prev_attitude)
+        uv1 = ground_to_pixels(self.camera, g0 @ rot2(dpsi_rad), self._prev_altitude_m, *att)  # R(dpsi)^T g
+        off = uv1 - uv0
+        return off if np.all(np.isfinite(off)) else None
+
     # ------------------------------------------------------------------ the loop
     def run(self, frames: Iterable[Frame]) -> Iterator[FrameResult]:
         """Process frames in order, yielding one result per frame."""
@@ -168,7 +199,7 @@ class SlamPipeline:
         reason = frame.error
         chan = bp = None
         if frame.image is not None:
-            chan = template_channel(frame.image, cfg.bandpass.channel)
+            chan = remove_specks(template_channel(frame.image, cfg.bandpass.channel), cfg.bandpass.despeckle_px)
             bp = bandpass(chan, cfg.bandpass.sigma_fine_px, cfg.bandpass.sigma_coarse_px)
             if float(bp.std()) < _MIN_TEXTURE_STD:
                 reason = "no texture (black, saturated or flat frame)"
@@ -194,7 +225,7 @@ class SlamPipeline:
                 continue
             sigma_px = math.sqrt(max(float(np.max(np.linalg.eigvalsh(S))), 0.0))
             radius = int(min(lm_cfg.max_search_radius_px, math.ceil(3.0 * sigma_px) + lm_cfg.search_margin_px))
-            m = match_template(bp, rec.patch, uv_pred, radius, cfg.tracker)
+            m = match_template(bp, self._oriented_patch(rec, psi), uv_pred, radius, cfg.tracker)
             if not m.ok or not self._inside(m.uv_px, half_lm):
                 continue
             if len(alt.spots_uv_px) and np.any(
@@ -219,8 +250,11 @@ class SlamPipeline:
         if boxes:
             inhibit_boxes(mask, np.asarray(boxes), int(half_lm) + lm_cfg.inhibit_margin_px)
 
-        # (5) speed templates -> surge, sway
-        tracks = self.tokens.track(bp, self._predicted_shift(dt_s, Z) if self._prev is not None else None, mask)
+        # (5) speed templates -> surge, sway (each token's search window also follows the turn)
+        tracks = self.tokens.track(
+            bp, self._predicted_shift(dt_s, Z) if self._prev is not None else None, mask,
+            self._rotation_offsets(_wrap(compass - compass_prev), att),
+        )
         sigma_c = cfg.odometry.compass_sigma_rad
         if self._prev is not None:
             speed = self.speed.measure(
@@ -267,9 +301,14 @@ class SlamPipeline:
             new_id = self.ekf.augment(
                 mn, psi, Z, self.focal_px, altitude_sigma_m=alt.sigma_m, heading_sigma_rad=psi_sigma
             )
+            wide = int(math.ceil(lm_cfg.size_px * math.sqrt(2.0))) + 2
+            wide += (wide - lm_cfg.size_px) % 2  # same parity: both share the template centre
             self.landmarks.append(
-                LandmarkRecord(new_id, new_template.patch, float(new_template.local_variance), frame.t_s,
-                               frame.index, observations=1, last_seen_t_s=frame.t_s)
+                LandmarkRecord(
+                    new_id, new_template.patch, float(new_template.local_variance), frame.t_s, frame.index,
+                    observations=1, last_seen_t_s=frame.t_s, heading_rad=psi,
+                    patch_wide=cv2.getRectSubPix(bp, (wide, wide), tuple(float(c) for c in new_template.centre_uv_px)),
+                )
             )
             observations.append(Observation(new_id, "init", new_template.centre_uv_px, mn, 1.0, 0.0, True))
 

@@ -311,8 +311,9 @@ def _match_all(
     inhibit: np.ndarray | None,
 ) -> list[Match]:
     matches = []
-    for tok in tokens:  # at most max_count (8) tokens; each match is one small OpenCV call
-        m = match_template(img, tok.patch, tok.centre_uv_px + shift_uv_px, radius_px, config)
+    shifts = np.broadcast_to(shift_uv_px, (len(tokens), 2))  # one common (2,) or per token (N, 2)
+    for tok, shift in zip(tokens, shifts):  # at most max_count (8) tokens; one small OpenCV call each
+        m = match_template(img, tok.patch, tok.centre_uv_px + shift, radius_px, config)
         if m.ok and inhibit is not None and window_inhibited(inhibit, m.uv_px, tok.patch.shape):
             m = Match(False, m.uv_px, m.score, REASON_INHIBITED, m.second_score)
         matches.append(m)
@@ -382,6 +383,7 @@ class TokenTracker:
         track_img: np.ndarray,
         predicted_shift_uv_px: np.ndarray | None,
         inhibit: np.ndarray | None = None,
+        rotation_offsets_uv_px: np.ndarray | None = None,
     ) -> TokenTracks:
         """Find the previous frame's tokens in ``track_img``.
 
@@ -400,6 +402,10 @@ class TokenTracker:
         track_img: ``(H, W) float32`` tracking image of the current frame.
         predicted_shift_uv_px: ``(2,)`` predicted content motion (u, v) in pixels, or None.
         inhibit: ``(H, W) bool`` forbidden pixels, or None.
+        rotation_offsets_uv_px: ``(N, 2)`` per-token motion caused by the expected rotation of
+            the image about the principal point (a heading change), added to whichever common
+            shift is used (predicted, global or zero); None for none. With a 3 degree turn per
+            frame a token 150 px from the centre moves 8 px more than the centre does.
 
         Returns
         -------
@@ -423,6 +429,13 @@ class TokenTracker:
             )
         cfg = self.tracker_config
         need = max(1, int(np.ceil(cfg.min_tracked_fraction * n)))
+        rot = np.zeros((n, 2))
+        if rotation_offsets_uv_px is not None:
+            rot = np.asarray(rotation_offsets_uv_px, dtype=np.float64)
+            if rot.shape != (n, 2) or not np.all(np.isfinite(rot)):
+                raise ConfigError(
+                    f"rotation_offsets_uv_px must be ({n}, 2) finite pixels (one row per token), got {rot.shape}"
+                )
 
         matches: list[Match] | None = None
         n_ok = 0
@@ -432,7 +445,7 @@ class TokenTracker:
                 raise ConfigError(
                     f"predicted_shift_uv_px must be 2 finite numbers (u, v) or None, got {predicted_shift_uv_px!r}"
                 )
-            matches = _match_all(img, tokens, pred, self.speed_config.search_radius_px, cfg, inhibit)
+            matches = _match_all(img, tokens, pred + rot, self.speed_config.search_radius_px, cfg, inhibit)
             n_ok = sum(m.ok for m in matches)
 
         used_global = False
@@ -441,13 +454,13 @@ class TokenTracker:
         if n_ok < need and cfg.global_search:
             g_shift, g_conf = global_shift(self._prev_img, img)
             if g_conf >= cfg.min_global_confidence:
-                g_matches = _match_all(img, tokens, g_shift, cfg.global_search_radius_px, cfg, inhibit)
+                g_matches = _match_all(img, tokens, g_shift + rot, cfg.global_search_radius_px, cfg, inhibit)
                 g_ok = sum(m.ok for m in g_matches)
                 if matches is None or g_ok > n_ok:
                     matches, n_ok, used_global = g_matches, g_ok, True
         if matches is None:
             # No prediction and no usable global shift: assume no motion.
-            matches = _match_all(img, tokens, np.zeros(2), self.speed_config.search_radius_px, cfg, inhibit)
+            matches = _match_all(img, tokens, rot, self.speed_config.search_radius_px, cfg, inhibit)
 
         ok = np.array([m.ok for m in matches], dtype=bool)
         uv_prev = np.array([t.centre_uv_px for t in tokens], dtype=np.float64).reshape(-1, 2)[ok]
