@@ -130,17 +130,11 @@ class SlamPipeline:
         self._prev_heading_rad: float | None = None  # filtered heading of the previous frame
         self._prev_compass_rad: float | None = None
         self._prev_attitude = (0.0, 0.0)
-        self._last_shift_uv: np.ndarray | None = None
+        self._last_speed_mps: np.ndarray | None = None  # (surge, sway) of the last good step
         self._dr = np.zeros(2)
         self._n = 0
 
     # ------------------------------------------------------------------ helpers
-    def _predicted_shift(self, dt_s: float, altitude_m: float) -> np.ndarray | None:
-        """Image motion (du, dv) px expected from the last speed (mirrored motion)."""
-        if self._last_shift_uv is None:
-            return None
-        return self._last_shift_uv * dt_s
-
     def _to_mn(self, uv_px: np.ndarray, altitude_m: float, att: tuple[float, float]) -> np.ndarray:
         g = pixels_to_ground(self.camera, uv_px.reshape(1, 2), altitude_m, *att)
         return ground_to_mn(g, altitude_m, self.focal_px)[0]
@@ -169,16 +163,33 @@ class SlamPipeline:
         k = (n - rec.patch.shape[0]) // 2
         return turned[k : k + rec.patch.shape[0], k : k + rec.patch.shape[1]]
 
-    def _rotation_offsets(self, dpsi_rad: float, att: tuple[float, float]) -> np.ndarray | None:
-        """(N, 2) image motion of each speed token caused by a heading change and a change of tilt."""
+    def _token_predictions(
+        self, dpsi_rad: float, att: tuple[float, float], dt_s: float
+    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Where the speed tokens should be now: a common shift and per-token offsets, in pixels.
+
+        The motion model of (1) moves each token's seabed point by the last good speed and
+        turns it by the compass heading change, seen through the current attitude. Returns
+        ``(common (2,) or None, offsets (N, 2) or None)``: the common part is the translation
+        (None when no speed is known yet, so the tracker searches globally); the offsets hold
+        what rotation and tilt change add per token.
+        """
         toks = self.tokens.tokens
-        if not toks or self._prev_altitude_m is None or (abs(dpsi_rad) < 1e-4 and att == self._prev_attitude):
-            return None
+        if not toks or self._prev_altitude_m is None:
+            return None, None
         uv0 = np.array([t.centre_uv_px for t in toks])
-        g0 = pixels_to_ground(self.camera, uv0, self._prev_altitude_m, *self._prev_attitude)
-        uv1 = ground_to_pixels(self.camera, g0 @ rot2(dpsi_rad), self._prev_altitude_m, *att)  # R(dpsi)^T g
-        off = uv1 - uv0
-        return off if np.all(np.isfinite(off)) else None
+        z = self._prev_altitude_m
+        g0 = pixels_to_ground(self.camera, uv0, z, *self._prev_attitude)
+        rot = ground_to_pixels(self.camera, g0 @ rot2(dpsi_rad), z, *att) - uv0  # R(dpsi)^T g
+        if not np.all(np.isfinite(rot)):
+            return None, None
+        if self._last_speed_mps is None:
+            return None, rot
+        full = ground_to_pixels(self.camera, (g0 - self._last_speed_mps * dt_s) @ rot2(dpsi_rad), z, *att) - uv0
+        if not np.all(np.isfinite(full)):
+            return None, rot
+        common = np.mean(full - rot, axis=0)
+        return common, full - common
 
     # ------------------------------------------------------------------ the loop
     def run(self, frames: Iterable[Frame]) -> Iterator[FrameResult]:
@@ -251,10 +262,8 @@ class SlamPipeline:
             inhibit_boxes(mask, np.asarray(boxes), int(half_lm) + lm_cfg.inhibit_margin_px)
 
         # (5) speed templates -> surge, sway (each token's search window also follows the turn)
-        tracks = self.tokens.track(
-            bp, self._predicted_shift(dt_s, Z) if self._prev is not None else None, mask,
-            self._rotation_offsets(_wrap(compass - compass_prev), att),
-        )
+        common, offsets = self._token_predictions(_wrap(compass - compass_prev), att, dt_s)
+        tracks = self.tokens.track(bp, common, mask, offsets)
         sigma_c = cfg.odometry.compass_sigma_rad
         if self._prev is not None:
             speed = self.speed.measure(
@@ -277,12 +286,8 @@ class SlamPipeline:
         if speed is not None and dt_s > 0:
             self.ekf.predict(speed.surge_mps, speed.sway_mps, speed.cov_mps2, psi_prev, dt_s, psi_sigma)
             self._dr += rot2(psi_prev) @ np.array([speed.surge_mps, speed.sway_mps]) * dt_s
-            if speed.ok and tracks.uv_curr_px.shape[0]:
-                inl = speed.inlier_mask
-                shift = np.median(tracks.uv_curr_px[inl] - tracks.uv_prev_px[inl], axis=0)
-                self._last_shift_uv = shift / dt_s
-            elif not speed.ok:
-                self._last_shift_uv = None
+            if speed.ok:
+                self._last_speed_mps = np.array([speed.surge_mps, speed.sway_mps])
         for rec, uv, mn, score in tracked:
             res = self.ekf.update(
                 rec.id, mn, psi, Z, self.focal_px, altitude_sigma_m=alt.sigma_m, heading_sigma_rad=psi_sigma
@@ -347,7 +352,6 @@ class SlamPipeline:
             self.ekf.predict(speed.surge_mps, speed.sway_mps, speed.cov_mps2, psi_prev, dt_s)
             self._dr += rot2(psi_prev) @ np.array([speed.surge_mps, speed.sway_mps]) * dt_s
         self.tokens.reset()
-        self._last_shift_uv = None
         # The next usable frame measures its speed against this frame's time: no tokens span it.
         self._prev = frame
         self._prev_heading_rad = self.heading.update(frame.heading_rad)

@@ -402,10 +402,11 @@ class TokenTracker:
         track_img: ``(H, W) float32`` tracking image of the current frame.
         predicted_shift_uv_px: ``(2,)`` predicted content motion (u, v) in pixels, or None.
         inhibit: ``(H, W) bool`` forbidden pixels, or None.
-        rotation_offsets_uv_px: ``(N, 2)`` per-token motion caused by the expected rotation of
-            the image about the principal point (a heading change), added to whichever common
-            shift is used (predicted, global or zero); None for none. With a 3 degree turn per
-            frame a token 150 px from the centre moves 8 px more than the centre does.
+        rotation_offsets_uv_px: ``(N, 2)`` per-token motion expected besides the common shift
+            (a heading change turns the image about the principal point, a tilt change shifts
+            it), added to the predicted shift or to zero motion; with the global shift only its
+            differential (offsets minus their mean) is added. None for none. With a 3 degree
+            turn per frame a token 150 px from the centre moves 8 px more than the centre does.
 
         Returns
         -------
@@ -454,7 +455,10 @@ class TokenTracker:
         if n_ok < need and cfg.global_search:
             g_shift, g_conf = global_shift(self._prev_img, img)
             if g_conf >= cfg.min_global_confidence:
-                g_matches = _match_all(img, tokens, g_shift + rot, cfg.global_search_radius_px, cfg, inhibit)
+                # Phase correlation measures the mean image motion: keep only the offsets' differential.
+                g_matches = _match_all(
+                    img, tokens, g_shift + rot - rot.mean(axis=0), cfg.global_search_radius_px, cfg, inhibit
+                )
                 g_ok = sum(m.ok for m in g_matches)
                 if matches is None or g_ok > n_ok:
                     matches, n_ok, used_global = g_matches, g_ok, True

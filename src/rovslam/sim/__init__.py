@@ -1,0 +1,59 @@
+"""Seabed simulator: procedural or photographic seabed, ROV trajectory, camera / water / laser renderer.
+
+Entry points: :func:`simulate` (a whole sequence folder from a scenario preset in
+:data:`SCENARIOS`) and :func:`render_frame` (one frame for one pose, a pure function).
+"""
+
+from rovslam.sim.render import FrameRenderer, LaserSpotParams, Pose, SensorParams, render_frame, renderer_for
+from rovslam.sim.scenarios import (
+    PAPER_LASERS,
+    PORTOFINO_CAMERA,
+    SCENARIOS,
+    Scenario,
+    SimulationSummary,
+    frame_pose,
+    frame_rng,
+    simulate,
+)
+from rovslam.sim.texture import ImageSeabed, ProceduralSeabed, TextureParams, TextureSource
+from rovslam.sim.vehicle import (
+    GridPattern,
+    NavReadings,
+    NavSensorParams,
+    Trajectory,
+    VehicleParams,
+    read_sensors,
+    simulate_trajectory,
+)
+from rovslam.sim.water import WaterParams
+from rovslam.sim.world import World
+
+__all__ = [
+    "FrameRenderer",
+    "GridPattern",
+    "ImageSeabed",
+    "LaserSpotParams",
+    "NavReadings",
+    "NavSensorParams",
+    "PAPER_LASERS",
+    "PORTOFINO_CAMERA",
+    "Pose",
+    "ProceduralSeabed",
+    "SCENARIOS",
+    "Scenario",
+    "SensorParams",
+    "SimulationSummary",
+    "TextureParams",
+    "TextureSource",
+    "Trajectory",
+    "VehicleParams",
+    "WaterParams",
+    "World",
+    "frame_pose",
+    "frame_rng",
+    "read_sensors",
+    "render_frame",
+    "renderer_for",
+    "simulate",
+    "simulate_trajectory",
+]

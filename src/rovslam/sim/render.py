@@ -1,0 +1,428 @@
+"""Rendering one camera frame of the seabed: geometry, water, lamps, lasers, sensor.
+
+Geometry (exact, inverse mapping): a pixel's viewing ray, after removing lens distortion,
+is rotated into the level frame (yaw offset, roll, pitch: ``camera.body_from_camera`` and
+``camera.level_from_body``), meets the seabed plane ``altitude_m`` below the camera, and
+is rotated by the heading into the world (equation (4) of the paper for a level camera,
+``X = x + Z/f R(psi) [m, n]``). For a pinhole camera this chain is one 3x3 homography from
+pixels to seabed texels per frame (OpenCV ``warpPerspective``); with distortion the
+undistorted pixel grid is precomputed once and pushed through the same homography
+(``perspectiveTransform`` + ``remap``). Bilinear sampling of a Gaussian-prefiltered texture
+(see :mod:`rovslam.sim.world`) gives the anti-aliasing.
+
+Radiometry (see :mod:`rovslam.sim.water`): seabed albedo x lamp cone x vignetting x
+per-channel attenuation with path length, plus backscatter haze; motion blur along the
+image motion over the exposure time, forward-scatter blur; marine snow;
+the laser spots (saturated red discs with a halo and speckle); shot and read noise;
+8-bit quantisation; optional JPEG round trip.
+
+Everything that does not change from frame to frame (pixel grids, undistortion, vignetting
+and lamp maps, the attenuation and haze maps per centimetre of altitude) is computed once
+per :class:`FrameRenderer`. :func:`render_frame` is the pure entry point.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Sequence
+
+import cv2
+import numpy as np
+from scipy.special import erfc
+
+from rovslam.camera import (
+    Camera,
+    LaserPointer,
+    body_from_camera,
+    ground_to_pixels,
+    level_from_body,
+    undistort_pixels,
+)
+from rovslam.errors import SimulationError
+from rovslam.sim._noise import fast_standard_normal
+from rovslam.sim.water import WaterParams, marine_snow
+from rovslam.sim.world import World
+
+_MAX_TILT_RAD = np.deg2rad(45.0)
+_SNOW_SIGMAS_PX = np.array([0.7, 1.5, 3.2, 6.5])  # marine-snow blur levels (particles use the nearest)
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Camera pose: world position (m), altitude above the seabed (m), heading, roll, pitch (rad)."""
+
+    x_m: float
+    y_m: float
+    altitude_m: float
+    heading_rad: float = 0.0
+    roll_rad: float = 0.0
+    pitch_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        vals = (self.x_m, self.y_m, self.altitude_m, self.heading_rad, self.roll_rad, self.pitch_rad)
+        if not all(np.isfinite(v) for v in vals):
+            raise SimulationError(f"pose values must be finite, got {vals}")
+        if self.altitude_m <= 0.05:
+            raise SimulationError(f"pose altitude_m must be > 0.05 m above the seabed, got {self.altitude_m}")
+        if abs(self.roll_rad) > _MAX_TILT_RAD or abs(self.pitch_rad) > _MAX_TILT_RAD:
+            raise SimulationError(
+                f"roll and pitch must be within +-45 degrees for a downward camera, got "
+                f"{np.rad2deg(self.roll_rad):.1f}, {np.rad2deg(self.pitch_rad):.1f} degrees"
+            )
+
+
+@dataclass(frozen=True)
+class SensorParams:
+    """Camera sensor, lens and lamps."""
+
+    exposure_gain: float = 0.9  # DN per unit albedo x 255 under the lamps, before the water
+    vignetting_power: float = 4.0  # cos^p(off-axis angle) lens falloff
+    light_corner_ratio: float = 0.62  # lamp-cone irradiance at the image corner / at the cone centre
+    light_centre_frac: tuple[float, float] = (0.10, -0.14)  # cone centre offset (u, v), half-image units
+    exposure_s: float = 0.010  # motion blur: image motion integrated over this time
+    antialias: float = 0.42  # prefilter sigma, in texels per (texels per pixel)
+    shot_noise_dn: float = 0.06  # shot-noise variance per DN of signal
+    read_noise_dn: float = 1.3  # read-noise standard deviation, DN
+    jpeg_quality: int | None = None  # JPEG round trip inside the camera (None: none)
+
+    def __post_init__(self) -> None:
+        for name in ("exposure_gain", "vignetting_power", "exposure_s", "antialias", "shot_noise_dn",
+                     "read_noise_dn"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise SimulationError(f"SensorParams.{name} must be a finite number >= 0, got {v}")
+        if not (0.0 < self.light_corner_ratio <= 1.0):
+            raise SimulationError(
+                f"SensorParams.light_corner_ratio must be in (0, 1], got {self.light_corner_ratio}"
+            )
+        if self.jpeg_quality is not None and not (1 <= self.jpeg_quality <= 100):
+            raise SimulationError(f"SensorParams.jpeg_quality must be in 1..100 or None, got {self.jpeg_quality}")
+
+    @classmethod
+    def ideal(cls) -> "SensorParams":
+        """Flat, noiseless, blur-free sensor (for geometry tests): unit gain, no falloff, no noise."""
+        return cls(exposure_gain=1.0, vignetting_power=0.0, light_corner_ratio=1.0, exposure_s=0.0,
+                   shot_noise_dn=0.0, read_noise_dn=0.0)
+
+
+@dataclass(frozen=True)
+class LaserSpotParams:
+    """How a laser spot looks: a saturated red disc (the beam footprint) with a faint halo and speckle.
+
+    The core is the beam's footprint on the seabed, ``spot_diameter_mm`` across, seen
+    through the optics (edge blur ``optics_sigma_px``): far brighter than full scale, so it
+    saturates the red channel with a steep edge. The halo is light scattered forward in
+    the water. Green and blue get a little crosstalk of the (clipped) red.
+    """
+
+    peak_dn: float = 3000.0  # core irradiance before the water (saturates the red channel by far)
+    spot_diameter_mm: float = 4.0  # beam footprint on the seabed (about 3.3 px at 1.31 m)
+    optics_sigma_px: float = 0.45  # lens / sensor blur of the disc edge
+    halo_fraction: float = 0.03  # forward-scattered glow, relative to the core
+    halo_sigma_px: float = 3.0
+    speckle: float = 0.35  # multiplicative speckle contrast (off when noise_free)
+    crosstalk_green: float = 0.025  # fraction of the (clipped) red reaching the green pixels
+    crosstalk_blue: float = 0.01
+
+    def __post_init__(self) -> None:
+        for name in ("peak_dn", "spot_diameter_mm", "optics_sigma_px", "halo_fraction", "halo_sigma_px", "speckle",
+                     "crosstalk_green", "crosstalk_blue"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise SimulationError(f"LaserSpotParams.{name} must be a finite number >= 0, got {v}")
+        if self.optics_sigma_px < 0.1:
+            raise SimulationError(f"LaserSpotParams.optics_sigma_px must be >= 0.1 px, got {self.optics_sigma_px}")
+
+
+class FrameRenderer:
+    """Precomputed renderer for one camera, water, sensor and laser-spot model."""
+
+    def __init__(
+        self,
+        camera: Camera,
+        water: WaterParams | None = None,
+        sensor: SensorParams | None = None,
+        spots: LaserSpotParams | None = None,
+    ) -> None:
+        self.camera = camera
+        self.water = water if water is not None else WaterParams()
+        self.sensor = sensor if sensor is not None else SensorParams()
+        self.spots = spots if spots is not None else LaserSpotParams()
+        h, w = camera.height_px, camera.width_px
+        self._k_inv = np.linalg.inv(camera.K)
+        self._body_cam = body_from_camera(camera)
+        vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
+        pix = np.column_stack([uu.ravel(), vv.ravel()])
+        if camera.has_distortion:
+            ideal = undistort_pixels(camera, pix)
+            self._ideal_pts = ideal.astype(np.float32).reshape(-1, 1, 2)
+        else:
+            ideal = pix
+            self._ideal_pts = None
+        # Border pixels (every 4th, plus corners), to bound the footprint of a frame.
+        border = np.zeros((h, w), dtype=bool)
+        border[0, ::4] = border[-1, ::4] = border[::4, 0] = border[::4, -1] = True
+        border[0, -1] = border[-1, 0] = border[-1, -1] = True
+        self._border_ideal = ideal[border.ravel()]
+        # Frame-independent radiometric maps on the ideal (undistorted) rays.
+        xn = ((ideal[:, 0] - camera.cx_px) / camera.fx_px).reshape(h, w)
+        yn = ((ideal[:, 1] - camera.cy_px) / camera.fy_px).reshape(h, w)
+        self._sec = np.sqrt(1.0 + xn * xn + yn * yn)  # path length per unit depth (level camera)
+        half_x = max(camera.cx_px, w - 1 - camera.cx_px) / camera.fx_px
+        half_y = max(camera.cy_px, h - 1 - camera.cy_px) / camera.fy_px
+        ox, oy = self.sensor.light_centre_frac
+        r2 = ((xn - ox * half_x) ** 2 + (yn - oy * half_y) ** 2) / (half_x**2 + half_y**2)
+        self._cone = self.sensor.light_corner_ratio**r2  # lamp irradiance, 1 at the cone centre
+        self._vignette = self._sec ** (-self.sensor.vignetting_power)
+        self._maps: OrderedDict[int, tuple[np.ndarray, np.ndarray, bool]] = OrderedDict()
+        self._lock = threading.Lock()
+        self._lasers_cache: dict[tuple[LaserPointer, ...], tuple[np.ndarray, np.ndarray]] = {}
+
+    # ------------------------------------------------------------------ geometry
+    def homography(self, pose: Pose, texel_m: float) -> np.ndarray:
+        """(3, 3) map from ideal pixels (u, v, 1) to global texel coordinates (col, row, 1)."""
+        r_lc = level_from_body(pose.roll_rad, pose.pitch_rad) @ self._body_cam
+        c, s = np.cos(pose.heading_rad), np.sin(pose.heading_rad)
+        z = pose.altitude_m
+        # Ray q (level frame) -> world [Z R(psi) q_xy + (x, y) q_z ; q_z]  (eq. 4 in homogeneous form).
+        world = np.array([[z * c, -z * s, pose.x_m], [z * s, z * c, pose.y_m], [0.0, 0.0, 1.0]])
+        to_texel = np.array([[0.0, 1.0 / texel_m, 0.0], [1.0 / texel_m, 0.0, 0.0], [0.0, 0.0, 1.0]])
+        return to_texel @ world @ r_lc @ self._k_inv
+
+    def _sample_seabed(self, world: World, pose: Pose) -> np.ndarray:
+        """(H, W, 3) uint8: the prefiltered seabed albedo seen by every pixel."""
+        cam = self.camera
+        hom = self.homography(pose, world.texel_m)
+        b = cv2.perspectiveTransform(self._border_ideal.reshape(-1, 1, 2), hom).reshape(-1, 2)
+        if not np.all(np.isfinite(b)):
+            raise SimulationError("the camera does not see the seabed at this pose (tilt too large)")
+        texels_per_px = pose.altitude_m / (cam.focal_px * world.texel_m)
+        blur = self.sensor.antialias * texels_per_px if texels_per_px > 1.0 else 0.0
+        canvas = world.canvas(
+            int(np.floor(b[:, 1].min())) - 1, int(np.ceil(b[:, 1].max())) + 2,
+            int(np.floor(b[:, 0].min())) - 1, int(np.ceil(b[:, 0].max())) + 2,
+            blur,
+        )
+        shift = np.array([[1.0, 0.0, -canvas.col0], [0.0, 1.0, -canvas.row0], [0.0, 0.0, 1.0]])
+        hom = shift @ hom
+        size = (cam.width_px, cam.height_px)
+        if self._ideal_pts is None:
+            return cv2.warpPerspective(
+                canvas.texels, hom, size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                borderMode=cv2.BORDER_REPLICATE,
+            )
+        maps = cv2.perspectiveTransform(self._ideal_pts, hom).reshape(cam.height_px, cam.width_px, 2)
+        return cv2.remap(canvas.texels, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    # ------------------------------------------------------------------ radiometry
+    def _radiometry(self, altitude_m: float) -> tuple[np.ndarray, np.ndarray, bool]:
+        """(gain (H, W, 3) f32, haze (H, W, 3) f32, has_haze) for the altitude rounded to 1 cm."""
+        key = int(round(altitude_m * 100.0))
+        with self._lock:
+            hit = self._maps.get(key)
+            if hit is not None:
+                self._maps.move_to_end(key)
+                return hit
+        z = key / 100.0
+        wp, sp = self.water, self.sensor
+        rng_m = z * self._sec  # range from the camera to the seabed along each ray
+        att = np.exp(-np.asarray(wp.attenuation_per_m)[None, None, :] * wp.light_path_factor * rng_m[..., None])
+        light = sp.exposure_gain * self._cone * self._vignette
+        gain = (light[..., None] * att).astype(np.float32)
+        haze_level = 255.0 * sp.exposure_gain * np.sqrt(self._cone) * (1.0 - np.exp(-wp.backscatter_per_m * rng_m))
+        haze = (haze_level[..., None] * np.asarray(wp.backscatter_rgb)[None, None, :]).astype(np.float32)
+        entry = (gain, haze, bool(np.any(haze > 0)))
+        with self._lock:
+            self._maps[key] = entry
+            while len(self._maps) > 48:
+                self._maps.popitem(last=False)
+        return entry
+
+    def _motion_kernel(self, pose: Pose, velocity_mps: tuple[float, float]) -> np.ndarray | None:
+        """Motion blur kernel: the seabed's image motion over the exposure (a line), or None if < 0.25 px."""
+        surge, sway = velocity_mps
+        k = self.camera.focal_px * self.sensor.exposure_s / pose.altitude_m
+        du, dv = -sway * k, surge * k  # the seabed moves against the vehicle ("mirrored motion")
+        length = float(np.hypot(du, dv))
+        if length < 0.25:
+            return None
+        half = int(np.ceil(length / 2.0)) + 1
+        size = 2 * half + 1
+        kern = np.zeros((size, size), dtype=np.float64)
+        t = np.linspace(-0.5, 0.5, max(2, int(np.ceil(length * 4.0))))
+        px, py = half + du * t, half + dv * t
+        x0, y0 = np.floor(px).astype(int), np.floor(py).astype(int)
+        fx, fy = px - x0, py - y0
+        for dx, dy, wgt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy),
+                            (1, 1, fx * fy)):
+            np.add.at(kern, (y0 + dy, x0 + dx), wgt)  # bilinear splat of points along the line
+        return (kern / kern.sum()).astype(np.float32)
+
+    def laser_pixels(self, pose: Pose, lasers: Sequence[LaserPointer]) -> tuple[np.ndarray, np.ndarray]:
+        """Where each laser ray meets the seabed: ((N, 2) pixels (u, v), (N,) path length m)."""
+        if not lasers:
+            return np.zeros((0, 2)), np.zeros(0)
+        key = tuple(lasers)
+        if key not in self._lasers_cache:
+            self._lasers_cache[key] = (
+                np.array([lp.origin_m for lp in lasers], dtype=np.float64),
+                np.array([lp.unit_direction for lp in lasers]),
+            )
+        origin_b, dir_b = self._lasers_cache[key]
+        r_lb = level_from_body(pose.roll_rad, pose.pitch_rad)
+        o, d = origin_b @ r_lb.T, dir_b @ r_lb.T
+        t = (pose.altitude_m - o[:, 2]) / d[:, 2]  # ray parameter at the seabed plane z = Z (level frame)
+        hit = o + t[:, None] * d
+        uv = ground_to_pixels(self.camera, hit[:, :2], pose.altitude_m, pose.roll_rad, pose.pitch_rad)
+        path = t + np.linalg.norm(hit, axis=1)  # beam down to the seabed, then back to the lens
+        return uv, path
+
+    def _add_lasers(self, img: np.ndarray, pose: Pose, lasers, rng, noise_free: bool) -> None:
+        sp, cam = self.spots, self.camera
+        uv, path = self.laser_pixels(pose, lasers)
+        radius = 0.5 * sp.spot_diameter_mm * 1e-3 * cam.focal_px / pose.altitude_m  # disc radius, px
+        rad = int(np.ceil(max(3.0 * sp.halo_sigma_px, radius + 4.0 * sp.optics_sigma_px))) + 1
+        off = np.arange(-rad, rad + 1, dtype=np.float64)
+        h, w = img.shape[:2]
+        a_red = self.water.attenuation_per_m[0]
+        for (u, v), p_m in zip(uv, path):
+            if not (np.isfinite(u) and np.isfinite(v)) or not (-rad <= u < w + rad and -rad <= v < h + rad):
+                continue
+            iu, iv = int(round(u)), int(round(v))
+            dx = (iu + off - u)[None, :]
+            dy = (iv + off - v)[:, None]
+            r = np.sqrt(dx * dx + dy * dy)
+            peak = sp.peak_dn * np.exp(-a_red * p_m)
+            # Disc of the beam footprint with an erf edge (the optics' Gaussian blur), plus the halo.
+            spot = peak * (0.5 * erfc((r - radius) / (np.sqrt(2.0) * sp.optics_sigma_px))
+                           + sp.halo_fraction * np.exp(-(r * r) / (2.0 * sp.halo_sigma_px**2)))
+            if not noise_free and sp.speckle > 0:
+                spot *= np.maximum(1.0 + sp.speckle * fast_standard_normal(rng, spot.shape), 0.0)
+            r0, r1 = max(0, iv - rad), min(h, iv + rad + 1)
+            c0, c1 = max(0, iu - rad), min(w, iu + rad + 1)
+            if r0 >= r1 or c0 >= c1:
+                continue
+            patch = spot[r0 - (iv - rad): r1 - (iv - rad), c0 - (iu - rad): c1 - (iu - rad)].astype(np.float32)
+            clipped = np.minimum(patch, 255.0)
+            img[r0:r1, c0:c1, 0] += patch
+            img[r0:r1, c0:c1, 1] += sp.crosstalk_green * clipped
+            img[r0:r1, c0:c1, 2] += sp.crosstalk_blue * clipped
+
+    def _add_snow(self, img: np.ndarray, world: World, pose: Pose, t_s: float) -> None:
+        cam, wp = self.camera, self.water
+        reach = 0.5 * np.hypot(cam.width_px, cam.height_px) * pose.altitude_m / cam.focal_px + 0.05
+        snow = marine_snow(world.seed, wp, t_s, pose.x_m, pose.y_m, pose.altitude_m, pose.heading_rad, reach)
+        if len(snow.depth_m) == 0:
+            return
+        d = snow.depth_m
+        uv = ground_to_pixels(cam, np.column_stack([snow.forward_m / d, snow.starboard_m / d]), 1.0,
+                              pose.roll_rad, pose.pitch_rad)
+        f = cam.focal_px
+        defocus = wp.lens_aperture_mm * 1e-3 * f * np.abs(1.0 / d - 1.0 / pose.altitude_m)
+        size = f * snow.diameter_m / d
+        sigma = np.sqrt((defocus / 2.5) ** 2 + (size / 2.5) ** 2 + 0.5**2)
+        energy = (wp.marine_snow_energy * (snow.diameter_m / 1e-3) ** 2 * (0.6 / d) ** 2
+                  * np.exp(-wp.attenuation_per_m[1] * wp.light_path_factor * (d - 0.6)))
+        h, w = img.shape[:2]
+        u, v = uv[:, 0], uv[:, 1]
+        ok = np.isfinite(u) & (u > -3 * sigma) & (u < w - 1 + 3 * sigma) & (v > -3 * sigma) & (v < h - 1 + 3 * sigma)
+        if not ok.any():
+            return
+        u, v, sigma, energy = u[ok], v[ok], sigma[ok], energy[ok]
+        level = np.argmin(np.abs(np.log(sigma)[:, None] - np.log(_SNOW_SIGMAS_PX)[None, :]), axis=1)
+        # Bilinear splat of every particle's energy into one layer per blur level (one bincount),
+        # each layer blurred by its level's Gaussian (normalised: a blob keeps its energy).
+        hh, ww = h + 2, w + 2  # one-pixel apron
+        x0, y0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+        fx, fy = u - x0, v - y0
+        cols = np.clip(np.concatenate([x0, x0 + 1, x0, x0 + 1]) + 1, 0, ww - 1)
+        rows = np.clip(np.concatenate([y0, y0, y0 + 1, y0 + 1]) + 1, 0, hh - 1)
+        wts = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy]) * np.tile(energy, 4)
+        key = (np.tile(level, 4) * hh + rows) * ww + cols
+        layers = np.bincount(key, wts, minlength=len(_SNOW_SIGMAS_PX) * hh * ww)
+        layers = layers.astype(np.float32).reshape(len(_SNOW_SIGMAS_PX), hh, ww)
+        total = np.zeros((h, w), dtype=np.float32)
+        for lev in np.unique(level):
+            total += cv2.GaussianBlur(layers[lev], (0, 0), float(_SNOW_SIGMAS_PX[lev]),
+                                      borderType=cv2.BORDER_CONSTANT)[1:-1, 1:-1]
+        img += total[..., None] * np.array([0.75, 1.0, 0.95], dtype=np.float32)
+
+    # ------------------------------------------------------------------ the frame
+    def render(
+        self,
+        world: World,
+        pose: Pose,
+        lasers: Sequence[LaserPointer] = (),
+        rng: np.random.Generator | None = None,
+        velocity_mps: tuple[float, float] = (0.0, 0.0),
+        t_s: float = 0.0,
+        noise_free: bool = False,
+    ) -> np.ndarray:
+        """One frame, ``(H, W, 3) uint8`` RGB. See :func:`render_frame`."""
+        if rng is None and not noise_free:
+            raise SimulationError("render needs rng (a seeded np.random.Generator) unless noise_free=True")
+        seabed = self._sample_seabed(world, pose)
+        kern = self._motion_kernel(pose, velocity_mps)
+        if kern is not None:
+            seabed = cv2.filter2D(seabed, -1, kern, borderType=cv2.BORDER_REFLECT)
+        if self.water.forward_scatter_px >= 0.2:
+            seabed = cv2.GaussianBlur(seabed, (0, 0), self.water.forward_scatter_px, borderType=cv2.BORDER_REFLECT)
+        gain, haze, has_haze = self._radiometry(pose.altitude_m)
+        img = cv2.multiply(seabed, gain, dtype=cv2.CV_32F)
+        if has_haze:
+            img = cv2.add(img, haze)
+        if self.water.marine_snow_per_m3 > 0:
+            self._add_snow(img, world, pose, t_s)
+        if lasers:
+            self._add_lasers(img, pose, lasers, rng, noise_free)
+        sp = self.sensor
+        if not noise_free and (sp.shot_noise_dn > 0 or sp.read_noise_dn > 0):
+            std = cv2.sqrt(cv2.max(img, 0.0) * sp.shot_noise_dn + sp.read_noise_dn**2)
+            img += fast_standard_normal(rng, img.shape) * std
+        out = cv2.convertScaleAbs(cv2.max(img, 0.0))  # round, saturate to 0..255
+        if sp.jpeg_quality is not None and not noise_free:
+            ok, buf = cv2.imencode(".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(sp.jpeg_quality)])
+            out = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1]
+            out = np.ascontiguousarray(out)
+        return out
+
+
+@lru_cache(maxsize=16)
+def renderer_for(
+    camera: Camera,
+    water: WaterParams | None = None,
+    sensor: SensorParams | None = None,
+    spots: LaserSpotParams | None = None,
+) -> FrameRenderer:
+    """A shared :class:`FrameRenderer` per (camera, water, sensor, spots) (their precomputation is cached)."""
+    return FrameRenderer(camera, water, sensor, spots)
+
+
+def render_frame(
+    world: World,
+    camera: Camera,
+    pose: Pose,
+    lasers: Sequence[LaserPointer] = (),
+    water: WaterParams | None = None,
+    rng: np.random.Generator | None = None,
+    *,
+    sensor: SensorParams | None = None,
+    spots: LaserSpotParams | None = None,
+    velocity_mps: tuple[float, float] = (0.0, 0.0),
+    t_s: float = 0.0,
+    noise_free: bool = False,
+) -> np.ndarray:
+    """Render the seabed of ``world`` seen by ``camera`` at ``pose``: ``(H, W, 3) uint8`` RGB.
+
+    ``lasers`` are drawn where their rays meet the seabed. ``velocity_mps`` is the vehicle's
+    (surge, sway) over the ground, for the motion blur; ``t_s`` places the marine snow.
+    ``rng`` draws the sensor noise and the laser speckle; with ``noise_free=True`` there is
+    neither (nor the JPEG round trip) and ``rng`` may be None. Deterministic: the same
+    arguments and generator state give the same image.
+    """
+    return renderer_for(camera, water, sensor, spots).render(
+        world, pose, tuple(lasers), rng, velocity_mps, t_s, noise_free
+    )

@@ -1,0 +1,161 @@
+"""The simulated world: a seabed texture source, prefiltered canvases of it, and the water's seed.
+
+The renderer samples the seabed through a *canvas*: one contiguous block of texels, blurred
+once with a Gaussian matched to the camera's pixel footprint (a mip level), then sampled
+bilinearly per frame. That is the anti-aliasing: the texture is finer than a pixel, and
+the prefilter removes what a pixel cannot resolve. Canvases are rebuilt only when a frame's
+footprint leaves the current one, growing to cover the surveyed area, so a grid survey
+settles on one canvas after a few frames. A texel's blurred value never depends on the
+canvas extent (every sampled texel is further than the kernel radius from the canvas
+edge), so a pose renders the same whatever was rendered before.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from rovslam.errors import SimulationError
+from rovslam.sim.texture import ImageSeabed, ProceduralSeabed, TextureParams, TextureSource
+
+BLUR_STEP_TEXELS = 0.25  # prefilter sigmas are quantised to this step (one canvas per level)
+ALIGN_TEXELS = 64  # canvas and window bounds are multiples of this (see World.canvas)
+
+
+@dataclass(frozen=True)
+class Canvas:
+    """A prefiltered block of texels: ``texels[i, j]`` is global texel ``(row0 + i, col0 + j)``.
+
+    (Bounds are multiples of ``ALIGN_TEXELS``.)
+    """
+
+    texels: np.ndarray  # (R, C, 3) uint8 RGB, read-only
+    row0: int
+    col0: int
+    blur_sigma_texels: float
+
+    def contains(self, row_lo: int, row_hi: int, col_lo: int, col_hi: int) -> bool:
+        """Whether global texel rows [row_lo, row_hi) and columns [col_lo, col_hi) are inside."""
+        r, c = self.texels.shape[:2]
+        return (
+            row_lo >= self.row0 and row_hi <= self.row0 + r and col_lo >= self.col0 and col_hi <= self.col0 + c
+        )
+
+
+class World:
+    """A seabed (any :class:`~rovslam.sim.texture.TextureSource`) plus the seed of the water.
+
+    ``max_canvas_texels`` bounds a canvas side (memory: side^2 x 3 bytes); ``grow_m`` is the
+    margin added around a frame's footprint when a canvas has to be rebuilt.
+    """
+
+    def __init__(
+        self, seabed: TextureSource, seed: int = 0, max_canvas_texels: int = 4096, grow_m: float = 0.25
+    ) -> None:
+        if int(seed) < 0:
+            raise SimulationError(f"seed must be >= 0, got {seed}")
+        if max_canvas_texels < 256:
+            raise SimulationError(f"max_canvas_texels must be >= 256, got {max_canvas_texels}")
+        self.seabed = seabed
+        self.seed = int(seed)
+        self.max_canvas_texels = int(max_canvas_texels)
+        self._grow_texels = max(1, int(round(grow_m / seabed.texel_m / ALIGN_TEXELS))) * ALIGN_TEXELS
+        self._canvases: dict[float, Canvas] = {}
+        self._lock = threading.Lock()
+        self.canvas_builds = 0  # how many canvases were built (for benchmarks and tests)
+
+    @classmethod
+    def procedural(cls, seed: int = 0, params: TextureParams | None = None, **kwargs) -> "World":
+        """A world over the procedural seabed of ``seed`` (seabeds are shared, see :func:`shared_seabed`)."""
+        return cls(shared_seabed(int(seed), params if params is not None else TextureParams()), seed=seed, **kwargs)
+
+    @classmethod
+    def from_image(cls, path: Path | str, mm_per_px: float, seed: int = 0, **kwargs) -> "World":
+        """A world over a seabed photograph / orthomosaic file at ``mm_per_px``."""
+        return cls(ImageSeabed.from_file(path, mm_per_px), seed=seed, **kwargs)
+
+    @classmethod
+    def from_array(cls, rgb: np.ndarray, mm_per_px: float, seed: int = 0, **kwargs) -> "World":
+        """A world over an in-memory ``(H, W, 3) uint8`` RGB image at ``mm_per_px``."""
+        return cls(ImageSeabed(rgb, mm_per_px), seed=seed, **kwargs)
+
+    @property
+    def texel_m(self) -> float:
+        return self.seabed.texel_m
+
+    def canvas(self, row_lo: int, row_hi: int, col_lo: int, col_hi: int, blur_sigma_texels: float) -> Canvas:
+        """A window of the canvas prefiltered with ``blur_sigma_texels`` (quantised) covering a texel box.
+
+        The box (rows [row_lo, row_hi), columns [col_lo, col_hi)) is what a frame samples; the
+        returned window is that box grown to multiples of ``ALIGN_TEXELS``, a view into the
+        cached canvas. Its bounds depend on the box only, never on which canvas happens to be
+        cached, so the renderer's arithmetic (and so every output bit) does not depend on
+        what was rendered before.
+        """
+        level = round(max(0.0, blur_sigma_texels) / BLUR_STEP_TEXELS) * BLUR_STEP_TEXELS
+        margin = int(np.ceil(3.0 * level)) + 2
+        win = _align(row_lo, row_hi, col_lo, col_hi)
+        need = _align(row_lo - margin, row_hi + margin, col_lo - margin, col_hi + margin)
+        if need[1] - need[0] > self.max_canvas_texels or need[3] - need[2] > self.max_canvas_texels:
+            raise SimulationError(
+                f"the camera footprint spans {need[1] - need[0]}x{need[3] - need[2]} texels, more than "
+                f"max_canvas_texels={self.max_canvas_texels}; lower the altitude or use a coarser texture"
+            )
+        with self._lock:
+            current = self._canvases.get(level)
+            if current is None or not current.contains(*need):
+                current = self._build(need, level, current)
+                self._canvases[level] = current
+        view = current.texels[win[0] - current.row0 : win[1] - current.row0,
+                              win[2] - current.col0 : win[3] - current.col0]
+        return Canvas(view, win[0], win[2], level)
+
+    def _build(self, need: tuple[int, int, int, int], level: float, current: Canvas | None) -> Canvas:
+        import cv2
+
+        g = self._grow_texels
+        r_lo, r_hi, c_lo, c_hi = need[0] - g, need[1] + g, need[2] - g, need[3] + g
+        if current is not None:  # grow the current canvas if the union stays small enough
+            rows, cols = current.texels.shape[:2]
+            u = (min(r_lo, current.row0), max(r_hi, current.row0 + rows),
+                 min(c_lo, current.col0), max(c_hi, current.col0 + cols))
+            if max(u[1] - u[0], u[3] - u[2]) <= self.max_canvas_texels:
+                r_lo, r_hi, c_lo, c_hi = u
+        # Never exceed the cap (the needed box itself fits, checked by the caller).
+        r_lo, r_hi = _fit(r_lo, r_hi, need[0], need[1], self.max_canvas_texels)
+        c_lo, c_hi = _fit(c_lo, c_hi, need[2], need[3], self.max_canvas_texels)
+        texels = self.seabed.region(r_lo, c_lo, r_hi - r_lo, c_hi - c_lo)
+        if level > 0:
+            texels = cv2.GaussianBlur(texels, (0, 0), level, borderType=cv2.BORDER_REFLECT)
+        texels = np.ascontiguousarray(texels)
+        texels.setflags(write=False)
+        self.canvas_builds += 1
+        return Canvas(texels, r_lo, c_lo, level)
+
+
+@lru_cache(maxsize=2)
+def shared_seabed(seed: int, params: TextureParams) -> ProceduralSeabed:
+    """One :class:`ProceduralSeabed` per (seed, params) in a process, so its generated chunks are reused.
+
+    Sharing is safe: a seabed is deterministic and thread-safe.
+    """
+    return ProceduralSeabed(params, seed)
+
+
+def _align(r_lo: int, r_hi: int, c_lo: int, c_hi: int) -> tuple[int, int, int, int]:
+    """Grow a texel box outwards to multiples of ALIGN_TEXELS."""
+    a = ALIGN_TEXELS
+    return (r_lo // a * a, -(-r_hi // a) * a, c_lo // a * a, -(-c_hi // a) * a)
+
+
+def _fit(lo: int, hi: int, need_lo: int, need_hi: int, cap: int) -> tuple[int, int]:
+    """Shrink [lo, hi) to at most ``cap`` while keeping [need_lo, need_hi) inside, centred, aligned."""
+    if hi - lo <= cap:
+        return lo, hi
+    spare = cap - (need_hi - need_lo)
+    lo = (need_lo - spare // 2) // ALIGN_TEXELS * ALIGN_TEXELS
+    return lo, max(lo + cap // ALIGN_TEXELS * ALIGN_TEXELS, need_hi)
