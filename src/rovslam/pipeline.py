@@ -163,6 +163,23 @@ class SlamPipeline:
         k = (n - rec.patch.shape[0]) // 2
         return turned[k : k + rec.patch.shape[0], k : k + rec.patch.shape[1]]
 
+    def _reported_cov(self, altitude_m: float, has_attitude: bool) -> np.ndarray:
+        """(2, 2) covariance of the true position: the filter's, plus the apparent-frame errors.
+
+        A tilt error b (AHRS) shifts every seabed point seen, so the odometry and the landmarks
+        place the vehicle at x - R b: the filter is exact for that apparent position, and the
+        true one is off by b, of covariance (Z sigma_att)^2 I. A slow compass error delta turns
+        the apparent frame about the origin: the position is off by delta J x, J = [[0, -1], [1, 0]].
+        """
+        cov = self.ekf.vehicle_cov_m2.copy()
+        odo = self.config.odometry
+        if has_attitude:
+            cov += np.eye(2) * (altitude_m * odo.attitude_sigma_rad) ** 2
+        if odo.compass_sigma_rad > 0:
+            jx = np.array([[0.0, -1.0], [1.0, 0.0]]) @ self.ekf.vehicle_xy_m
+            cov += odo.compass_drift_sigma_rad**2 * np.outer(jx, jx)
+        return cov
+
     def _token_predictions(
         self, dpsi_rad: float, att: tuple[float, float], dt_s: float
     ) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -228,13 +245,24 @@ class SlamPipeline:
         half_lm = lm_cfg.size_px / 2.0
         visible = self.ekf.visible_landmarks(psi, Z, self.focal_px, self.camera.width_px, self.camera.height_px)
         tracked: list[tuple[LandmarkRecord, np.ndarray, np.ndarray, float]] = []
+        # The filter still holds the previous frame's position (its prediction comes at step 6,
+        # once this frame's speed is measured): move it by the last speed for the search
+        # (x_pred of the paper's Fig. 1), mn -> mn - f/Z R(psi)^T delta.
+        px_per_m = self.focal_px / Z
+        if self._last_speed_mps is not None and dt_s > 0:
+            delta = rot2(psi_prev) @ self._last_speed_mps * dt_s
+            shift_mn = px_per_m * (rot2(psi).T @ delta)
+            slack_px = px_per_m * cfg.odometry.gap_speed_sigma_mps * dt_s  # speed change over one step
+        else:
+            shift_mn = np.zeros(2)
+            slack_px = px_per_m * 0.15 * dt_s  # survey speed unknown: up to 0.15 m/s either way
         for i in visible:
             rec = self.landmarks[int(i)]
             mn_pred, S = self.ekf.predict_observation(int(i), psi, Z, self.focal_px)
-            uv_pred = self._to_uv(mn_pred, Z, att)
+            uv_pred = self._to_uv(mn_pred - shift_mn, Z, att)
             if not self._inside(uv_pred, half_lm - 2):
                 continue
-            sigma_px = math.sqrt(max(float(np.max(np.linalg.eigvalsh(S))), 0.0))
+            sigma_px = math.hypot(math.sqrt(max(float(np.max(np.linalg.eigvalsh(S))), 0.0)), slack_px)
             radius = int(min(lm_cfg.max_search_radius_px, math.ceil(3.0 * sigma_px) + lm_cfg.search_margin_px))
             m = match_template(bp, self._oriented_patch(rec, psi), uv_pred, radius, cfg.tracker)
             if not m.ok or not self._inside(m.uv_px, half_lm):
@@ -279,7 +307,18 @@ class SlamPipeline:
         psi = self.heading.update(
             compass, speed.dpsi_rad if measured else None, speed.dpsi_sigma_rad if measured else math.inf
         )
+        # The heading error the filter is told of: what the smoothing leaves of the white part.
+        # The slow compass drift and the AHRS tilt error act, over a short survey, as a rotation
+        # and an offset of the whole apparent frame: they enter the reported covariance
+        # (_reported_cov), not the filter, whose odometry and landmark observations are exact
+        # in that apparent frame.
         psi_sigma = self.heading.sigma_rad if sigma_c > 0 else None
+        # A landmark seen again minutes later was mapped under another compass drift: the change
+        # turns its predicted offset, so the observations are told of the drift as well.
+        obs_psi_sigma = math.hypot(psi_sigma, cfg.odometry.compass_drift_sigma_rad) if sigma_c > 0 else None
+        if self._n == 0 and frame.has_attitude:
+            # The start is known only up to the tilt offset: x_apparent = x - R b, |b| ~ Z sigma_att.
+            self.ekf = EkfSlam(cfg.slam, initial_cov_m2=np.eye(2) * (Z * cfg.odometry.attitude_sigma_rad) ** 2)
 
         # (6) EKF prediction with the measured speed, then update with the landmarks
         observations: list[Observation] = []
@@ -290,7 +329,8 @@ class SlamPipeline:
                 self._last_speed_mps = np.array([speed.surge_mps, speed.sway_mps])
         for rec, uv, mn, score in tracked:
             res = self.ekf.update(
-                rec.id, mn, psi, Z, self.focal_px, altitude_sigma_m=alt.sigma_m, heading_sigma_rad=psi_sigma
+                rec.id, mn, psi, Z, self.focal_px, altitude_sigma_m=alt.sigma_m,
+                heading_sigma_rad=obs_psi_sigma,
             )
             if res.accepted:
                 rec.observations += 1
@@ -304,7 +344,8 @@ class SlamPipeline:
         if new_template is not None:
             mn = self._to_mn(new_template.centre_uv_px, Z, att)
             new_id = self.ekf.augment(
-                mn, psi, Z, self.focal_px, altitude_sigma_m=alt.sigma_m, heading_sigma_rad=psi_sigma
+                mn, psi, Z, self.focal_px, altitude_sigma_m=alt.sigma_m,
+                heading_sigma_rad=obs_psi_sigma,
             )
             wide = int(math.ceil(lm_cfg.size_px * math.sqrt(2.0))) + 2
             wide += (wide - lm_cfg.size_px) % 2  # same parity: both share the template centre
@@ -326,9 +367,10 @@ class SlamPipeline:
         self._prev_compass_rad = compass
         self._prev_attitude = att
         xy = self.ekf.vehicle_xy_m
+        self._n += 1
         return FrameResult(
             index=frame.index, t_s=frame.t_s, dt_s=dt_s, x_m=float(xy[0]), y_m=float(xy[1]),
-            cov_xy_m2=self.ekf.vehicle_cov_m2.copy(), heading_rad=psi, altitude_m=Z,
+            cov_xy_m2=self._reported_cov(Z, frame.has_attitude), heading_rad=psi, altitude_m=Z,
             altitude_sigma_m=alt.sigma_m, altitude_source=alt.source, laser_spots_uv_px=alt.spots_uv_px,
             surge_mps=speed.surge_mps if speed else 0.0, sway_mps=speed.sway_mps if speed else 0.0,
             speed_ok=bool(speed.ok) if speed else False,
@@ -362,7 +404,7 @@ class SlamPipeline:
         Z = self._prev_altitude_m
         return FrameResult(
             index=frame.index, t_s=frame.t_s, dt_s=dt_s, x_m=float(xy[0]), y_m=float(xy[1]),
-            cov_xy_m2=self.ekf.vehicle_cov_m2.copy(), heading_rad=self._prev_heading_rad, altitude_m=Z,
+            cov_xy_m2=self._reported_cov(Z, frame.has_attitude), heading_rad=self._prev_heading_rad, altitude_m=Z,
             altitude_sigma_m=float("nan"), altitude_source="none", laser_spots_uv_px=np.zeros((0, 2)),
             surge_mps=speed.surge_mps if speed else 0.0, sway_mps=speed.sway_mps if speed else 0.0,
             speed_ok=False, speed_cov_mps2=speed.cov_mps2 if speed else np.zeros((2, 2)),
