@@ -151,8 +151,15 @@ def demo(
     from rovslam.sim import simulate as run_sim
 
     seq, res = out / "sequence", out / "results"
-    with _progress(quiet, "simulating") as bar:
-        run_sim(scenario, seq, frames=frames, seed=seed, progress=bar)
+    if _same_simulation(seq, scenario, frames, seed):
+        typer.echo(f"reusing the simulated sequence in {seq}")
+    else:
+        if seq.exists():
+            import shutil
+
+            shutil.rmtree(seq)  # the demo's own folder, from another scenario or seed
+        with _progress(quiet, "simulating") as bar:
+            run_sim(scenario, seq, frames=frames, seed=seed, progress=bar)
     with _progress(quiet, "SLAM", extra=True) as bar:
         summary = run_sequence(
             seq, res,
@@ -188,6 +195,26 @@ def config_cmd(out: Path = typer.Argument(..., help="TOML file to write with eve
 
     save_config(RunConfig(), out)
     typer.echo(f"wrote {out}")
+
+
+def _same_simulation(seq: Path, scenario: str, frames: Optional[int], seed: int) -> bool:
+    """Whether ``seq`` is a complete simulation of this scenario, length and seed (the demo reuses it)."""
+    from rovslam.errors import RovslamError
+    from rovslam.io.sequence import open_sequence
+
+    if not (seq / "sequence.toml").is_file():
+        return False
+    try:
+        s = open_sequence(seq)
+    except RovslamError:
+        return False
+    from rovslam.sim import SCENARIOS
+
+    if scenario not in SCENARIOS:
+        return False
+    want = frames if frames is not None else SCENARIOS[scenario].n_frames
+    meta = s.info.metadata
+    return meta.get("scenario") == scenario and meta.get("seed") == seed and len(s) == want == meta.get("frames")
 
 
 def _try_report(results: Path, groundtruth: Optional[Path], strict: bool = False) -> Optional[Path]:
@@ -286,9 +313,12 @@ def _print_eval(f: dict) -> None:
         t1 = Table(title="Table 1: vehicle position while tracking landmark 0 (displacement since its initialisation)")
         for col in ("time [s]", "x est [m]", "y est [m]", "x true [m]", "y true [m]"):
             t1.add_column(col, justify="right")
-        for r in f["table1_landmark0"]:
+        rows = f["table1_landmark0"]
+        for r in rows[:12]:
             t1.add_row(f"{r['t_s']:.1f}", f"{r['x_est_m']:.3f}", f"{r['y_est_m']:.3f}", f"{r['x_gt_m']:.3f}", f"{r['y_gt_m']:.3f}")
         console.print(t1)
+        if len(rows) > 12:
+            console.print(f"({len(rows) - 12} more passages over landmark 0 in eval.json)")
 
 
 def main() -> None:

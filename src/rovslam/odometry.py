@@ -356,7 +356,19 @@ class HeadingFilter:
         return float(np.sqrt(self.var_rad2))
 
     def update(self, compass_rad: float, dpsi_rad: float | None = None, dpsi_sigma_rad: float = float("inf")) -> float:
-        """One step: the compass reading of this frame and the measured change since the last one."""
+        """One step: the compass reading of this frame and the measured change since the last one.
+
+        A NaN compass (a video without navigation) leaves the tokens alone: the heading is
+        then their integrated rotation from 0 at the first frame, its variance growing.
+        """
+        if compass_rad is None or not np.isfinite(compass_rad):
+            if self.heading_rad is None:
+                self.heading_rad, self.var_rad2 = 0.0, 0.0
+            elif dpsi_rad is not None and np.isfinite(dpsi_sigma_rad):
+                psi = self.heading_rad + float(dpsi_rad)
+                self.heading_rad = float((psi + np.pi) % (2.0 * np.pi) - np.pi)
+                self.var_rad2 += float(dpsi_sigma_rad) ** 2
+            return self.heading_rad
         c = _scalar("heading_rad", compass_rad)
         r = self.compass_sigma_rad**2
         if self.heading_rad is None or r == 0.0:

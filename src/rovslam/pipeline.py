@@ -41,6 +41,9 @@ from rovslam.vision.tracking import TokenTracker, match_template
 # by more than this (beyond the paper, which flew at constant heading).
 _ROTATE_TEMPLATE_RAD = math.radians(0.5)
 
+# Prior standard deviation of one step's heading change when no compass is given.
+_NO_COMPASS_STEP_RAD = 0.2
+
 # A frame whose template channel has less contrast than this (8-bit units, std of the
 # band-passed image) carries no texture to track: black, saturated or flat.
 _MIN_TEXTURE_STD = 0.5
@@ -129,6 +132,7 @@ class SlamPipeline:
         self._prev_altitude_m: float | None = None
         self._prev_heading_rad: float | None = None  # filtered heading of the previous frame
         self._prev_compass_rad: float | None = None
+        self._has_compass = True
         self._prev_attitude = (0.0, 0.0)
         self._last_speed_mps: np.ndarray | None = None  # (surge, sway) of the last good step
         self._dr = np.zeros(2)
@@ -175,7 +179,7 @@ class SlamPipeline:
         odo = self.config.odometry
         if has_attitude:
             cov += np.eye(2) * (altitude_m * odo.attitude_sigma_rad) ** 2
-        if odo.compass_sigma_rad > 0:
+        if odo.compass_sigma_rad > 0 and self._has_compass:
             jx = np.array([[0.0, -1.0], [1.0, 0.0]]) @ self.ekf.vehicle_xy_m
             cov += odo.compass_drift_sigma_rad**2 * np.outer(jx, jx)
         return cov
@@ -218,11 +222,14 @@ class SlamPipeline:
         cfg = self.config
         att = (frame.roll_rad, frame.pitch_rad)
         dt_s = 0.0 if self._prev is None else frame.t_s - self._prev.t_s
-        compass = frame.heading_rad
+        compass = frame.heading_rad  # NaN: no compass (a bare video); the tokens give the turn
+        has_compass = math.isfinite(compass)
         compass_prev = compass if self._prev_compass_rad is None else self._prev_compass_rad
-        psi_prev = compass if self._prev_heading_rad is None else self._prev_heading_rad
-        # Until the tokens measure this step's rotation, the heading is predicted from the compass.
-        psi = psi_prev + _wrap(compass - compass_prev)
+        psi_prev = (compass if has_compass else 0.0) if self._prev_heading_rad is None else self._prev_heading_rad
+        # Heading change from the compass, until the tokens measure it (0, very uncertain, without one).
+        compass_step = _wrap(compass - compass_prev) if has_compass and math.isfinite(compass_prev) else 0.0
+        self._has_compass = has_compass
+        psi = psi_prev + compass_step
 
         reason = frame.error
         chan = bp = None
@@ -290,15 +297,17 @@ class SlamPipeline:
             inhibit_boxes(mask, np.asarray(boxes), int(half_lm) + lm_cfg.inhibit_margin_px)
 
         # (5) speed templates -> surge, sway (each token's search window also follows the turn)
-        common, offsets = self._token_predictions(_wrap(compass - compass_prev), att, dt_s)
+        common, offsets = self._token_predictions(compass_step, att, dt_s)
         tracks = self.tokens.track(bp, common, mask, offsets)
-        sigma_c = cfg.odometry.compass_sigma_rad
+        sigma_c = cfg.odometry.compass_sigma_rad if has_compass else 0.0
+        # Without a compass the tokens alone measure the turn: a vague prior of 0.2 rad per step.
+        step_sigma = math.sqrt(2.0) * sigma_c if sigma_c > 0 else (None if has_compass else _NO_COMPASS_STEP_RAD)
         if self._prev is not None:
             speed = self.speed.measure(
                 self.camera, tracks.uv_prev_px, tracks.uv_curr_px, self._prev_altitude_m, Z, dt_s,
-                dpsi_rad=_wrap(compass - compass_prev), altitude_sigma_m=alt.sigma_m,
+                dpsi_rad=compass_step, altitude_sigma_m=alt.sigma_m,
                 attitude_prev_rad=self._prev_attitude, attitude_curr_rad=att,
-                dpsi_sigma_rad=math.sqrt(2.0) * sigma_c if sigma_c > 0 else None,
+                dpsi_sigma_rad=step_sigma,
             )
         else:
             speed = None
@@ -312,10 +321,10 @@ class SlamPipeline:
         # and an offset of the whole apparent frame: they enter the reported covariance
         # (_reported_cov), not the filter, whose odometry and landmark observations are exact
         # in that apparent frame.
-        psi_sigma = self.heading.sigma_rad if sigma_c > 0 else None
+        psi_sigma = self.heading.sigma_rad if sigma_c > 0 or not has_compass else None
         # A landmark seen again minutes later was mapped under another compass drift: the change
         # turns its predicted offset, so the observations are told of the drift as well.
-        obs_psi_sigma = math.hypot(psi_sigma, cfg.odometry.compass_drift_sigma_rad) if sigma_c > 0 else None
+        obs_psi_sigma = math.hypot(psi_sigma, cfg.odometry.compass_drift_sigma_rad) if sigma_c > 0 else psi_sigma
         if self._n == 0 and frame.has_attitude:
             # The start is known only up to the tilt offset: x_apparent = x - R b, |b| ~ Z sigma_att.
             self.ekf = EkfSlam(cfg.slam, initial_cov_m2=np.eye(2) * (Z * cfg.odometry.attitude_sigma_rad) ** 2)

@@ -2,8 +2,8 @@
 
 A video carries no camera model, heading or altitude: they come from a camera file, a
 ``sequence.toml`` without frames (``[camera]``, optional ``[[laser]]``, ``[vehicle]
-altitude_m``), and the heading is constant (``heading_rad``) unless a navigation source is
-given later. Frames are decoded one at a time; nothing is held in memory beyond the current one.
+altitude_m``). The heading is NaN (no compass): the pipeline then integrates the rotation
+the speed tokens measure, starting from 0. Frames are decoded one at a time; nothing is held in memory beyond the current one.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi", ".m4v", ".webm", ".mpg", ".mpe
 class VideoSource:
     """Frames of a video file, decoded lazily with PyAV, as RGB ``(H, W, 3) uint8``."""
 
-    def __init__(self, path: str | Path, info: SequenceInfo, heading_rad: float = 0.0):
+    def __init__(self, path: str | Path, info: SequenceInfo, heading_rad: float = float("nan")):
         import av
 
         self.path = Path(path)
@@ -74,6 +74,6 @@ class VideoSource:
                     k += 1
 
 
-def open_video(path: str | Path, camera_file: str | Path, heading_rad: float = 0.0) -> VideoSource:
+def open_video(path: str | Path, camera_file: str | Path, heading_rad: float = float("nan")) -> VideoSource:
     """A video plus a camera file (``sequence.toml`` syntax; frames.csv is not needed)."""
     return VideoSource(path, parse_sequence_toml(Path(camera_file)), heading_rad)
