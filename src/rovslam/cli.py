@@ -100,7 +100,10 @@ def run(
             if bar is not None:
                 bar(res.index + 1, None, landmarks=res.n_landmarks, tokens=res.tokens_tracked)
 
-        summary = run_sequence(sequence, out, cfg, max_frames=max_frames, on_frame=on_frame, camera_file=camera)
+        summary = run_sequence(
+            sequence, out, cfg, max_frames=max_frames, on_frame=on_frame, camera_file=camera,
+            on_start=(lambda n: bar(0, n or None)) if bar else None,
+        )
     msg = (
         f"{summary.frames}/{summary.total_frames} frames, {summary.landmarks} landmarks, "
         f"{len(summary.skipped)} skipped, {summary.fps:.0f} frames/s -> {out}"
@@ -164,6 +167,7 @@ def demo(
         summary = run_sequence(
             seq, res,
             on_frame=(lambda r: bar(r.index + 1, None, landmarks=r.n_landmarks, tokens=r.tokens_tracked)) if bar else None,
+            on_start=(lambda n: bar(0, n)) if bar else None,
         )
     if summary.interrupted:
         _fail("interrupted; partial results are in " + str(res), 130)
@@ -265,22 +269,30 @@ class _progress:
 
         self._t0 = time.perf_counter()
         self._last = 0.0
+        self._total: Optional[int] = None
+        self._final: Optional[tuple] = None
 
         def bar(done: int, total: Optional[int] = None, **fields) -> None:
             now = time.perf_counter()
-            if now - self._last < 0.1 and (total is None or done < total):
+            self._final = (done, fields)
+            if now - self._last < 0.1 and total is None and done != self._total:
                 return
             self._last = now
             fps = done / (now - self._t0) if now > self._t0 else 0.0
             kw = {"completed": done, "fps": fps, **fields}
             if total is not None:
                 kw["total"] = total
+                self._total = total
             self._p.update(self._task, **kw)
 
         return bar
 
     def __exit__(self, *exc) -> None:
         if self._p is not None:
+            if self._final is not None:  # the last update may have been throttled
+                done, fields = self._final
+                self._last = 0.0
+                self._p.update(self._task, completed=done, **fields)
             self._p.stop()
 
 

@@ -56,10 +56,12 @@ def run_sequence(
     max_frames: int | None = None,
     on_frame: Callable[[FrameResult], None] | None = None,
     camera_file: str | Path | None = None,
+    on_start: Callable[[int], None] | None = None,
 ) -> RunSummary:
     """Run SLAM on a sequence folder (or video) and write ``out_dir``. Ctrl-C keeps what was computed.
 
-    ``on_frame`` is called with each result record (progress bars, live viewers).
+    ``on_start`` is called once with the number of frames to process (0: unknown, a stream);
+    ``on_frame`` with each result record (progress bars, live viewers).
     """
     seq = open_source(sequence_dir, camera_file)
     pipe = SlamPipeline(seq.info, config)
@@ -67,6 +69,8 @@ def run_sequence(
     writer = ResultWriter(out)
     save_config(config, out / "config.toml")
     total = len(seq) if max_frames is None else (min(len(seq), max_frames) if len(seq) else max_frames)  # 0: unknown
+    if on_start is not None:
+        on_start(total)
     n = 0
     interrupted = False
     t0 = time.perf_counter()
