@@ -32,3 +32,24 @@ class FilterInconsistencyError(RovslamError):
 
 class SimulationError(RovslamError):
     """A simulation request is invalid (unknown scenario, bad frame count, bad texture)."""
+
+
+def finite_scalar(
+    name: str, value: object, *, positive: bool = False, nonnegative: bool = False, nan_hint: str = "", suffix: str = ""
+) -> float:
+    """``value`` as a finite float, or :class:`InvalidMeasurementError` saying what was wrong.
+
+    ``nan_hint`` completes the message for a NaN / infinite value ("a NaN ... cannot enter
+    <nan_hint>"); ``suffix`` is appended to the range messages.
+    """
+    try:
+        v = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise InvalidMeasurementError(f"{name} must be a number, got {value!r}") from None
+    if v != v or v in (float("inf"), float("-inf")):
+        raise InvalidMeasurementError(f"{name} is {v}: a NaN or infinite value cannot enter {nan_hint}")
+    if positive and v <= 0.0:
+        raise InvalidMeasurementError(f"{name} must be > 0, got {v}{suffix}")
+    if nonnegative and v < 0.0:
+        raise InvalidMeasurementError(f"{name} must be >= 0, got {v}{suffix}")
+    return v

@@ -33,7 +33,7 @@ import numpy as np
 
 from rovslam.camera import Camera, pixels_to_ground, rot2
 from rovslam.config import OdometryConfig
-from rovslam.errors import ConfigError, InvalidMeasurementError
+from rovslam.errors import ConfigError, InvalidMeasurementError, finite_scalar
 
 __all__ = ["HeadingFilter", "SpeedMeasurement", "SpeedEstimator", "speed_from_tokens"]
 
@@ -94,20 +94,10 @@ def _checked(config: OdometryConfig) -> OdometryConfig:
 
 def _scalar(name: str, value: float, *, positive: bool = False, nonnegative: bool = False) -> float:
     """A finite float, or InvalidMeasurementError saying what was wrong."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InvalidMeasurementError(f"{name} must be a number, got {value!r}") from None
-    if not np.isfinite(v):
-        raise InvalidMeasurementError(
-            f"{name} is {v}: a NaN or infinite value cannot enter the speed estimate; "
-            "check the sensor reading or drop the frame"
-        )
-    if positive and v <= 0:
-        raise InvalidMeasurementError(f"{name} must be > 0, got {v}")
-    if nonnegative and v < 0:
-        raise InvalidMeasurementError(f"{name} must be >= 0, got {v}")
-    return v
+    return finite_scalar(
+        name, value, positive=positive, nonnegative=nonnegative,
+        nan_hint="the speed estimate; check the sensor reading or drop the frame",
+    )
 
 
 def _attitude(name: str, value) -> tuple[float, float]:

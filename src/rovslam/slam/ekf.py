@@ -28,7 +28,7 @@ from scipy.linalg.blas import dgemm
 
 from rovslam.camera import rot2
 from rovslam.config import SlamConfig
-from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError
+from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError, finite_scalar
 from rovslam.slam import gating
 from rovslam.slam.observation import observation_noise_px2
 
@@ -69,20 +69,11 @@ class ConsistencyReport:
 
 
 def _finite(name: str, value, *, positive: bool = False, nonnegative: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InvalidMeasurementError(f"{name} must be a number, got {value!r}") from None
-    if not np.isfinite(v):
-        raise InvalidMeasurementError(
-            f"{name} is {v}: a NaN or infinite value cannot enter the filter state; "
-            "drop this measurement or fix the sensor input (the state is unchanged)"
-        )
-    if positive and v <= 0.0:
-        raise InvalidMeasurementError(f"{name} must be > 0, got {v} (the state is unchanged)")
-    if nonnegative and v < 0.0:
-        raise InvalidMeasurementError(f"{name} must be >= 0, got {v} (the state is unchanged)")
-    return v
+    return finite_scalar(
+        name, value, positive=positive, nonnegative=nonnegative,
+        nan_hint="the filter state; drop this measurement or fix the sensor input (the state is unchanged)",
+        suffix=" (the state is unchanged)",
+    )
 
 
 def _vector2(name: str, value) -> np.ndarray:

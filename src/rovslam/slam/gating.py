@@ -101,8 +101,13 @@ def visibility_statistics(
     cross_cov_m2: np.ndarray | None = None,
 ) -> np.ndarray:
     """(N,) left-hand side of (5): ``d^T (P_Xi + P_x [- C - C^T] + D)^-1 d``."""
+    return _offset_statistics(landmarks_xy_m, landmarks_cov_m2, vehicle_xy_m, vehicle_cov_m2, footprint_m2, cross_cov_m2)
+
+
+def _offset_statistics(landmarks_xy_m, landmarks_cov_m2, vehicle_xy_m, vehicle_cov_m2, extra_m2, cross_cov_m2):
+    """(N,) ``d^T (P_Xi + P_x [- C - C^T] + extra)^-1 d``, d = X_i - x: the form shared by (5) and (6)."""
     d = np.asarray(landmarks_xy_m, dtype=np.float64).reshape(-1, 2) - np.asarray(vehicle_xy_m).reshape(1, 2)
-    cov = offset_covariances_m2(landmarks_cov_m2, vehicle_cov_m2, cross_cov_m2) + footprint_m2
+    cov = offset_covariances_m2(landmarks_cov_m2, vehicle_cov_m2, cross_cov_m2) + extra_m2
     return mahalanobis_sq_2d(d, cov)
 
 
@@ -130,9 +135,7 @@ def new_landmark_statistics(
     cross_cov_m2: np.ndarray | None = None,
 ) -> np.ndarray:
     """(N,) left-hand side of (6): ``d^T (P_Xi + P_x [- C - C^T] + L)^-1 d``."""
-    d = np.asarray(landmarks_xy_m, dtype=np.float64).reshape(-1, 2) - np.asarray(vehicle_xy_m).reshape(1, 2)
-    cov = offset_covariances_m2(landmarks_cov_m2, vehicle_cov_m2, cross_cov_m2) + spacing_m2
-    return mahalanobis_sq_2d(d, cov)
+    return _offset_statistics(landmarks_xy_m, landmarks_cov_m2, vehicle_xy_m, vehicle_cov_m2, spacing_m2, cross_cov_m2)
 
 
 def new_landmark_test(
