@@ -254,6 +254,19 @@ class _progress:
     def __enter__(self):
         if self.quiet:
             return None
+        started = False
+
+        def lazy(done: int, total: Optional[int] = None, **fields) -> None:
+            # The bar appears with the first progress report, so an input error comes alone.
+            nonlocal started
+            if not started:
+                started = True
+                self._start()
+            self._bar(done, total, **fields)
+
+        return lazy
+
+    def _start(self) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -285,7 +298,7 @@ class _progress:
                 self._total = total
             self._p.update(self._task, **kw)
 
-        return bar
+        self._bar = bar
 
     def __exit__(self, *exc) -> None:
         if self._p is not None:

@@ -33,6 +33,8 @@ class RunSummary:
 def open_source(path: str | Path, camera_file: str | Path | None = None):
     """A sequence folder, or a video file with its camera file: anything with ``.info`` and ``.frames()``."""
     p = Path(path)
+    if not p.exists():
+        raise SequenceFormatError(f"{p}: not found. Give a sequence folder or a video file.")
     if p.is_dir():
         return open_sequence(p)
     from rovslam.io.video import VIDEO_SUFFIXES, open_video
