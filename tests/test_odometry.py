@@ -312,3 +312,24 @@ def test_heading_filter_smooths_compass_noise_with_token_rotations():
     assert f.sigma_rad == pytest.approx(np.std(err), rel=0.3)
     # Without token rotations it follows the compass.
     assert f.update(1.0) == pytest.approx(1.0)
+
+
+def test_implausible_jump_in_speed_is_held_not_used():
+    # Three steady steps at 0.1 m/s, then tokens that agree on 0.16 m/s: a 6 cm/s jump in
+    # 0.2 s (0.3 m/s^2) is a wrong consensus, not an ROV.
+    rng = np.random.default_rng(31)
+    est = SpeedEstimator(OdometryConfig(max_accel_mps2=0.1))
+    for _ in range(3):
+        uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])
+        assert est.measure(CAM, uv0, uv1, Z, Z, DT).ok
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.032, 0.0])
+    m = est.measure(CAM, uv0, uv1, Z, Z, DT)
+    assert not m.ok and m.reason == "implausible acceleration"
+    assert m.surge_mps == pytest.approx(0.1, abs=1e-9)  # the held speed
+    # A gradual change (1 cm/s per step, 0.05 m/s^2) passes.
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.022, 0.0])
+    assert est.measure(CAM, uv0, uv1, Z, Z, DT).ok
+    # Without the gate the jump is taken.
+    free = SpeedEstimator(OdometryConfig(max_accel_mps2=0.0))
+    free.measure(CAM, *make_tokens(CAM, rng, 8, [0.02, 0.0]), Z, Z, DT)
+    assert free.measure(CAM, *make_tokens(CAM, rng, 8, [0.032, 0.0]), Z, Z, DT).ok

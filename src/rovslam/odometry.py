@@ -55,7 +55,7 @@ class SpeedMeasurement:
         n_inliers: tokens that agree with the consensus (0 when not ok).
         inlier_mask: (n_tokens,) bool, True for the tokens used.
         reason: "" when ok, else why ("no tokens", "too few tokens", "no consensus",
-            "ambiguous consensus").
+            "ambiguous consensus", "implausible acceleration").
     """
 
     ok: bool
@@ -404,6 +404,19 @@ class SpeedEstimator:
         """Seconds since the last ok measurement (0 right after one)."""
         return self._gap_s
 
+    def _plausible(self, m: SpeedMeasurement, dt_s: float) -> bool:
+        """Whether the speed change since the last good one is within what the vehicle can do.
+
+        A consensus of a few wrong matches (turbid water, particles) can agree on a wrong
+        motion; no ROV changes its speed by 5 cm/s in 0.2 s. Allowed: ``max_accel_mps2`` times
+        the time since the last good speed, plus three standard deviations of the change.
+        """
+        if self._last is None or self.config.max_accel_mps2 <= 0:
+            return True
+        dv = m.speed_mps - self._last.speed_mps
+        sigma = float(np.sqrt(np.trace(m.cov_mps2 + self._last.cov_mps2)))
+        return float(np.hypot(*dv)) <= self.config.max_accel_mps2 * (dt_s + self._gap_s) + 3.0 * sigma
+
     def measure(
         self,
         camera: Camera,
@@ -423,10 +436,13 @@ class SpeedEstimator:
             camera, uv_prev_px, uv_curr_px, altitude_prev_m, altitude_curr_m, dt_s, dpsi_rad,
             altitude_sigma_m, attitude_prev_rad, attitude_curr_rad, self.config, dpsi_sigma_rad,
         )
-        if m.ok:
+        if m.ok and self._plausible(m, float(dt_s)):
             self._last = m
             self._gap_s = 0.0
             return m
+        if m.ok:
+            m = SpeedMeasurement(False, m.surge_mps, m.sway_mps, m.cov_mps2, m.n_tokens, 0, m.inlier_mask,
+                                 "implausible acceleration", m.dpsi_rad, m.dpsi_sigma_rad)
         self._gap_s += float(dt_s)
         grow = (self.config.gap_speed_sigma_mps * self._gap_s) ** 2
         if self._last is None:

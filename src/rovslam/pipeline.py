@@ -263,12 +263,16 @@ class SlamPipeline:
         else:
             shift_mn = np.zeros(2)
             slack_px = px_per_m * 0.15 * dt_s  # survey speed unknown: up to 0.15 m/s either way
-        for i in visible:
-            rec = self.landmarks[int(i)]
-            mn_pred, S = self.ekf.predict_observation(int(i), psi, Z, self.focal_px)
-            uv_pred = self._to_uv(mn_pred - shift_mn, Z, att)
+        # Predicted pixels of all gated landmarks at once; only those inside the image are searched.
+        uv_all = np.zeros((0, 2))
+        if len(visible):
+            g = (self.ekf.landmarks_xy_m()[visible] - self.ekf.vehicle_xy_m) @ rot2(psi)  # R^T (X - x)
+            uv_all = ground_to_pixels(self.camera, g - shift_mn / px_per_m, Z, *att)
+        for i, uv_pred in zip(visible, uv_all):
             if not self._inside(uv_pred, half_lm - 2):
                 continue
+            rec = self.landmarks[int(i)]
+            _, S = self.ekf.predict_observation(int(i), psi, Z, self.focal_px)
             sigma_px = math.hypot(math.sqrt(max(float(np.max(np.linalg.eigvalsh(S))), 0.0)), slack_px)
             radius = int(min(lm_cfg.max_search_radius_px, math.ceil(3.0 * sigma_px) + lm_cfg.search_margin_px))
             m = match_template(bp, self._oriented_patch(rec, psi), uv_pred, radius, cfg.tracker)
