@@ -111,7 +111,7 @@ class OdometryConfig:
     token_sigma_px: float = 0.15  # one token's displacement noise
     gap_speed_sigma_mps: float = 0.02  # added per second without tokens
     initial_speed_sigma_mps: float = 0.2  # speed sigma held before the first good measurement
-    max_accel_mps2: float = 0.1  # a speed changing faster than this (+3 sigma) is a wrong consensus; 0: off
+    max_accel_mps2: float = 0.0  # > 0: a speed changing faster than this (+3 sigma) is a wrong consensus (0: off)
     compass_sigma_rad: float = 0.0087  # compass white noise (0.5 deg); 0 uses the compass as it is (the paper)
     compass_drift_sigma_rad: float = 0.0087  # slow compass error no smoothing removes (magnetic disturbance)
     attitude_sigma_rad: float = 0.0035  # AHRS roll / pitch accuracy (0.2 deg, a typical spec), when frames.csv has them
