@@ -27,7 +27,7 @@ def dense_update(x, p, k, mn, psi, z, f, r_m):
     return x + gain @ (mn - h), i_kh @ p @ i_kh.T + gain @ r_m @ gain.T
 
 
-def random_filter(rng, n_landmarks, config=SlamConfig()):
+def random_filter(rng, n_landmarks, config=SlamConfig(heading_bias_sigma_rad=0.0)):
     ekf = EkfSlam(config, initial_capacity=2)
     for _ in range(n_landmarks):
         ekf.predict(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT)
@@ -41,7 +41,7 @@ def snapshot(ekf):
 
 # ---------------------------------------------------------------- (1), (2)
 def test_predict_moves_by_equation_1_and_projects_q():
-    ekf = EkfSlam(SlamConfig(heading_sigma_rad=0.0), initial_xy_m=(1.0, 2.0), initial_cov_m2=np.eye(2) * 1e-4)
+    ekf = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0, heading_sigma_rad=0.0), initial_xy_m=(1.0, 2.0), initial_cov_m2=np.eye(2) * 1e-4)
     q = np.array([[4e-6, 1e-6], [1e-6, 9e-6]])
     psi = 0.6
     ekf.predict(0.1, -0.03, q, psi, DT)
@@ -49,7 +49,7 @@ def test_predict_moves_by_equation_1_and_projects_q():
     np.testing.assert_allclose(ekf.vehicle_xy_m, [1.0, 2.0] + r @ [0.1, -0.03] * DT, atol=1e-15)
     np.testing.assert_allclose(ekf.vehicle_cov_m2, np.eye(2) * 1e-4 + DT**2 * r @ q @ r.T, atol=1e-18)
     # Heading noise adds sigma^2 J J^T with J = dR/dpsi [u, v] dt.
-    ekf2 = EkfSlam(SlamConfig(), initial_cov_m2=np.eye(2) * 1e-4)
+    ekf2 = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0), initial_cov_m2=np.eye(2) * 1e-4)
     ekf2.predict(0.1, -0.03, q, psi, DT, heading_sigma_rad=0.01)
     dr = np.array([[-np.sin(psi), -np.cos(psi)], [np.cos(psi), -np.sin(psi)]])
     j = dr @ [0.1, -0.03] * DT
@@ -66,7 +66,7 @@ def test_predict_leaves_landmarks_and_cross_terms_except_process_noise():
     x1, p1 = snapshot(ekf)
     np.testing.assert_array_equal(x1[2:], x0[2:])  # (2): static landmarks
     np.testing.assert_array_equal(p1[2:, :], p0[2:, :])
-    noisy = EkfSlam(SlamConfig(landmark_process_sigma_m=0.001))
+    noisy = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0, landmark_process_sigma_m=0.001))
     for _ in range(3):
         noisy.augment(rng.uniform(-50, 50, 2), 0.0, Z, F)
     before = noisy.landmarks_cov_m2()
@@ -84,7 +84,7 @@ def test_update_equals_the_dense_joseph_form():
     k = 2 + 2 * i
     mn_pred, s_pred = ekf.predict_observation(i, psi, Z, F, altitude_sigma_m=0.03)
     mn = mn_pred + np.array([0.7, -0.4])
-    r_m = observation_noise_px2(mn_pred, SlamConfig().pixel_sigma_px, Z, 0.03)
+    r_m = observation_noise_px2(mn_pred, SlamConfig(heading_bias_sigma_rad=0.0).pixel_sigma_px, Z, 0.03)
     res = ekf.update(i, mn, psi, Z, F, altitude_sigma_m=0.03)
     assert isinstance(res, UpdateResult) and res.accepted and res.reason == ""
     x_ref, p_ref = dense_update(x0, p0, k, mn, psi, Z, F, r_m)
@@ -105,7 +105,7 @@ def test_innovation_gate_rejects_and_leaves_the_state_untouched():
     mn_pred, s = ekf.predict_observation(2, 0.1, Z, F)
     sigma = np.sqrt(s[0, 0])
     res = ekf.update(2, mn_pred + [6.0 * sigma, 0.0], 0.1, Z, F)  # a wrong correlation match
-    assert not res.accepted and res.nis > SlamConfig().innovation_gate and "innovation" in res.reason
+    assert not res.accepted and res.nis > SlamConfig(heading_bias_sigma_rad=0.0).innovation_gate and "innovation" in res.reason
     x1, p1 = snapshot(ekf)
     np.testing.assert_array_equal(x1, x0)
     np.testing.assert_array_equal(p1, p0)
@@ -159,7 +159,7 @@ def test_full_augmentation_carries_the_cross_covariances():
 
 def test_paper_augmentation_is_the_diagonal_block_only():
     rng = np.random.default_rng(4)
-    ekf = random_filter(rng, 4, SlamConfig(augmentation="paper"))
+    ekf = random_filter(rng, 4, SlamConfig(heading_bias_sigma_rad=0.0, augmentation="paper"))
     x0, p0 = snapshot(ekf)
     mn, psi = np.array([60.0, -30.0]), 1.1
     ekf.augment(mn, psi, Z, F)
@@ -173,8 +173,8 @@ def test_paper_augmentation_is_the_diagonal_block_only():
 
 def test_capacity_growth_preserves_the_state():
     rng = np.random.default_rng(5)
-    small = EkfSlam(initial_capacity=1)
-    big = EkfSlam(initial_capacity=100)
+    small = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0), initial_capacity=1)
+    big = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0), initial_capacity=100)
     for _ in range(37):
         u, psi, mn = rng.uniform(0, 0.1), rng.uniform(-3, 3), rng.uniform(-100, 100, 2)
         for ekf in (small, big):
@@ -196,8 +196,8 @@ def test_revisit_shrinks_the_vehicle_covariance_dead_reckoning_grows():
     rng = np.random.default_rng(6)
     sig0 = 1e-3
     q = np.eye(2) * 0.002**2
-    slam = EkfSlam(SlamConfig(heading_sigma_rad=0.0), initial_cov_m2=np.eye(2) * sig0**2)
-    dr = EkfSlam(SlamConfig(heading_sigma_rad=0.0), initial_cov_m2=np.eye(2) * sig0**2)
+    slam = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0, heading_sigma_rad=0.0), initial_cov_m2=np.eye(2) * sig0**2)
+    dr = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0, heading_sigma_rad=0.0), initial_cov_m2=np.eye(2) * sig0**2)
     truth = np.zeros(2)
     landmark = np.array([0.02, -0.01])
     slam.augment(observe_mn(landmark, truth, 0.0, Z, F)[0] + rng.normal(0, 0.5, 2), 0.0, Z, F)
@@ -251,7 +251,7 @@ def lawnmower_headings(n_legs=5, leg_steps=70, cross_steps=15, psi0=0.4):
     return np.array(heads)
 
 
-def survey_nees(seed, augmentation="full"):
+def survey_nees(seed, augmentation="full", drift_rad=0.0, drift_tau_s=60.0, model_drift=False):
     """One seeded run: returns the vehicle NEES per step, landmarks mapped, updates, rejections.
 
     0.1 m/s at 5 Hz, Z = 1.31 m, f = 1075 px, 360x272 image, ~30 landmarks per m^2 at random;
@@ -268,10 +268,20 @@ def survey_nees(seed, augmentation="full"):
     landmarks = rng.uniform(lo, hi, (int(30 * np.prod(hi - lo)), 2))
     mapped = np.zeros(len(landmarks), dtype=bool)
     truth_of = []
-    ekf = EkfSlam(SlamConfig(heading_sigma_rad=SIG_PSI, pixel_sigma_px=SIG_PX, augmentation=augmentation))
+    ekf = EkfSlam(SlamConfig(
+        heading_bias_sigma_rad=drift_rad if model_drift else 0.0, heading_bias_tau_s=drift_tau_s,
+        heading_sigma_rad=SIG_PSI, pixel_sigma_px=SIG_PX, augmentation=augmentation,
+    ))
     q = np.eye(2) * SIG_V**2
     psi_frame = np.append(psi_true, psi_true[-1])
     psi_meas = psi_frame + rng.normal(0.0, SIG_PSI, k_steps + 1)
+    if drift_rad > 0.0:  # a slowly drifting compass error (Ornstein-Uhlenbeck), from its stationary law
+        a = np.exp(-DT / drift_tau_s)
+        b = np.empty(k_steps + 1)
+        b[0] = rng.normal(0.0, drift_rad)
+        for k in range(k_steps):
+            b[k + 1] = a * b[k] + rng.normal(0.0, drift_rad * np.sqrt(1.0 - a * a))
+        psi_meas += b
     speed_meas = np.array([0.1, 0.0]) + rng.normal(0.0, SIG_V, (k_steps, 2))
     lim = np.array([H / 2 - 16, W / 2 - 16])
     nees = np.empty(k_steps)
@@ -302,8 +312,8 @@ def survey_nees(seed, augmentation="full"):
     return nees, ekf.n_landmarks, n_upd, n_rej
 
 
-def monte_carlo(augmentation, runs=50):
-    out = [survey_nees(1000 + s, augmentation) for s in range(runs)]
+def monte_carlo(augmentation, runs=50, **drift):
+    out = [survey_nees(1000 + s, augmentation, **drift) for s in range(runs)]
     nees = np.array([o[0] for o in out])
     mean = nees.mean(axis=0)
     lo, hi = chi2.ppf([0.025, 0.975], 2 * runs) / runs  # [1.484, 2.591] for 50 runs
@@ -373,11 +383,11 @@ def test_nan_or_inf_input_is_rejected_before_the_state_changes(call):
 
 def test_bad_config_and_initial_covariance():
     with pytest.raises(ConfigError, match="augmentation"):
-        EkfSlam(SlamConfig(augmentation="diagonal"))
+        EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0, augmentation="diagonal"))
     with pytest.raises(ConfigError, match="gate_covariance"):
-        EkfSlam(SlamConfig(gate_covariance="x"))
+        EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0, gate_covariance="x"))
     with pytest.raises(ConfigError, match="pixel_sigma_px"):
-        EkfSlam(SlamConfig(pixel_sigma_px=0.0))
+        EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0, pixel_sigma_px=0.0))
     with pytest.raises(InvalidMeasurementError, match="semi-definite"):
         EkfSlam(initial_cov_m2=[[1.0, 2.0], [2.0, 1.0]])
     with pytest.raises(InvalidMeasurementError):
@@ -407,3 +417,96 @@ def test_long_run_stays_symmetric_and_positive():
     report = ekf.check_consistency(repair=False)
     assert report.max_asymmetry < 1e-12 * report.max_eigenvalue
     assert report.min_eigenvalue > 0.0
+
+
+def test_monte_carlo_drifting_compass_needs_the_heading_bias_state():
+    # A compass error drifting by 0.5 degree (correlation 60 s): the paper's filter, told only
+    # of the white heading noise, is over-confident; with the heading-bias state eps it is not.
+    drift = dict(drift_rad=np.deg2rad(0.5), drift_tau_s=60.0)
+    inside_plain, plain = monte_carlo("full", runs=30, **drift)
+    inside_bias, bias = monte_carlo("full", runs=30, model_drift=True, **drift)
+    print(f"\ndrifting compass: NEES inside {inside_plain:.1%} (mean {plain['mean_nees']:.2f}) without eps, "
+          f"{inside_bias:.1%} (mean {bias['mean_nees']:.2f}) with eps")
+    assert plain["mean_nees"] > 2.6  # over-confident
+    assert inside_bias >= 0.85
+    assert 1.6 < bias["mean_nees"] < 2.5
+
+
+def _numjac(fun, x, eps=1e-7):
+    y0 = fun(x)
+    out = np.empty((len(y0), len(x)))
+    for j in range(len(x)):
+        d = np.zeros(len(x))
+        d[j] = eps
+        out[:, j] = (fun(x + d) - fun(x - d)) / (2 * eps)
+    return out
+
+
+def test_heading_bias_state_matches_a_dense_ekf():
+    # Predict, update and augment with eps in the state against a textbook EKF whose Jacobians
+    # are taken numerically on the whole state.
+    rng = np.random.default_rng(40)
+    tau, sig_b = 50.0, 0.01
+    cfg = SlamConfig(heading_bias_sigma_rad=sig_b, heading_bias_tau_s=tau, heading_sigma_rad=0.0, pixel_sigma_px=0.5)
+    ekf = EkfSlam(cfg, initial_cov_m2=np.eye(2) * 1e-4)
+    for _ in range(5):
+        ekf.predict(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT)
+        ekf.augment(rng.uniform(-120, 120, 2), rng.uniform(-3, 3), Z, F, altitude_sigma_m=0.02)
+    ekf.update(1, ekf.predict_observation(1, 0.3, Z, F)[0] + [1.5, -1.0], 0.3, Z, F)  # eps now non-zero
+    assert ekf.state_dim == 3 + 2 * 5 and abs(ekf.heading_bias_rad) > 0
+
+    # Predict.
+    x0, p0 = snapshot(ekf)
+    u, v, psi, q = 0.1, -0.02, 0.7, np.diag([4e-6, 9e-6])
+    a = np.exp(-DT / tau)
+
+    def f(x):
+        y = x.copy()
+        y[:2] += rot2(psi - x[2]) @ [u, v] * DT
+        y[2] *= a
+        return y
+
+    ekf.predict(u, v, q, psi, DT)
+    fj = _numjac(f, x0)
+    g = np.zeros((len(x0), 2))
+    g[:2] = rot2(psi - x0[2]) * DT
+    p_ref = fj @ p0 @ fj.T + g @ q @ g.T
+    p_ref[2, 2] += sig_b**2 * (1 - a * a)
+    x1, p1 = snapshot(ekf)
+    np.testing.assert_allclose(x1, f(x0), atol=1e-15)
+    np.testing.assert_allclose(p1, p_ref, atol=1e-9 * np.abs(p_ref).max())
+
+    # Update of landmark 3.
+    k = 3 + 2 * 3
+    psi = -0.4
+
+    def h(x):
+        return (F / Z) * rot2(psi - x[2]).T @ (x[k : k + 2] - x[:2])
+
+    mn = h(x1) + np.array([0.6, -0.3])
+    res = ekf.update(3, mn, psi, Z, F)
+    assert res.accepted
+    hj = _numjac(h, x1)
+    r_m = observation_noise_px2(h(x1), 0.5, Z)
+    s = hj @ p1 @ hj.T + r_m
+    gain = p1 @ hj.T @ np.linalg.inv(s)
+    x2, p2 = snapshot(ekf)
+    np.testing.assert_allclose(x2, x1 + gain @ (mn - h(x1)), atol=1e-12)
+    np.testing.assert_allclose(p2, (np.eye(len(x1)) - gain @ hj) @ p1, atol=1e-8 * np.abs(p1).max())
+
+    # Augment.
+    mn_new = np.array([40.0, -70.0])
+
+    def g_aug(x):
+        return np.concatenate([x, x[:2] + (Z / F) * rot2(psi - x[2]) @ mn_new])
+
+    lid = ekf.augment(mn_new, psi, Z, F)
+    assert lid == 5
+    ja = _numjac(g_aug, x2)
+    gm = np.zeros((len(x2) + 2, 2))
+    gm[-2:] = (Z / F) * rot2(psi - x2[2])
+    p_aug = ja @ p2 @ ja.T + gm @ observation_noise_px2(mn_new, 0.5, Z) @ gm.T
+    x3, p3 = snapshot(ekf)
+    np.testing.assert_allclose(x3, g_aug(x2), atol=1e-12)
+    np.testing.assert_allclose(p3, p_aug, atol=1e-8 * np.abs(p_aug).max())
+    ekf.check_consistency()

@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rovslam.camera import Camera, ground_to_pixels, pixels_to_ground, rot2
-from rovslam.config import OdometryConfig
+from rovslam.config import OdometryConfig, SlamConfig
 from rovslam.errors import ConfigError, InvalidMeasurementError
 from rovslam.odometry import HeadingFilter, SpeedEstimator, SpeedMeasurement, speed_from_tokens
 
@@ -263,7 +263,7 @@ def test_held_speed_drives_the_filter_through_a_gap():
 
     rng = np.random.default_rng(18)
     est = SpeedEstimator(OdometryConfig(gap_speed_sigma_mps=0.02))
-    ekf = EkfSlam()
+    ekf = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0))
     empty = np.zeros((0, 2))
     uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])
     growth = []

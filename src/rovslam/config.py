@@ -44,7 +44,7 @@ class BandpassConfig:
     sigma_fine_px: float = 1.0  # removes wavelengths shorter than ~2*pi*sigma_fine (noise)
     sigma_coarse_px: float = 4.0  # removes wavelengths longer than ~2*pi*sigma_coarse (illumination)
     channel: str = "green"  # "grey" | "green" | "blue"; red is reserved for the lasers
-    despeckle_px: int = 0  # >= 2: remove bright specks (marine snow) narrower than this first
+    despeckle_px: int = 7  # >= 2: remove bright specks (marine snow) narrower than this first; 0: off (paper)
 
 
 @dataclass(frozen=True)
@@ -131,6 +131,8 @@ class SlamConfig:
     innovation_gate: float = 13.82  # chi-square 2 dof, 99.9 %
     augmentation: str = "full"  # "full" (correct cross-covariances) | "paper" (eq. 4 diagonal block)
     gate_covariance: str = "relative"  # (5), (6): "relative" (P_Xi + P_x - C - C^T) | "paper" (P_Xi + P_x)
+    heading_bias_sigma_rad: float = 0.0087  # > 0: estimate the slow compass error in the state (0: paper)
+    heading_bias_tau_s: float = 120.0  # its correlation time (Ornstein-Uhlenbeck)
 
 
 @dataclass(frozen=True)

@@ -173,13 +173,14 @@ class SlamPipeline:
         A tilt error b (AHRS) shifts every seabed point seen, so the odometry and the landmarks
         place the vehicle at x - R b: the filter is exact for that apparent position, and the
         true one is off by b, of covariance (Z sigma_att)^2 I. A slow compass error delta turns
-        the apparent frame about the origin: the position is off by delta J x, J = [[0, -1], [1, 0]].
+        the apparent frame about the origin: the position is off by delta J x, J = [[0, -1], [1, 0]]
+        (only when the filter does not hold that error in its state: slam.heading_bias_sigma_rad = 0).
         """
         cov = self.ekf.vehicle_cov_m2.copy()
         odo = self.config.odometry
         if has_attitude:
             cov += np.eye(2) * (altitude_m * odo.attitude_sigma_rad) ** 2
-        if odo.compass_sigma_rad > 0 and self._has_compass:
+        if odo.compass_sigma_rad > 0 and self._has_compass and self.config.slam.heading_bias_sigma_rad == 0:
             jx = np.array([[0.0, -1.0], [1.0, 0.0]]) @ self.ekf.vehicle_xy_m
             cov += odo.compass_drift_sigma_rad**2 * np.outer(jx, jx)
         return cov
@@ -275,7 +276,7 @@ class SlamPipeline:
             _, S = self.ekf.predict_observation(int(i), psi, Z, self.focal_px)
             sigma_px = math.hypot(math.sqrt(max(float(np.max(np.linalg.eigvalsh(S))), 0.0)), slack_px)
             radius = int(min(lm_cfg.max_search_radius_px, math.ceil(3.0 * sigma_px) + lm_cfg.search_margin_px))
-            m = match_template(bp, self._oriented_patch(rec, psi), uv_pred, radius, cfg.tracker)
+            m = match_template(bp, self._oriented_patch(rec, psi - self.ekf.heading_bias_rad), uv_pred, radius, cfg.tracker)
             if not m.ok or not self._inside(m.uv_px, half_lm):
                 continue
             if len(alt.spots_uv_px) and np.any(
@@ -328,7 +329,11 @@ class SlamPipeline:
         psi_sigma = self.heading.sigma_rad if sigma_c > 0 or not has_compass else None
         # A landmark seen again minutes later was mapped under another compass drift: the change
         # turns its predicted offset, so the observations are told of the drift as well.
-        obs_psi_sigma = math.hypot(psi_sigma, cfg.odometry.compass_drift_sigma_rad) if sigma_c > 0 else psi_sigma
+        # With the heading-bias state (slam.heading_bias_sigma_rad > 0) the filter tracks that drift itself.
+        obs_psi_sigma = (
+            math.hypot(psi_sigma, cfg.odometry.compass_drift_sigma_rad)
+            if sigma_c > 0 and cfg.slam.heading_bias_sigma_rad == 0 else psi_sigma
+        )
         if self._n == 0 and frame.has_attitude:
             # The start is known only up to the tilt offset: x_apparent = x - R b, |b| ~ Z sigma_att.
             self.ekf = EkfSlam(cfg.slam, initial_cov_m2=np.eye(2) * (Z * cfg.odometry.attitude_sigma_rad) ** 2)
@@ -365,7 +370,7 @@ class SlamPipeline:
             self.landmarks.append(
                 LandmarkRecord(
                     new_id, new_template.patch, float(new_template.local_variance), frame.t_s, frame.index,
-                    observations=1, last_seen_t_s=frame.t_s, heading_rad=psi,
+                    observations=1, last_seen_t_s=frame.t_s, heading_rad=psi - self.ekf.heading_bias_rad,
                     patch_wide=cv2.getRectSubPix(bp, (wide, wide), tuple(float(c) for c in new_template.centre_uv_px)),
                 )
             )
@@ -383,7 +388,7 @@ class SlamPipeline:
         self._n += 1
         return FrameResult(
             index=frame.index, t_s=frame.t_s, dt_s=dt_s, x_m=float(xy[0]), y_m=float(xy[1]),
-            cov_xy_m2=self._reported_cov(Z, frame.has_attitude), heading_rad=psi, altitude_m=Z,
+            cov_xy_m2=self._reported_cov(Z, frame.has_attitude), heading_rad=psi - self.ekf.heading_bias_rad, altitude_m=Z,
             altitude_sigma_m=alt.sigma_m, altitude_source=alt.source, laser_spots_uv_px=alt.spots_uv_px,
             surge_mps=speed.surge_mps if speed else 0.0, sway_mps=speed.sway_mps if speed else 0.0,
             speed_ok=bool(speed.ok) if speed else False,

@@ -1,4 +1,11 @@
-"""Augmented-state EKF-SLAM: state ``[x, y, X1, Y1, ..., XN, YN]`` (metres, world frame).
+"""Augmented-state EKF-SLAM: state ``[x, y, (eps,) X1, Y1, ..., XN, YN]`` (metres, world frame).
+
+``eps`` (radians, present when ``heading_bias_sigma_rad > 0``) is the slow error of the heading
+input, beyond the paper: the true heading is ``psi - eps``, ``eps`` an Ornstein-Uhlenbeck
+process. A compass drifts with the vehicle's own magnetic field; while it drifts, landmarks
+mapped under one error and seen again under another turn the map. With ``eps`` in the state
+the re-observations estimate the change; its absolute value (a rotation of the whole map)
+stays unobservable and its variance says so.
 
 * Prediction (1), (2): ``[x, y] += R(psi) [u, v] dt``; the speed covariance Q is projected
   through ``R(psi) dt``, an optional heading noise through ``dR/dpsi [u, v] dt``; landmarks
@@ -121,7 +128,10 @@ def _check_config(config: SlamConfig) -> SlamConfig:
         v = getattr(config, name)
         if not (np.isfinite(v) and v > 0):
             raise ConfigError(f"[slam] {name} must be a positive number, got {v!r}")
-    for name in ("initial_position_sigma_m", "heading_sigma_rad", "landmark_process_sigma_m", "new_landmark_spacing_m"):
+    if not (np.isfinite(config.heading_bias_tau_s) and config.heading_bias_tau_s > 0):
+        raise ConfigError(f"[slam] heading_bias_tau_s must be a positive number, got {config.heading_bias_tau_s!r}")
+    for name in ("initial_position_sigma_m", "heading_sigma_rad", "landmark_process_sigma_m", "new_landmark_spacing_m",
+                 "heading_bias_sigma_rad"):
         v = getattr(config, name)
         if not (np.isfinite(v) and v >= 0):
             raise ConfigError(f"[slam] {name} must be zero or positive, got {v!r}")
@@ -151,10 +161,13 @@ class EkfSlam:
             cov = np.eye(2) * config.initial_position_sigma_m**2
         else:
             cov = _cov2("initial_cov_m2", initial_cov_m2)
-        self._n = 2
-        self._alloc(2 + 2 * max(int(initial_capacity), 1))
+        self._v = 3 if config.heading_bias_sigma_rad > 0 else 2  # vehicle block: x, y (, eps)
+        self._n = self._v
+        self._alloc(self._v + 2 * max(int(initial_capacity), 1))
         self._x[:2] = xy
         self._P[:2, :2] = cov
+        if self._v == 3:
+            self._P[2, 2] = config.heading_bias_sigma_rad**2
 
     # ------------------------------------------------------------------ storage
     def _alloc(self, cap: int) -> None:
@@ -176,12 +189,21 @@ class EkfSlam:
     # ------------------------------------------------------------------ accessors
     @property
     def state_dim(self) -> int:
-        """2 + 2N."""
+        """2 + 2N, or 3 + 2N with the heading-bias state."""
         return self._n
 
     @property
     def n_landmarks(self) -> int:
-        return (self._n - 2) // 2
+        return (self._n - self._v) // 2
+
+    @property
+    def heading_bias_rad(self) -> float:
+        """Estimated slow heading error eps (true heading = input - eps); 0 without the state."""
+        return float(self._x[2]) if self._v == 3 else 0.0
+
+    @property
+    def heading_bias_sigma_rad(self) -> float:
+        return float(np.sqrt(max(self._P[2, 2], 0.0))) if self._v == 3 else 0.0
 
     @property
     def landmark_ids(self) -> list[int]:
@@ -199,12 +221,12 @@ class EkfSlam:
 
     @property
     def state_m(self) -> np.ndarray:
-        """(2 + 2N,) full state (copy)."""
+        """(state_dim,) full state (copy)."""
         return self._x[: self._n].copy()
 
     @property
     def covariance_m2(self) -> np.ndarray:
-        """(2 + 2N, 2 + 2N) full covariance (copy; O(N^2))."""
+        """(state_dim, state_dim) full covariance (copy; O(N^2))."""
         return self._P[: self._n, : self._n].copy()
 
     def _index(self, i) -> int:
@@ -217,7 +239,7 @@ class EkfSlam:
                 f"no landmark {k}: the map holds ids 0..{self.n_landmarks - 1}" if self.n_landmarks
                 else f"no landmark {k}: the map is empty; augment() first"
             )
-        return 2 + 2 * k
+        return self._v + 2 * k
 
     def landmark_xy_m(self, i: int) -> np.ndarray:
         """(2,) position of landmark i."""
@@ -231,11 +253,11 @@ class EkfSlam:
 
     def landmarks_xy_m(self) -> np.ndarray:
         """(N, 2) all landmark positions."""
-        return self._x[2 : self._n].reshape(-1, 2).copy()
+        return self._x[self._v : self._n].reshape(-1, 2).copy()
 
     def landmarks_cov_m2(self) -> np.ndarray:
         """(N, 2, 2) the landmarks' diagonal covariance blocks (O(N))."""
-        r = np.arange(2, self._n, 2)
+        r = np.arange(self._v, self._n, 2)
         p = self._P
         out = np.empty((len(r), 2, 2))
         out[:, 0, 0] = p[r, r]
@@ -246,7 +268,7 @@ class EkfSlam:
 
     def vehicle_landmark_cov_m2(self) -> np.ndarray:
         """(N, 2, 2) cross-covariances ``C_i = cov(x, X_i)`` (vehicle rows, landmark columns)."""
-        return self._P[0:2, 2 : self._n].reshape(2, -1, 2).transpose(1, 0, 2).copy()
+        return self._P[0:2, self._v : self._n].reshape(2, -1, 2).transpose(1, 0, 2).copy()
 
     # ------------------------------------------------------------------ (1), (2)
     def predict(
@@ -278,26 +300,42 @@ class EkfSlam:
         s_psi = self.config.heading_sigma_rad if heading_sigma_rad is None else heading_sigma_rad
         s_psi = _finite("heading_sigma_rad", s_psi, nonnegative=True)
 
-        r = rot2(psi)
+        theta = psi - self.heading_bias_rad  # the heading the filter believes
+        r = rot2(theta)
         speed = np.array([u, v])
         self._x[:2] += r @ speed * dt  # (1)
+        j = np.array([[-r[1, 0], -r[0, 0]], [r[0, 0], -r[1, 0]]]) @ speed * dt  # dR/dpsi [u, v] dt
+        n = self._n
+        if self._v == 3:
+            # F = I except d(position)/d(eps) = -j: P <- F P F^T as two O(N) rank-1 steps.
+            p = self._P
+            p[0:2, :n] -= np.outer(j, p[2, :n])
+            p[:n, 0:2] -= np.outer(p[:n, 2], j)
+            a = np.exp(-dt / self.config.heading_bias_tau_s)  # eps: Ornstein-Uhlenbeck
+            self._x[2] *= a
+            p[2, :n] *= a
+            p[:n, 2] *= a
+            p[2, 2] += self.config.heading_bias_sigma_rad**2 * (1.0 - a * a)
         g = r * dt  # d(position) / d(speed)
         add = g @ q @ g.T
         if s_psi > 0.0:
-            j = np.array([[-r[1, 0], -r[0, 0]], [r[0, 0], -r[1, 0]]]) @ speed * dt  # dR/dpsi [u, v] dt
             add += s_psi**2 * np.outer(j, j)
         self._P[:2, :2] += 0.5 * (add + add.T)
         s_l = self.config.landmark_process_sigma_m
-        if s_l > 0.0 and self._n > 2:  # (2): static landmarks, optional process noise
-            diag = self._P.reshape(-1)[2 * (self._cap + 1) : self._n * (self._cap + 1) : self._cap + 1]
+        v0 = self._v
+        if s_l > 0.0 and self._n > v0:  # (2): static landmarks, optional process noise
+            diag = self._P.reshape(-1)[v0 * (self._cap + 1) : self._n * (self._cap + 1) : self._cap + 1]
             diag += s_l**2
 
     # ------------------------------------------------------------------ (3)
     def _observation_terms(self, k: int, psi: float, z: float, f: float):
-        """h (2,), A = f/Z R^T (2, 2), state indices (4,) of landmark row k."""
-        a = (f / z) * rot2(psi).T
+        """h (2,), the non-zero columns of H (2, 4 or 5), their state indices, of landmark row k."""
+        a = (f / z) * rot2(psi - self.heading_bias_rad).T
         d = self._x[k : k + 2] - self._x[:2]
-        return a @ d, a, np.array([0, 1, k, k + 1])
+        h = a @ d
+        if self._v == 3:  # d h / d eps = -d h / d psi = -[n, -m]
+            return h, np.hstack([-a, np.array([[-h[1]], [h[0]]]), a]), np.array([0, 1, 2, k, k + 1])
+        return h, np.hstack([-a, a]), np.array([0, 1, k, k + 1])
 
     def _noise_args(self, pixel_sigma_px, altitude_sigma_m, heading_sigma_rad):
         sp = self.config.pixel_sigma_px if pixel_sigma_px is None else pixel_sigma_px
@@ -323,13 +361,12 @@ class EkfSlam:
         z = _finite("altitude_m", altitude_m, positive=True)
         f = _finite("focal_px", focal_px, positive=True)
         sp, sz, sh = self._noise_args(pixel_sigma_px, altitude_sigma_m, heading_sigma_rad)
-        h, a, idx = self._observation_terms(k, psi, z, f)
-        s = self._innovation_cov(a, idx, observation_noise_px2(h, sp, z, sz, sh))
+        h, hs, idx = self._observation_terms(k, psi, z, f)
+        s = self._innovation_cov(hs, idx, observation_noise_px2(h, sp, z, sz, sh))
         return h, s
 
-    def _innovation_cov(self, a: np.ndarray, idx: np.ndarray, r_m: np.ndarray) -> np.ndarray:
+    def _innovation_cov(self, hs: np.ndarray, idx: np.ndarray, r_m: np.ndarray) -> np.ndarray:
         p = self._P[np.ix_(idx, idx)]
-        hs = np.hstack([-a, a])  # (2, 4): the non-zero columns of H
         s = hs @ p @ hs.T + r_m
         return 0.5 * (s + s.T)
 
@@ -370,10 +407,9 @@ class EkfSlam:
         sp, sz, sh = self._noise_args(pixel_sigma_px, altitude_sigma_m, heading_sigma_rad)
 
         n = self._n
-        h, a, idx = self._observation_terms(k, psi, z, f)
+        h, hs, idx = self._observation_terms(k, psi, z, f)
         r_m = observation_noise_px2(h, sp, z, sz, sh)
-        rows = self._P[idx, :n]  # (4, n) = P[:, idx]^T (P symmetric), contiguous
-        hs = np.hstack([-a, a])  # (2, 4)
+        rows = self._P[idx, :n]  # (4 or 5, n) = P[:, idx]^T (P symmetric), contiguous
         s = hs @ rows[:, idx] @ hs.T + r_m
         s = 0.5 * (s + s.T)
         det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
@@ -430,7 +466,7 @@ class EkfSlam:
                 f"(negative or not finite); the covariance is no longer positive semi-definite. "
                 "Check the noise figures (Q, pixel sigma) and the inputs fed to the filter."
             )
-        for r in (idx[0], idx[2]):
+        for r in (idx[0], idx[-2]):  # the vehicle's and the landmark's 2x2 blocks
             b = self._P[r : r + 2, r : r + 2]
             if b[0, 0] * b[1, 1] - b[0, 1] * b[1, 0] < -tol * tol:
                 raise FilterInconsistencyError(
@@ -467,25 +503,33 @@ class EkfSlam:
 
         self._reserve(2)
         n = self._n
-        g = (z / f) * rot2(psi)  # d X / d [m, n]
+        r = rot2(psi - self.heading_bias_rad)
+        g = (z / f) * r  # d X / d [m, n]
         r_m = observation_noise_px2(mn, sp, z, sz, sh)
         p = self._P
         self._x[n : n + 2] = self._x[:2] + g @ mn  # (4)
+        # cov(X, .) = cov(x, .) [+ d X / d eps cov(eps, .)]: the rows of J = [I (, je)].
+        cross = p[0:2, :n].copy()
+        if self._v == 3:
+            je = -(z / f) * np.array([[-r[1, 0], -r[0, 0]], [r[0, 0], -r[1, 0]]]) @ mn  # d X / d eps
+            cross += np.outer(je, p[2, :n])
+            block = cross[:, 0:2] + np.outer(cross[:, 2], je) + g @ r_m @ g.T
+        else:
+            block = cross[:, 0:2] + g @ r_m @ g.T
         if self.config.augmentation == "full":
-            p[n : n + 2, :n] = p[0:2, :n]
-            p[:n, n : n + 2] = p[:n, 0:2]
+            p[n : n + 2, :n] = cross
+            p[:n, n : n + 2] = cross.T
         else:
             p[n : n + 2, :n] = 0.0
             p[:n, n : n + 2] = 0.0
-        block = p[0:2, 0:2] + g @ r_m @ g.T
         p[n : n + 2, n : n + 2] = 0.5 * (block + block.T)
         self._n = n + 2
-        return (n - 2) // 2
+        return (n - self._v) // 2
 
     # ------------------------------------------------------------------ (5), (6)
     def _gate_inputs(self):
         cross = self.vehicle_landmark_cov_m2() if self.config.gate_covariance == "relative" else None
-        return self._x[2 : self._n].reshape(-1, 2), self.landmarks_cov_m2(), self._x[:2], self._P[:2, :2], cross
+        return self._x[self._v : self._n].reshape(-1, 2), self.landmarks_cov_m2(), self._x[:2], self._P[:2, :2], cross
 
     def visibility_statistics(
         self, heading_rad: float, altitude_m: float, focal_px: float, width_px: float, height_px: float
@@ -556,4 +600,4 @@ class EkfSlam:
 
     def __repr__(self) -> str:
         x, y = self._x[:2]
-        return f"EkfSlam(vehicle=({x:.3f}, {y:.3f}) m, landmarks={self.n_landmarks}, capacity={(self._cap - 2) // 2})"
+        return f"EkfSlam(vehicle=({x:.3f}, {y:.3f}) m, landmarks={self.n_landmarks}, capacity={(self._cap - self._v) // 2})"
