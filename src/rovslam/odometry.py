@@ -218,7 +218,7 @@ def speed_from_tokens(
         # A noisy compass difference turns every off-centre token by its error (0.007 rad moves a
         # token 150 px from the centre by 1 px): take the heading change from token pairs first.
         dpsi = _rotation_consensus(
-            g_prev[valid], g_curr[valid], dpsi, config.outlier_threshold_px / px_per_m
+            g_prev[valid], g_curr[valid], dpsi, config.outlier_threshold_px / px_per_m, float(dpsi_sigma_rad)
         )
         d_m = g_prev - g_curr @ rot2(dpsi).T
     dv_px = d_m[valid] * px_per_m  # (M, 2) displacements in pixels, for the threshold
@@ -281,16 +281,21 @@ def speed_from_tokens(
     )
 
 
-def _rotation_consensus(a_m: np.ndarray, b_m: np.ndarray, dpsi_rad: float, thr_m: float) -> float:
+def _rotation_consensus(
+    a_m: np.ndarray, b_m: np.ndarray, dpsi_rad: float, thr_m: float, prior_sigma_rad: float
+) -> float:
     """The heading change best supported by the tokens: ``a ~ R(theta) b + d``, (M, 2) each.
 
     Hypotheses: the prior ``dpsi_rad`` and the rotation of every token pair with a baseline
-    of at least four thresholds; each is scored by the truncated residuals about its median
-    translation. Returns the winning rotation (the prior when no pair beats it).
+    of at least eight thresholds; each is scored by the truncated residuals about its median
+    translation plus half a threshold squared per prior variance away from ``dpsi_rad`` (a
+    Gaussian prior, MAP-style): when a cluster of wrong tokens (a large marine-snow particle
+    under three tokens) supports another rotation as well as the seabed does, the rotation
+    nearer the compass wins. Returns the winning rotation.
     """
     i, j = np.triu_indices(len(a_m), 1)
     da, db = a_m[i] - a_m[j], b_m[i] - b_m[j]
-    keep = np.einsum("kj,kj->k", db, db) > (4.0 * thr_m) ** 2
+    keep = np.einsum("kj,kj->k", db, db) > (8.0 * thr_m) ** 2
     th = np.arctan2(da[keep, 1], da[keep, 0]) - np.arctan2(db[keep, 1], db[keep, 0])
     hyps = np.concatenate([[dpsi_rad], dpsi_rad + (th - dpsi_rad + np.pi) % (2.0 * np.pi) - np.pi])
     c, s = np.cos(hyps)[:, None], np.sin(hyps)[:, None]
@@ -298,6 +303,7 @@ def _rotation_consensus(a_m: np.ndarray, b_m: np.ndarray, dpsi_rad: float, thr_m
                   a_m[None, :, 1] - (s * b_m[:, 0] + c * b_m[:, 1])], axis=-1)  # (K, M, 2)
     res = t - np.median(t, axis=1, keepdims=True)
     score = np.minimum(np.einsum("kmj,kmj->km", res, res), thr_m**2).sum(axis=1)
+    score += 0.5 * thr_m**2 * ((hyps - dpsi_rad) / prior_sigma_rad) ** 2
     return float(hyps[int(np.argmin(score))])
 
 

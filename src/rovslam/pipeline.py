@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from rovslam.camera import ground_to_mn, ground_to_pixels, mn_to_ground, pixels_to_ground, rot2
+from rovslam.camera import ground_to_mn, ground_to_pixels, pixels_to_ground, rot2
 from rovslam.config import RunConfig
 from rovslam.io.sequence import Frame, SequenceInfo
 from rovslam.odometry import HeadingFilter, SpeedEstimator
@@ -143,10 +143,6 @@ class SlamPipeline:
         g = pixels_to_ground(self.camera, uv_px.reshape(1, 2), altitude_m, *att)
         return ground_to_mn(g, altitude_m, self.focal_px)[0]
 
-    def _to_uv(self, mn_px: np.ndarray, altitude_m: float, att: tuple[float, float]) -> np.ndarray:
-        g = mn_to_ground(mn_px.reshape(1, 2), altitude_m, self.focal_px)
-        return ground_to_pixels(self.camera, g, altitude_m, *att)[0]
-
     def _inside(self, uv_px: np.ndarray, half_px: float) -> bool:
         return bool(
             np.all(np.isfinite(uv_px))
@@ -233,7 +229,7 @@ class SlamPipeline:
         psi = psi_prev + compass_step
 
         reason = frame.error
-        chan = bp = None
+        bp = None
         if frame.image is not None:
             chan = remove_specks(template_channel(frame.image, cfg.bandpass.channel), cfg.bandpass.despeckle_px)
             bp = bandpass(chan, cfg.bandpass.sigma_fine_px, cfg.bandpass.sigma_coarse_px)
@@ -257,9 +253,10 @@ class SlamPipeline:
         # once this frame's speed is measured): move it by the last speed for the search
         # (x_pred of the paper's Fig. 1), mn -> mn - f/Z R(psi)^T delta.
         px_per_m = self.focal_px / Z
+        psi_map = psi - self.ekf.heading_bias_rad  # the heading the filter believes (slow compass error removed)
         if self._last_speed_mps is not None and dt_s > 0:
-            delta = rot2(psi_prev) @ self._last_speed_mps * dt_s
-            shift_mn = px_per_m * (rot2(psi).T @ delta)
+            delta = rot2(psi_prev - self.ekf.heading_bias_rad) @ self._last_speed_mps * dt_s
+            shift_mn = px_per_m * (rot2(psi_map).T @ delta)
             slack_px = px_per_m * cfg.odometry.gap_speed_sigma_mps * dt_s  # speed change over one step
         else:
             shift_mn = np.zeros(2)
@@ -267,7 +264,7 @@ class SlamPipeline:
         # Predicted pixels of all gated landmarks at once; only those inside the image are searched.
         uv_all = np.zeros((0, 2))
         if len(visible):
-            g = (self.ekf.landmarks_xy_m()[visible] - self.ekf.vehicle_xy_m) @ rot2(psi)  # R^T (X - x)
+            g = (self.ekf.landmarks_xy_m()[visible] - self.ekf.vehicle_xy_m) @ rot2(psi_map)  # R^T (X - x)
             uv_all = ground_to_pixels(self.camera, g - shift_mn / px_per_m, Z, *att)
         for i, uv_pred in zip(visible, uv_all):
             if not self._inside(uv_pred, half_lm - 2):
@@ -276,7 +273,7 @@ class SlamPipeline:
             _, S = self.ekf.predict_observation(int(i), psi, Z, self.focal_px)
             sigma_px = math.hypot(math.sqrt(max(float(np.max(np.linalg.eigvalsh(S))), 0.0)), slack_px)
             radius = int(min(lm_cfg.max_search_radius_px, math.ceil(3.0 * sigma_px) + lm_cfg.search_margin_px))
-            m = match_template(bp, self._oriented_patch(rec, psi - self.ekf.heading_bias_rad), uv_pred, radius, cfg.tracker)
+            m = match_template(bp, self._oriented_patch(rec, psi_map), uv_pred, radius, cfg.tracker)
             if not m.ok or not self._inside(m.uv_px, half_lm):
                 continue
             if len(alt.spots_uv_px) and np.any(
@@ -321,15 +318,13 @@ class SlamPipeline:
         psi = self.heading.update(
             compass, speed.dpsi_rad if measured else None, speed.dpsi_sigma_rad if measured else math.inf
         )
-        # The heading error the filter is told of: what the smoothing leaves of the white part.
-        # The slow compass drift and the AHRS tilt error act, over a short survey, as a rotation
-        # and an offset of the whole apparent frame: they enter the reported covariance
-        # (_reported_cov), not the filter, whose odometry and landmark observations are exact
-        # in that apparent frame.
+        # The heading noise the filter is told of: what the smoothing leaves of the compass's white
+        # noise. Its slow drift is a state of the filter (slam.heading_bias_sigma_rad); without that
+        # state (the paper's filter) the observations are told of the drift instead, since a
+        # landmark seen again minutes later was mapped under another drift, and the reported
+        # covariance carries the turn of the whole map (_reported_cov). The AHRS tilt error shifts
+        # odometry and landmarks alike: it enters the start and the reported covariance only.
         psi_sigma = self.heading.sigma_rad if sigma_c > 0 or not has_compass else None
-        # A landmark seen again minutes later was mapped under another compass drift: the change
-        # turns its predicted offset, so the observations are told of the drift as well.
-        # With the heading-bias state (slam.heading_bias_sigma_rad > 0) the filter tracks that drift itself.
         obs_psi_sigma = (
             math.hypot(psi_sigma, cfg.odometry.compass_drift_sigma_rad)
             if sigma_c > 0 and cfg.slam.heading_bias_sigma_rad == 0 else psi_sigma
