@@ -110,6 +110,21 @@ def test_extract_templates_on_texture_non_overlapping_strongest_first_inside_bor
             assert not _windows_overlap(a, b)
 
 
+def test_min_spacing_spreads_the_tokens():
+    spec = seabed_spectrum(seed=11)
+    rgb = seabed_frame(spec, (30.0, 40.0), seed=1)
+    cfg = SpeedTemplateConfig()
+    bp, lv = _filtered(rgb, cfg.size_px)
+    tight = extract_templates(bp, lv, 16, 30, cfg.min_local_variance, cfg.border_px)
+    wide = extract_templates(bp, lv, 16, 30, cfg.min_local_variance, cfg.border_px, min_spacing_px=40)
+    assert len(wide) >= 8 and wide[0].local_variance == tight[0].local_variance  # the strongest is kept
+    for i, a in enumerate(wide):
+        for b in wide[i + 1 :]:
+            assert np.max(np.abs(a.centre_uv_px - b.centre_uv_px)) >= 40
+    gaps = [np.max(np.abs(a.centre_uv_px - b.centre_uv_px)) for i, a in enumerate(tight) for b in tight[i + 1 :]]
+    assert min(gaps) < 40  # without the spacing they crowd (one structure can carry several)
+
+
 def test_extract_templates_honours_the_inhibition_mask():
     spec = seabed_spectrum(seed=12)
     rgb = seabed_frame(spec, (5.0, 9.0), seed=2)

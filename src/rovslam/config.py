@@ -56,6 +56,7 @@ class SpeedTemplateConfig:
     min_local_variance: float = 4.0  # lower than the landmarks' (std 2 grey levels, ~7x noise)
     search_radius_px: int = 8  # around the position predicted from the last speed
     border_px: int = 4  # extra margin from the image border
+    min_spacing_px: int = 40  # least distance between two tokens (u or v); 16 = just non-overlapping
 
 
 @dataclass(frozen=True)

@@ -159,6 +159,7 @@ def extract_templates(
     min_local_variance: float,
     border_px: int = 0,
     inhibit: np.ndarray | None = None,
+    min_spacing_px: int | None = None,
 ) -> list[Template]:
     """Choose the highest-local-variance, non-overlapping windows as templates (Misu et al.).
 
@@ -173,7 +174,9 @@ def extract_templates(
 
     Selection is greedy: the strongest qualifying window is taken, every candidate whose
     window would overlap it (anchor closer than ``s`` pixels in both u and v) is suppressed,
-    and so on until ``max_count`` templates or no candidate is left.
+    and so on until ``max_count`` templates or no candidate is left. ``min_spacing_px``
+    (default ``s``) widens that suppression: speed tokens spread over the image measure the
+    rotation better, and one bright particle cannot carry several of them.
 
     Parameters
     ----------
@@ -185,6 +188,7 @@ def extract_templates(
     min_local_variance: threshold, grey levels squared (paper: 12.3 for landmarks).
     border_px: margin between the window and the image border (>= 0).
     inhibit: optional ``(H, W) bool`` forbidden pixels.
+    min_spacing_px: least distance (in u or v) between two template anchors; >= size.
 
     Returns
     -------
@@ -211,6 +215,7 @@ def extract_templates(
             f"inhibit must be an (H, W) bool mask of shape {img.shape}, got "
             f"{inhibit.shape} {inhibit.dtype}"
         )
+    spacing = size if min_spacing_px is None else max(size, int(min_spacing_px))
     h_img, w_img = img.shape
     half = size // 2
     border = int(border_px)
@@ -244,6 +249,6 @@ def extract_templates(
         centre = np.array([u0 + 0.5 * (size - 1), v0 + 0.5 * (size - 1)])
         centre.setflags(write=False)
         templates.append(Template(centre_uv_px=centre, patch=patch, local_variance=float(best)))
-        # Non-overlap: suppress anchors within one template size in both axes.
-        score[max(0, v - size + 1) : v + size, max(0, u - size + 1) : u + size] = -1.0
+        # Non-overlap: suppress anchors within one template size (or the spacing) in both axes.
+        score[max(0, v - spacing + 1) : v + spacing, max(0, u - spacing + 1) : u + spacing] = -1.0
     return templates

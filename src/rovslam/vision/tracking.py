@@ -374,7 +374,7 @@ class TokenTracker:
         cfg = self.speed_config
         img = np.array(track_img, dtype=np.float32)  # own copy: the caller may reuse its buffer
         self._tokens = extract_templates(img, local_var, cfg.size_px, cfg.max_count,
-                                         cfg.min_local_variance, cfg.border_px, inhibit)
+                                         cfg.min_local_variance, cfg.border_px, inhibit, cfg.min_spacing_px)
         self._prev_img = img
         return len(self._tokens)
 
