@@ -90,20 +90,8 @@ def run(
     from rovslam.runner import run_sequence
 
     cfg = load_config(config) if config is not None else RunConfig()
-    stats = {"landmarks": 0, "tokens": 0}
-
     with _progress(quiet, "SLAM", extra=True) as bar:
-
-        def on_frame(res) -> None:
-            stats["landmarks"] = res.n_landmarks
-            stats["tokens"] = res.tokens_tracked
-            if bar is not None:
-                bar(res.index + 1, None, landmarks=res.n_landmarks, tokens=res.tokens_tracked)
-
-        summary = run_sequence(
-            sequence, out, cfg, max_frames=max_frames, on_frame=on_frame, camera_file=camera,
-            on_start=(lambda n: bar(0, n or None)) if bar else None,
-        )
+        summary = run_sequence(sequence, out, cfg, max_frames=max_frames, camera_file=camera, **_slam_callbacks(bar))
     msg = (
         f"{summary.frames}/{summary.total_frames} frames, {summary.landmarks} landmarks, "
         f"{len(summary.skipped)} skipped, {summary.fps:.0f} frames/s -> {out}"
@@ -126,14 +114,8 @@ def eval_cmd(
     json_out: Optional[Path] = typer.Option(None, "--json", help="Where to write the figures (default OUT/eval.json)."),
 ) -> None:
     """Compare a run with the ground truth: ATE, drift, dead reckoning, 2-sigma coverage, NEES, Table 1."""
-    from rovslam.eval import evaluate
-    from rovslam.io.results import read_results
-    from rovslam.io.sequence import read_groundtruth
-
-    figures = evaluate(read_results(results), read_groundtruth(groundtruth))
     path = json_out or (results / "eval.json")
-    path.write_text(json.dumps(figures, indent=2), encoding="utf-8")
-    _print_eval(figures)
+    _evaluate(results, groundtruth, path)
     typer.echo(f"wrote {path}")
 
 
@@ -147,11 +129,9 @@ def demo(
     quiet: bool = typer.Option(False, "--quiet", "-q"),
 ) -> None:
     """Simulate the paper's trial, run SLAM, evaluate and write the report, in one go."""
-    from rovslam.eval import evaluate
-    from rovslam.io.results import read_results
-    from rovslam.io.sequence import read_groundtruth
     from rovslam.runner import run_sequence
     from rovslam.sim import simulate as run_sim
+    from rovslam.viz.report import write_report
 
     seq, res = out / "sequence", out / "results"
     if _same_simulation(seq, scenario, frames, seed):
@@ -164,20 +144,13 @@ def demo(
         with _progress(quiet, "simulating") as bar:
             run_sim(scenario, seq, frames=frames, seed=seed, progress=bar)
     with _progress(quiet, "SLAM", extra=True) as bar:
-        summary = run_sequence(
-            seq, res,
-            on_frame=(lambda r: bar(r.index + 1, None, landmarks=r.n_landmarks, tokens=r.tokens_tracked)) if bar else None,
-            on_start=(lambda n: bar(0, n)) if bar else None,
-        )
+        summary = run_sequence(seq, res, **_slam_callbacks(bar))
     if summary.interrupted:
         _fail("interrupted; partial results are in " + str(res), 130)
-    figures = evaluate(read_results(res), read_groundtruth(seq / "groundtruth.csv"))
-    (res / "eval.json").write_text(json.dumps(figures, indent=2), encoding="utf-8")
-    _print_eval(figures)
-    report = _try_report(res, seq / "groundtruth.csv")
+    _evaluate(res, seq / "groundtruth.csv", res / "eval.json")
+    report = write_report(res, seq / "groundtruth.csv")
     typer.echo(f"{summary.frames} frames at {summary.fps:.0f} frames/s; results in {res}")
-    if report:
-        typer.echo(f"report: {report}")
+    typer.echo(f"report: {report}")
 
 
 @app.command()
@@ -187,8 +160,9 @@ def report(
     groundtruth: Optional[Path] = typer.Option(None, "--groundtruth", "-g", help="groundtruth.csv, if known."),
 ) -> None:
     """Write the paper's figures (altitude and speed, position with bounds, path and map) and an HTML report."""
-    path = _try_report(results, groundtruth, strict=True)
-    typer.echo(f"wrote {path}")
+    from rovslam.viz.report import write_report
+
+    typer.echo(f"wrote {write_report(results, groundtruth)}")
 
 
 @app.command(name="config")
@@ -221,14 +195,25 @@ def _same_simulation(seq: Path, scenario: str, frames: Optional[int], seed: int)
     return meta.get("scenario") == scenario and meta.get("seed") == seed and len(s) == want == meta.get("frames")
 
 
-def _try_report(results: Path, groundtruth: Optional[Path], strict: bool = False) -> Optional[Path]:
-    try:
-        from rovslam.viz.report import write_report
-    except ImportError:
-        if strict:
-            raise
-        return None
-    return write_report(results, groundtruth)
+def _slam_callbacks(bar) -> dict:
+    """``on_start`` / ``on_frame`` of :func:`rovslam.runner.run_sequence` feeding a progress bar (or nothing)."""
+    if bar is None:
+        return {}
+    return {
+        "on_start": lambda n: bar(0, n or None),
+        "on_frame": lambda r: bar(r.index + 1, None, landmarks=r.n_landmarks, tokens=r.tokens_tracked),
+    }
+
+
+def _evaluate(results: Path, groundtruth: Path, json_path: Path) -> None:
+    """Evaluate a run against the truth, write the figures as JSON and print them as tables."""
+    from rovslam.eval import evaluate
+    from rovslam.io.results import read_results
+    from rovslam.io.sequence import read_groundtruth
+
+    figures = evaluate(read_results(results), read_groundtruth(groundtruth))
+    json_path.write_text(json.dumps(figures, indent=2), encoding="utf-8")
+    _print_eval(figures)
 
 
 def _describe(summary) -> str:

@@ -446,9 +446,7 @@ class SpeedEstimator:
             self._last = m
             self._gap_s = 0.0
             return m
-        if m.ok:
-            m = SpeedMeasurement(False, m.surge_mps, m.sway_mps, m.cov_mps2, m.n_tokens, 0, m.inlier_mask,
-                                 "implausible acceleration", m.dpsi_rad, m.dpsi_sigma_rad)
+        reason = "implausible acceleration" if m.ok else m.reason
         self._gap_s += float(dt_s)
         grow = (self.config.gap_speed_sigma_mps * self._gap_s) ** 2
         if self._last is None:
@@ -459,4 +457,4 @@ class SpeedEstimator:
             base = self._last.cov_mps2
         cov = base + grow * np.eye(2)
         cov.setflags(write=False)
-        return SpeedMeasurement(False, surge, sway, cov, m.n_tokens, 0, m.inlier_mask, m.reason)
+        return SpeedMeasurement(False, surge, sway, cov, m.n_tokens, 0, m.inlier_mask, reason)

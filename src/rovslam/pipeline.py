@@ -120,8 +120,7 @@ class SlamPipeline:
         self.config = config
         self.camera = info.camera
         self.focal_px = info.camera.focal_px
-        fallback = info.fixed_altitude_m if info.fixed_altitude_m is not None else 1.31
-        self.altimeter = LaserAltimeter(info.camera, info.lasers, config.laser, fallback)
+        self.altimeter = LaserAltimeter(info.camera, info.lasers, config.laser, self.altimeter_fallback)
         self.tokens = TokenTracker(config.speed_templates, config.tracker)
         self.speed = SpeedEstimator(config.odometry)
         self.heading = HeadingFilter(config.odometry.compass_sigma_rad)
