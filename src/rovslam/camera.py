@@ -19,6 +19,7 @@ allocate nothing per point.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -111,6 +112,19 @@ def rot2(psi_rad: float) -> np.ndarray:
     """R(psi) of equation (1): (2, 2) rotation from body/level to world."""
     c, s = np.cos(psi_rad), np.sin(psi_rad)
     return np.array([[c, -s], [s, c]])
+
+
+def drot2(psi_rad: float) -> np.ndarray:
+    """dR/dpsi: (2, 2) derivative of :func:`rot2`, ``[[-sin, -cos], [cos, -sin]]``."""
+    c, s = np.cos(psi_rad), np.sin(psi_rad)
+    return np.array([[-s, -c], [c, -s]])
+
+
+def wrap_angle(angle_rad):
+    """Angle(s) wrapped to [-pi, pi). Scalars stay Python floats; arrays are wrapped element-wise."""
+    if isinstance(angle_rad, np.ndarray):
+        return (angle_rad + np.pi) % (2.0 * np.pi) - np.pi
+    return (float(angle_rad) + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def rot_z(a: float) -> np.ndarray:

@@ -22,6 +22,14 @@ class ImageReadError(RovslamError):
     """An image file is missing, unreadable or of an unsupported shape / type."""
 
 
+class InvalidArgumentError(RovslamError, ValueError):
+    """A function was called with an array of the wrong shape or type (a programming error at a stage boundary)."""
+
+
+class ResultsFormatError(RovslamError):
+    """A results folder (what ``rovslam run`` writes) is missing a file, a column, or holds unreadable values."""
+
+
 class InvalidMeasurementError(RovslamError, ValueError):
     """A measurement (speed, heading, altitude, pixel) is NaN, infinite or out of range."""
 
