@@ -50,7 +50,7 @@ def test_pixels_ground_round_trip_with_tilt_and_yaw(roll, pitch, yaw):
 
 
 def test_tilt_moves_image_centre_by_altitude_times_angle():
-    # DESIGN.md: a 1 degree tilt at 1.3 m moves the image centre by about 2.3 cm.
+    # A 1 degree tilt at 1.3 m moves the image centre by about 2.3 cm.
     centre = np.array([[CAM.cx_px, CAM.cy_px]])
     g = pixels_to_ground(CAM, centre, 1.3, 0.0, np.deg2rad(1.0))
     assert np.hypot(*g[0]) == pytest.approx(1.3 * np.tan(np.deg2rad(1.0)), rel=1e-9)

@@ -53,3 +53,47 @@ def test_bad_files_name_the_key_and_the_file(tmp_path, text, needle):
 def test_missing_file(tmp_path):
     with pytest.raises(ConfigError, match="not found"):
         load_config(tmp_path / "nope.toml")
+
+
+@pytest.mark.parametrize(
+    "text,needles",
+    [
+        ('[slam]\naugmentation = "ful"\n', ["[slam] augmentation = 'ful'", "'full', 'paper'"]),
+        ('[bandpass]\nchannel = "red"\n', ["[bandpass] channel", "'grey', 'green', 'blue'"]),
+        ('[tracker]\nsubpixel = "cubic"\n', ["[tracker] subpixel", "'parabolic'"]),
+        ("[speed_templates]\nmin_spacing_px = -40\n", ["[speed_templates] min_spacing_px = -40", ">= 0"]),
+        ("[bandpass]\ndespeckle_px = -3\n", ["[bandpass] despeckle_px = -3", ">= 0"]),
+        ("[bandpass]\ndespeckle_px = 1\n", ["despeckle_px = 1", "0 (off) or >= 2"]),
+        ("[bandpass]\nsigma_fine_px = 0\n", ["[bandpass] sigma_fine_px = 0.0", "> 0"]),
+        ("[bandpass]\nsigma_fine_px = 5.0\n", ["sigma_coarse_px = 4.0", "larger than sigma_fine_px"]),
+        ("[tracker]\nmin_correlation = -1.5\n", ["[tracker] min_correlation = -1.5", ">= -1 and <= 1"]),
+        ("[tracker]\nmin_tracked_fraction = 2\n", ["min_tracked_fraction = 2.0", "<= 1"]),
+        ("[laser]\nmin_altitude_m = 3.0\nmax_altitude_m = 2.0\n", ["max_altitude_m = 2.0", "min_altitude_m"]),
+        ("[laser]\nassumed_altitude_m = 50.0\n", ["assumed_altitude_m = 50.0", "[0.05, 30]"]),
+        ("[odometry]\nmax_speed_mps = nan\n", ["max_speed_mps = nan", "finite"]),
+        ("[slam]\nheading_bias_tau_s = 0\n", ["heading_bias_tau_s = 0.0", "> 0"]),
+        ("[slam]\ninnovation_gate = inf\n", ["innovation_gate = inf", "finite"]),
+        ("[tracker]\nglobal_search = 1\n", ["tracker.global_search", "true or false"]),
+    ],
+)
+def test_every_value_is_checked_when_the_file_is_loaded(tmp_path, text, needles):
+    path = tmp_path / "my.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    message = str(exc.value)
+    assert message.startswith(f"{path}: ")
+    for needle in needles:
+        assert needle in message
+
+
+def test_every_numeric_field_declares_its_range():
+    """A new configuration value must say what it allows (so a bad file is refused at load)."""
+    import typing
+
+    for stage in dataclasses.fields(RunConfig):
+        cls = stage.type if isinstance(stage.type, type) else typing.get_type_hints(RunConfig)[stage.name]
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            if hints[f.name] in (int, float):
+                assert any(f.metadata.get(k) is not None for k in ("gt", "ge", "le")), f"{cls.__name__}.{f.name}"

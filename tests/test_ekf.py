@@ -510,3 +510,47 @@ def test_heading_bias_state_matches_a_dense_ekf():
     np.testing.assert_allclose(x3, g_aug(x2), atol=1e-12)
     np.testing.assert_allclose(p3, p_aug, atol=1e-8 * np.abs(p_aug).max())
     ekf.check_consistency()
+
+
+@pytest.mark.parametrize("bias_sigma", [0.0, 0.01])
+def test_search_prediction_is_the_update_prediction_for_all_landmarks_at_once(bias_sigma):
+    # The landmark search evaluates (3) and S for every gated landmark in one call; it must agree
+    # with the per-landmark prediction the update uses, here with the vehicle moved by an offset.
+    rng = np.random.default_rng(41)
+    ekf = random_filter(rng, 6, SlamConfig(heading_bias_sigma_rad=bias_sigma))
+    if bias_sigma:
+        ekf.update(1, ekf.predict_observation(1, 0.3, Z, F)[0] + [1.5, -1.0], 0.3, Z, F)  # eps non-zero
+    ids = np.array([0, 2, 3, 5])
+    offset = np.array([0.004, -0.002])
+    mn, s = ekf.predict_observations(ids, 0.3, Z, F, offset)
+    moved = EkfSlam(ekf.config)
+    moved._alloc(ekf._cap)
+    moved._n, moved._x[:], moved._P[:] = ekf._n, ekf._x, ekf._P
+    moved._x[:2] += offset
+    for k, i in enumerate(ids):
+        mn_i, s_i = moved.predict_observation(int(i), 0.3, Z, F)
+        np.testing.assert_allclose(mn[k], mn_i, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(s[k], s_i, rtol=1e-10)
+
+
+def test_model_jacobians_match_finite_differences():
+    from rovslam.slam import landmark_jacobians, motion_jacobians, motion_step_m, observation_jacobians
+
+    psi, eps = 0.7, 1e-7
+    x, lm = np.array([0.3, -0.2]), np.array([[0.41, -0.15]])
+    mn = observe_mn(lm, x, psi, Z, F)
+    a, j_psi = observation_jacobians(mn, psi, Z, F)
+    num_psi = (observe_mn(lm, x, psi + eps, Z, F) - observe_mn(lm, x, psi - eps, Z, F)) / (2 * eps)
+    np.testing.assert_allclose(j_psi, num_psi, rtol=1e-6)
+    num_a = np.column_stack([(observe_mn(lm + d, x, psi, Z, F) - observe_mn(lm - d, x, psi, Z, F))[0] / (2 * eps)
+                             for d in (np.array([eps, 0.0]), np.array([0.0, eps]))])
+    np.testing.assert_allclose(a, num_a, rtol=1e-6)
+    g, jl = landmark_jacobians(mn, psi, Z, F)
+    num_jl = (landmark_from_mn(mn, x, psi + eps, Z, F) - landmark_from_mn(mn, x, psi - eps, Z, F)) / (2 * eps)
+    np.testing.assert_allclose(jl, num_jl, rtol=1e-6)
+    np.testing.assert_allclose(g @ a, np.eye(2), atol=1e-12)  # (4) inverts (3)
+    speed = np.array([0.12, -0.03])
+    gm, jm = motion_jacobians(speed, psi, DT)
+    num_jm = (motion_step_m(speed, psi + eps, DT) - motion_step_m(speed, psi - eps, DT)) / (2 * eps)
+    np.testing.assert_allclose(jm, num_jm, rtol=1e-6)
+    np.testing.assert_allclose(gm @ speed, motion_step_m(speed, psi, DT), rtol=1e-15)

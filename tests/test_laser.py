@@ -17,7 +17,7 @@ from synth import (
 
 from rovslam.camera import Camera, LaserPointer
 from rovslam.config import LaserConfig
-from rovslam.errors import ConfigError, ImageReadError, InvalidMeasurementError
+from rovslam.errors import InvalidArgumentError, InvalidMeasurementError
 from rovslam.vision.laser import (
     LaserAltimeter,
     detect_laser_spots,
@@ -119,7 +119,7 @@ def test_fuse_altitude_input_checks():
         fuse_altitude(np.array([1.0]), np.array([0.1]), -2.0, 1.31, CFG)
     with pytest.raises(InvalidMeasurementError, match="fallback"):
         fuse_altitude(np.array([1.0]), np.array([0.1]), None, 0.0, CFG)
-    with pytest.raises(ConfigError, match="one sigma per spot"):
+    with pytest.raises(InvalidArgumentError, match="one sigma per spot"):
         fuse_altitude(np.array([1.0, 2.0]), np.array([0.1]), None, 1.31, CFG)
 
 
@@ -212,13 +212,13 @@ def test_altimeter_follows_the_altitude_and_handles_grey_frames():
 
 
 def test_laser_input_checks():
-    with pytest.raises(ImageReadError, match="uint8 RGB"):
+    with pytest.raises(InvalidArgumentError, match="uint8 RGB"):
         red_excess(np.zeros((5, 5, 3), np.float32))
-    with pytest.raises(ConfigError, match="one row per laser"):
+    with pytest.raises(InvalidArgumentError, match="one row per laser"):
         triangulate_points(CAM, LASERS, np.zeros((3, 2)))
     with pytest.raises(InvalidMeasurementError, match="altitude_m"):
         predict_spot_pixels(CAM, LASERS, -1.0)
-    with pytest.raises(ConfigError, match="fallback"):
+    with pytest.raises(InvalidArgumentError, match="fallback"):
         LaserAltimeter(CAM, LASERS, CFG, float("nan"))
     with pytest.raises(InvalidMeasurementError, match="roll"):
         predict_spot_pixels(CAM, LASERS, 1.0, roll_rad=float("inf"))

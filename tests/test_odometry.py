@@ -8,8 +8,9 @@ from hypothesis import strategies as st
 
 from rovslam.camera import Camera, ground_to_pixels, pixels_to_ground, rot2
 from rovslam.config import OdometryConfig, SlamConfig
-from rovslam.errors import ConfigError, InvalidMeasurementError
-from rovslam.odometry import HeadingFilter, SpeedEstimator, SpeedMeasurement, speed_from_tokens
+from rovslam.errors import ConfigError, InvalidArgumentError, InvalidMeasurementError
+from rovslam.heading import HeadingFilter
+from rovslam.odometry import SpeedEstimator, SpeedMeasurement, speed_from_tokens
 
 CAM = Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5)
 Z = 1.31
@@ -237,9 +238,9 @@ def test_bad_inputs_raise_typed_errors(kwargs):
 def test_bad_shapes_and_config():
     rng = np.random.default_rng(15)
     uv0, uv1 = make_tokens(CAM, rng, 4, [0.02, 0.0])
-    with pytest.raises(InvalidMeasurementError, match="same tokens"):
+    with pytest.raises(InvalidArgumentError, match="same tokens"):
         speed_from_tokens(CAM, uv0, uv1[:3], Z, Z, DT)
-    with pytest.raises(InvalidMeasurementError, match=r"\(N, 2\)"):
+    with pytest.raises(InvalidArgumentError, match=r"\(N, 2\)"):
         speed_from_tokens(CAM, uv0.ravel(), uv1.ravel(), Z, Z, DT)
     with pytest.raises(ConfigError, match="outlier_threshold_px"):
         SpeedEstimator(OdometryConfig(outlier_threshold_px=0.0))

@@ -7,7 +7,7 @@ import pytest
 from synth import draw_laser_spots, laser_hit_pixels, paper_camera, paper_lasers, seabed_frame, seabed_spectrum
 
 from rovslam.config import BandpassConfig, LandmarkTemplateConfig, LaserConfig, SpeedTemplateConfig
-from rovslam.errors import ConfigError, ImageReadError
+from rovslam.errors import InvalidArgumentError
 from rovslam.vision.filters import bandpass, local_variance, template_channel
 from rovslam.vision.laser import LaserAltimeter
 from rovslam.vision.templates import (
@@ -54,9 +54,9 @@ def test_inhibition_mask_discs_have_the_right_pixels():
 def test_inhibition_mask_with_no_points_is_empty_and_checks_input():
     assert not inhibition_mask((5, 6), None, 4.0).any()
     assert not inhibition_mask((5, 6), np.zeros((0, 2)), 4.0).any()
-    with pytest.raises(ConfigError, match="radius"):
+    with pytest.raises(InvalidArgumentError, match="radius"):
         inhibition_mask((5, 6), [[1.0, 1.0]], -1.0)
-    with pytest.raises(ConfigError, match=r"\(N, 2\)"):
+    with pytest.raises(InvalidArgumentError, match=r"\(N, 2\)"):
         inhibition_mask((5, 6), np.zeros((3, 3)), 1.0)
 
 
@@ -67,7 +67,7 @@ def test_inhibit_boxes_marks_squares_in_place():
     assert mask[10:16, 8:14].all()
     inhibit_boxes(mask, np.array([[29.0, 29.0]]), 1.0)
     assert mask.sum() == 36 + 4
-    with pytest.raises(ConfigError, match="bool"):
+    with pytest.raises(InvalidArgumentError, match="bool"):
         inhibit_boxes(np.zeros((3, 3), np.uint8), [[1.0, 1.0]], 1.0)
 
 
@@ -187,11 +187,11 @@ def test_extract_templates_zero_threshold_still_refuses_flat_windows():
 def test_extract_templates_input_checks():
     img = np.zeros((40, 40), np.float32)
     lv = np.zeros((40, 40), np.float32)
-    with pytest.raises(ImageReadError, match="same shape"):
+    with pytest.raises(InvalidArgumentError, match="same shape"):
         extract_templates(img, lv[:-1], 16, 8, 4.0)
-    with pytest.raises(ConfigError, match="max_count"):
+    with pytest.raises(InvalidArgumentError, match="max_count"):
         extract_templates(img, lv, 16, -1, 4.0)
-    with pytest.raises(ConfigError, match="inhibit"):
+    with pytest.raises(InvalidArgumentError, match="inhibit"):
         extract_templates(img, lv, 16, 8, 4.0, inhibit=np.zeros((40, 40), np.uint8))
     assert extract_templates(img, lv, 16, 0, 4.0) == []
     assert extract_templates(img, lv, 16, 8, 4.0, border_px=20) == []

@@ -10,7 +10,7 @@ import pytest
 from synth import DEFAULT_NOISE_SIGMA, seabed_frame, seabed_spectrum
 
 from rovslam.config import BandpassConfig, SpeedTemplateConfig, TrackerConfig
-from rovslam.errors import ConfigError, ImageReadError
+from rovslam.errors import ConfigError, InvalidArgumentError
 from rovslam.vision.filters import bandpass, local_variance, template_channel
 from rovslam.vision.templates import extract_templates
 from rovslam.vision.tracking import (
@@ -143,13 +143,13 @@ def test_windows_outside_the_image_flat_templates_and_flat_images():
 
 def test_match_template_input_checks():
     img = np.zeros((30, 30), np.float32)
-    with pytest.raises(ConfigError, match="search radius"):
+    with pytest.raises(InvalidArgumentError, match="search radius"):
         match_template(img, img[:8, :8], (10.0, 10.0), 0, TRACK)
     with pytest.raises(ConfigError, match="subpixel"):
         match_template(img, img[:8, :8], (10.0, 10.0), 4, dataclasses.replace(TRACK, subpixel="cubic"))
-    with pytest.raises(ConfigError, match="2 numbers"):
+    with pytest.raises(InvalidArgumentError, match="2 numbers"):
         match_template(img, img[:8, :8], (10.0, 10.0, 1.0), 4, TRACK)
-    with pytest.raises(ImageReadError, match="2-D"):
+    with pytest.raises(InvalidArgumentError, match="2-D"):
         match_template(np.zeros((30, 30, 3), np.float32), img[:8, :8], (10.0, 10.0), 4, TRACK)
 
 
@@ -173,7 +173,7 @@ def test_global_shift_finds_shifts_up_to_a_third_of_the_image(shift):
 
 
 def test_global_shift_checks_shapes():
-    with pytest.raises(ImageReadError, match="same shape"):
+    with pytest.raises(InvalidArgumentError, match="same shape"):
         global_shift(np.zeros((10, 10), np.float32), np.zeros((10, 12), np.float32))
 
 
@@ -227,9 +227,9 @@ def test_token_tracker_input_checks():
     tracker = TokenTracker(SPEED, TRACK)
     prev, curr = _pair((0.0, 0.0), (1.0, 1.0), seed=15)
     tracker.extract(prev, local_variance(prev, 16))
-    with pytest.raises(ConfigError, match="predicted_shift_uv_px"):
+    with pytest.raises(InvalidArgumentError, match="predicted_shift_uv_px"):
         tracker.track(curr, np.array([np.nan, 0.0]))
-    with pytest.raises(ImageReadError, match="reset"):
+    with pytest.raises(InvalidArgumentError, match="reset"):
         tracker.track(cv2.resize(curr, (100, 80)), None)
     with pytest.raises(ConfigError, match="min_tracked_fraction"):
         TokenTracker(SPEED, dataclasses.replace(TRACK, min_tracked_fraction=2.0))

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from rovslam.errors import ConfigError, ImageReadError
+from rovslam.errors import InvalidArgumentError
 from rovslam.vision.filters import bandpass, gaussian_kernel, local_variance, template_channel
 
 
@@ -32,11 +32,11 @@ def test_template_channel_grey_input_is_used_as_is():
 
 
 def test_template_channel_refuses_red_and_bad_input():
-    with pytest.raises(ConfigError, match="reserved for the laser"):
+    with pytest.raises(InvalidArgumentError, match="reserved for the laser"):
         template_channel(_rgb(), "red")
-    with pytest.raises(ImageReadError, match="uint8"):
+    with pytest.raises(InvalidArgumentError, match="uint8"):
         template_channel(np.zeros((4, 4, 3), np.float32), "green")
-    with pytest.raises(ImageReadError, match="shape"):
+    with pytest.raises(InvalidArgumentError, match="shape"):
         template_channel(np.zeros((4, 4, 4), np.uint8), "green")
 
 
@@ -66,9 +66,9 @@ def test_bandpass_gain_for_a_sinusoid_follows_the_documented_formula():
 
 def test_bandpass_rejects_bad_sigmas():
     img = np.zeros((20, 20), np.float32)
-    with pytest.raises(ConfigError, match="sigma_fine_px < sigma_coarse_px"):
+    with pytest.raises(InvalidArgumentError, match="sigma_fine_px < sigma_coarse_px"):
         bandpass(img, 4.0, 1.0)
-    with pytest.raises(ConfigError, match="finite"):
+    with pytest.raises(InvalidArgumentError, match="finite"):
         bandpass(img, np.nan, 4.0)
 
 
@@ -99,9 +99,9 @@ def test_local_variance_of_flat_image_is_zero():
 
 def test_local_variance_rejects_bad_sizes():
     img = np.zeros((20, 20), np.float32)
-    with pytest.raises(ConfigError, match=">= 2"):
+    with pytest.raises(InvalidArgumentError, match=">= 2"):
         local_variance(img, 1)
-    with pytest.raises(ConfigError, match="larger than the image"):
+    with pytest.raises(InvalidArgumentError, match="larger than the image"):
         local_variance(img, 32)
-    with pytest.raises(ImageReadError, match="single-channel"):
+    with pytest.raises(InvalidArgumentError, match="single-channel"):
         local_variance(np.zeros((20, 20, 3), np.float32), 8)

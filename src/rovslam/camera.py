@@ -1,6 +1,6 @@
 """Camera and laser-rig geometry shared by the simulator, the vision front-end and the filter.
 
-Conventions (DESIGN.md):
+Conventions (docs/architecture.md):
 
 * World frame: x north, y east, z down (metres); heading psi from x towards y.
 * Body frame: x forward, y starboard, z down. The camera sits at the body origin.

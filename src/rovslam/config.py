@@ -7,9 +7,10 @@ read from and written to TOML with one table per stage::
     size_px = 16
     max_count = 8
 
-Unknown tables or keys are rejected with a :class:`~rovslam.errors.ConfigError` that names
-the key and the file. Values are converted to the field's type (an int where an int is
-expected, a tuple for sequences).
+Every value is checked when the configuration is built (so when the file is loaded): its
+type, its range (declared beside the field with :func:`_num`) and, for choices, the allowed
+values (``Literal`` types). Unknown tables or keys are rejected. Each error is a
+:class:`~rovslam.errors.ConfigError` naming the file, the key, the value and what is allowed.
 
 Ownership: each stage's module reads only its own dataclass.
 """
@@ -17,17 +18,69 @@ Ownership: each stage's module reads only its own dataclass.
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, Literal
 
 from rovslam.errors import ConfigError
 
+Channel = Literal["grey", "green", "blue"]
+Subpixel = Literal["parabolic", "gaussian", "none"]
+Augmentation = Literal["full", "paper"]
+GateCovariance = Literal["relative", "paper"]
+
+
+def _num(default: float | int, *, gt: float | None = None, ge: float | None = None, le: float | None = None):
+    """A numeric field with its allowed range (checked at construction): ``gt`` / ``ge`` below, ``le`` above."""
+    return field(default=default, metadata={"gt": gt, "ge": ge, "le": le})
+
+
+class _Checked:
+    """Mixin: check every field's type, range and choice after construction (frozen dataclasses)."""
+
+    TABLE: ClassVar[str] = ""
+
+    def __post_init__(self) -> None:
+        hints = typing.get_type_hints(type(self))
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            _check_value(self.TABLE, f.name, getattr(self, f.name), hints[f.name], f.metadata)
+        self._check_relations()
+
+    def _check_relations(self) -> None:
+        """Constraints between fields (overridden where there are some)."""
+
+    def _fail(self, key: str, message: str) -> typing.NoReturn:
+        raise ConfigError(f"[{self.TABLE}] {key} = {getattr(self, key)!r}: {message}")
+
+
+def _check_value(table: str, key: str, value: Any, tp: Any, meta: typing.Mapping[str, Any]) -> None:
+    where = f"[{table}] {key} = {value!r}"
+    if typing.get_origin(tp) is Literal:
+        allowed = typing.get_args(tp)
+        if value not in allowed:
+            raise ConfigError(f"{where}: must be one of {', '.join(repr(a) for a in allowed)}")
+        return
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: must be true or false")
+        return
+    if tp in (int, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or (tp is int and not isinstance(value, int)):
+            raise ConfigError(f"{where}: must be a {'whole number' if tp is int else 'number'}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: must be a finite number")
+        gt, ge, le = meta.get("gt"), meta.get("ge"), meta.get("le")
+        if (gt is not None and not value > gt) or (ge is not None and not value >= ge) or (le is not None and not value <= le):
+            parts = [f"> {gt:g}" if gt is not None else "", f">= {ge:g}" if ge is not None else "",
+                     f"<= {le:g}" if le is not None else ""]
+            raise ConfigError(f"{where}: out of range, must be {' and '.join(p for p in parts if p)}")
+
 
 @dataclass(frozen=True)
-class BandpassConfig:
+class BandpassConfig(_Checked):
     """2-D band-pass filter of Misu et al. (difference of Gaussians) before the local variance.
 
     The filter works on the template channel scaled to 0..255 (8-bit intensity units); the
@@ -41,99 +94,124 @@ class BandpassConfig:
     correlated on (see rovslam.vision.tracking).
     """
 
-    sigma_fine_px: float = 1.0  # removes wavelengths shorter than ~2*pi*sigma_fine (noise)
-    sigma_coarse_px: float = 4.0  # removes wavelengths longer than ~2*pi*sigma_coarse (illumination)
-    channel: str = "green"  # "grey" | "green" | "blue"; red is reserved for the lasers
-    despeckle_px: int = 7  # >= 2: remove bright specks (marine snow) narrower than this first; 0: off (paper)
+    TABLE: ClassVar[str] = "bandpass"
+    sigma_fine_px: float = _num(1.0, gt=0)  # removes wavelengths shorter than ~2*pi*sigma_fine (noise)
+    sigma_coarse_px: float = _num(4.0, gt=0)  # removes wavelengths longer than ~2*pi*sigma_coarse (illumination)
+    channel: Channel = "green"  # red is reserved for the lasers
+    despeckle_px: int = _num(7, ge=0)  # >= 2: remove bright specks (marine snow) narrower than this first; 0: off (paper)
+
+    def _check_relations(self) -> None:
+        if self.sigma_coarse_px <= self.sigma_fine_px:
+            self._fail("sigma_coarse_px", f"must be larger than sigma_fine_px = {self.sigma_fine_px!r}")
+        if self.despeckle_px == 1:
+            self._fail("despeckle_px", "must be 0 (off) or >= 2 px")
 
 
 @dataclass(frozen=True)
-class SpeedTemplateConfig:
+class SpeedTemplateConfig(_Checked):
     """Small templates ("tokens") tracked between consecutive frames for the speed."""
 
-    size_px: int = 16  # paper: 16x16
-    max_count: int = 8  # paper: at most 8 per frame
-    min_local_variance: float = 4.0  # lower than the landmarks' (std 2 grey levels, ~7x noise)
-    search_radius_px: int = 8  # around the position predicted from the last speed
-    border_px: int = 4  # extra margin from the image border
-    min_spacing_px: int = 40  # least distance between two tokens (u or v); 16 = just non-overlapping
+    TABLE: ClassVar[str] = "speed_templates"
+    size_px: int = _num(16, ge=4)  # paper: 16x16
+    max_count: int = _num(8, ge=1)  # paper: at most 8 per frame
+    min_local_variance: float = _num(4.0, ge=0)  # lower than the landmarks' (std 2 grey levels, ~7x noise)
+    search_radius_px: int = _num(8, ge=1)  # around the position predicted from the last speed
+    border_px: int = _num(4, ge=0)  # extra margin from the image border
+    min_spacing_px: int = _num(40, ge=0)  # least distance between two tokens (u or v); 16 = just non-overlapping
 
 
 @dataclass(frozen=True)
-class LandmarkTemplateConfig:
+class LandmarkTemplateConfig(_Checked):
     """Large templates used as SLAM landmarks."""
 
-    size_px: int = 32  # paper: 32x32
-    min_local_variance: float = 12.3  # paper: 12.3
-    search_margin_px: int = 6  # search window beyond the 3-sigma predicted uncertainty
-    max_search_radius_px: int = 60
-    border_px: int = 8
-    inhibit_margin_px: int = 4  # speed templates keep this far from landmark templates
+    TABLE: ClassVar[str] = "landmark_templates"
+    size_px: int = _num(32, ge=4)  # paper: 32x32
+    min_local_variance: float = _num(12.3, ge=0)  # paper: 12.3
+    search_margin_px: int = _num(6, ge=0)  # search window beyond the 3-sigma predicted uncertainty
+    max_search_radius_px: int = _num(60, ge=1)
+    border_px: int = _num(8, ge=0)
+    inhibit_margin_px: int = _num(4, ge=0)  # speed templates keep this far from landmark templates
 
 
 @dataclass(frozen=True)
-class TrackerConfig:
+class TrackerConfig(_Checked):
     """Normalised-correlation matching (OpenCV TM_CCOEFF_NORMED)."""
 
-    min_correlation: float = 0.89  # paper: 0.89
-    max_second_peak_ratio: float = 0.98  # reject if the 2nd peak >= ratio * 1st (ambiguous)
-    second_peak_exclusion_px: int = 3  # the 2nd peak is sought outside this radius of the 1st
-    subpixel: str = "parabolic"  # "parabolic" | "gaussian" (2-D fit on the 3x3 peak) | "none"
+    TABLE: ClassVar[str] = "tracker"
+    min_correlation: float = _num(0.89, ge=-1, le=1)  # paper: 0.89
+    max_second_peak_ratio: float = _num(0.98, gt=0)  # reject if the 2nd peak >= ratio * 1st (ambiguous)
+    second_peak_exclusion_px: int = _num(3, ge=0)  # the 2nd peak is sought outside this radius of the 1st
+    subpixel: Subpixel = "parabolic"  # 2-D fit on the 3x3 peak ("gaussian": of its logarithm)
     global_search: bool = True  # phase correlation prior when tracks are lost
-    global_search_radius_px: int = 12  # search radius around the phase-correlation prior
-    min_global_confidence: float = 0.08  # phase-correlation peak response below this: no prior
-    min_tracked_fraction: float = 0.5  # fewer tracked with the prediction -> global search
+    global_search_radius_px: int = _num(12, ge=1)  # search radius around the phase-correlation prior
+    min_global_confidence: float = _num(0.08, ge=0)  # phase-correlation peak response below this: no prior
+    min_tracked_fraction: float = _num(0.5, ge=0, le=1)  # fewer tracked with the prediction -> global search
 
 
 @dataclass(frozen=True)
-class LaserConfig:
-    """Laser spot detection in the red channel and triangulation."""
+class LaserConfig(_Checked):
+    """Laser spot detection in the red channel, triangulation, and the altitude fallbacks."""
 
-    min_red_excess: float = 60.0  # red - max(green, blue), 8-bit units
-    min_spot_area_px: int = 3
-    max_spot_area_px: int = 400
-    search_radius_px: float = 40.0  # around the spot predicted from the last altitude
-    inhibit_radius_px: int = 14  # templates keep this far from a spot centre
-    max_relative_disagreement: float = 0.05  # a spot whose altitude differs more is an outlier
-    spot_sigma_px: float = 0.3  # centroid noise used for the altitude variance
-    sonar_sigma_m: float = 0.05
-    fixed_altitude_sigma_m: float = 0.10
-    min_altitude_m: float = 0.05  # triangulated depths outside this range are rejected
-    max_altitude_m: float = 30.0
+    TABLE: ClassVar[str] = "laser"
+    min_red_excess: float = _num(60.0, ge=0, le=255)  # red - max(green, blue), 8-bit units
+    min_spot_area_px: int = _num(3, ge=1)
+    max_spot_area_px: int = _num(400, ge=1)
+    search_radius_px: float = _num(40.0, gt=0)  # around the spot predicted from the last altitude
+    inhibit_radius_px: int = _num(14, ge=0)  # templates keep this far from a spot centre
+    max_relative_disagreement: float = _num(0.05, gt=0)  # a spot whose altitude differs more is an outlier
+    spot_sigma_px: float = _num(0.3, gt=0)  # centroid noise used for the altitude variance
+    sonar_sigma_m: float = _num(0.05, gt=0)
+    fixed_altitude_sigma_m: float = _num(0.10, gt=0)
+    min_altitude_m: float = _num(0.05, gt=0)  # altitudes (laser or sonar) outside this range are rejected
+    max_altitude_m: float = _num(30.0, gt=0)
+    assumed_altitude_m: float = _num(1.31, gt=0)  # no laser, no sonar, no [vehicle] altitude_m: the paper's 1.31 m
 
-
-@dataclass(frozen=True)
-class OdometryConfig:
-    """Motion-from-tokens speed estimator."""
-
-    outlier_threshold_px: float = 1.0  # residual beyond which a token is an outlier
-    min_inliers: int = 2
-    min_speed_sigma_mps: float = 0.0005  # floor of the speed standard deviation
-    token_sigma_px: float = 0.15  # one token's displacement noise
-    gap_speed_sigma_mps: float = 0.02  # added per second without tokens
-    initial_speed_sigma_mps: float = 0.2  # speed sigma held before the first good measurement
-    max_accel_mps2: float = 0.0  # > 0: a speed changing faster than this (+3 sigma) is a wrong consensus (0: off)
-    compass_sigma_rad: float = 0.0087  # compass white noise (0.5 deg); 0 uses the compass as it is (the paper)
-    compass_drift_sigma_rad: float = 0.0087  # slow compass error no smoothing removes (magnetic disturbance)
-    attitude_sigma_rad: float = 0.0035  # AHRS roll / pitch accuracy (0.2 deg, a typical spec), when frames.csv has them
+    def _check_relations(self) -> None:
+        if self.max_spot_area_px < self.min_spot_area_px:
+            self._fail("max_spot_area_px", f"must be >= min_spot_area_px = {self.min_spot_area_px}")
+        if self.max_altitude_m <= self.min_altitude_m:
+            self._fail("max_altitude_m", f"must be larger than min_altitude_m = {self.min_altitude_m!r}")
+        if not self.min_altitude_m <= self.assumed_altitude_m <= self.max_altitude_m:
+            self._fail("assumed_altitude_m", f"must lie in [min_altitude_m, max_altitude_m] = "
+                       f"[{self.min_altitude_m:g}, {self.max_altitude_m:g}]")
 
 
 @dataclass(frozen=True)
-class SlamConfig:
+class OdometryConfig(_Checked):
+    """Motion-from-tokens speed estimator and the heading inputs."""
+
+    TABLE: ClassVar[str] = "odometry"
+    outlier_threshold_px: float = _num(1.0, gt=0)  # residual beyond which a token is an outlier
+    min_inliers: int = _num(2, ge=1)
+    min_speed_sigma_mps: float = _num(0.0005, gt=0)  # floor of the speed standard deviation
+    token_sigma_px: float = _num(0.15, gt=0)  # one token's displacement noise
+    gap_speed_sigma_mps: float = _num(0.02, ge=0)  # added per second without tokens
+    initial_speed_sigma_mps: float = _num(0.2, gt=0)  # speed sigma held before the first good measurement
+    max_accel_mps2: float = _num(0.0, ge=0)  # > 0: a speed changing faster than this (+3 sigma) is a wrong consensus (0: off)
+    max_speed_mps: float = _num(3.0, gt=0)  # a measured speed above this is not a vehicle's: refused
+    survey_speed_mps: float = _num(0.15, gt=0)  # speed bound for the landmark search before any speed is measured
+    compass_sigma_rad: float = _num(0.0087, ge=0)  # compass white noise (0.5 deg); 0 uses the compass as it is (paper)
+    compass_drift_sigma_rad: float = _num(0.0087, ge=0)  # slow compass error no smoothing removes (magnetic disturbance)
+    attitude_sigma_rad: float = _num(0.0035, ge=0)  # AHRS roll / pitch accuracy (0.2 deg), when frames.csv has them
+
+
+@dataclass(frozen=True)
+class SlamConfig(_Checked):
     """Augmented-state EKF, visibility gate (5) and new-landmark test (6)."""
 
-    initial_position_sigma_m: float = 0.0  # the trajectory starts at the origin, known
-    pixel_sigma_px: float = 0.5  # landmark observation noise nu_m, nu_n
-    heading_sigma_rad: float = 0.0  # compass noise propagated through d/dpsi
-    landmark_process_sigma_m: float = 0.0  # eq. (2) process noise per step
-    visibility_lambda: float = 9.21  # eq. (5): chi-square 2 dof, 99 %
-    new_landmark_mu: float = 13.82  # eq. (6): chi-square 2 dof, 99.9 %
-    new_landmark_spacing_m: float = 0.15  # L = (spacing^2 / mu) I: minimum distance between landmarks
-    innovation_gate: float = 13.82  # chi-square 2 dof, 99.9 %
-    augmentation: str = "full"  # "full" (correct cross-covariances) | "paper" (eq. 4 diagonal block)
-    gate_covariance: str = "relative"  # (5), (6): "relative" (P_Xi + P_x - C - C^T) | "paper" (P_Xi + P_x)
-    heading_bias_sigma_rad: float = 0.0087  # > 0: estimate the slow compass error in the state (0: paper)
-    heading_bias_tau_s: float = 120.0  # its correlation time (Ornstein-Uhlenbeck)
+    TABLE: ClassVar[str] = "slam"
+    initial_position_sigma_m: float = _num(0.0, ge=0)  # the trajectory starts at the origin, known
+    pixel_sigma_px: float = _num(0.5, gt=0)  # landmark observation noise nu_m, nu_n
+    heading_sigma_rad: float = _num(0.0, ge=0)  # compass noise propagated through d/dpsi
+    landmark_process_sigma_m: float = _num(0.0, ge=0)  # (2) process noise per step
+    visibility_lambda: float = _num(9.21, gt=0)  # (5): chi-square 2 dof, 99 %
+    new_landmark_mu: float = _num(13.82, gt=0)  # (6): chi-square 2 dof, 99.9 %
+    new_landmark_spacing_m: float = _num(0.15, ge=0)  # L = (spacing^2 / mu) I: minimum distance between landmarks
+    innovation_gate: float = _num(13.82, gt=0)  # chi-square 2 dof, 99.9 %
+    augmentation: Augmentation = "full"  # "full" (correct cross-covariances) | "paper" ((4) diagonal block)
+    gate_covariance: GateCovariance = "relative"  # (5), (6): "relative" (P_Xi + P_x - C - C^T) | "paper" (P_Xi + P_x)
+    heading_bias_sigma_rad: float = _num(0.0087, ge=0)  # > 0: estimate the slow compass error in the state (0: paper)
+    heading_bias_tau_s: float = _num(120.0, gt=0)  # its correlation time (Ornstein-Uhlenbeck)
 
 
 @dataclass(frozen=True)
@@ -152,6 +230,8 @@ class RunConfig:
 def _convert(value: Any, tp: Any, where: str) -> Any:
     """Convert a TOML value to the dataclass field type ``tp`` or raise ConfigError."""
     origin = typing.get_origin(tp)
+    if origin is Literal:
+        return value  # checked against the allowed values by the dataclass
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}")
@@ -201,6 +281,8 @@ def from_dict(cls: type, data: dict[str, Any], source: str = "<dict>", prefix: s
             kwargs[key] = _convert(value, tp, f"{source}: {where}")
     try:
         obj = cls(**kwargs)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{source}: invalid [{prefix or cls.__name__}]: {exc}") from None
     return obj

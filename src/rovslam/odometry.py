@@ -27,15 +27,14 @@ its covariance with the gap.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
-from rovslam.camera import Camera, pixels_to_ground, rot2
+from rovslam.camera import Camera, pixels_to_ground, rot2, wrap_angle
 from rovslam.config import OdometryConfig
-from rovslam.errors import ConfigError, InvalidMeasurementError, finite_scalar
+from rovslam.errors import InvalidArgumentError, InvalidMeasurementError, finite_scalar
 
-__all__ = ["HeadingFilter", "SpeedMeasurement", "SpeedEstimator", "speed_from_tokens"]
+__all__ = ["SpeedMeasurement", "SpeedEstimator", "speed_from_tokens"]
 
 # At most this many single-token hypotheses are scored (plus the median); the pairwise
 # residual table is then at most 65 x N, whatever N.
@@ -55,7 +54,8 @@ class SpeedMeasurement:
         n_inliers: tokens that agree with the consensus (0 when not ok).
         inlier_mask: (n_tokens,) bool, True for the tokens used.
         reason: "" when ok, else why ("no tokens", "too few tokens", "no consensus",
-            "ambiguous consensus", "implausible acceleration").
+            "ambiguous consensus", "implausible speed" (above ``max_speed_mps``),
+            "implausible acceleration").
     """
 
     ok: bool
@@ -73,23 +73,6 @@ class SpeedMeasurement:
     def speed_mps(self) -> np.ndarray:
         """(2,) [surge, sway]."""
         return np.array([self.surge_mps, self.sway_mps])
-
-
-@lru_cache(maxsize=32)
-def _checked(config: OdometryConfig) -> OdometryConfig:
-    """Validate an OdometryConfig once (configs are frozen, so the result is cached)."""
-    positive = ("outlier_threshold_px", "min_speed_sigma_mps", "token_sigma_px", "initial_speed_sigma_mps")
-    for name in positive:
-        value = getattr(config, name)
-        if not (np.isfinite(value) and value > 0):
-            raise ConfigError(f"[odometry] {name} must be a positive number, got {value!r}")
-    if not (np.isfinite(config.gap_speed_sigma_mps) and config.gap_speed_sigma_mps >= 0):
-        raise ConfigError(
-            f"[odometry] gap_speed_sigma_mps must be zero or positive, got {config.gap_speed_sigma_mps!r}"
-        )
-    if config.min_inliers < 1:
-        raise ConfigError(f"[odometry] min_inliers must be at least 1, got {config.min_inliers!r}")
-    return config
 
 
 def _scalar(name: str, value: float, *, positive: bool = False, nonnegative: bool = False) -> float:
@@ -113,7 +96,7 @@ def _token_array(name: str, uv) -> np.ndarray:
     if a.size == 0:
         return a.reshape(0, 2)
     if a.ndim != 2 or a.shape[1] != 2:
-        raise InvalidMeasurementError(f"{name} must be an (N, 2) array of pixels (u, v), got shape {a.shape}")
+        raise InvalidArgumentError(f"{name} must be an (N, 2) array of pixels (u, v), got shape {a.shape}")
     return a
 
 
@@ -183,7 +166,6 @@ def speed_from_tokens(
         InvalidMeasurementError: NaN/infinite/non-positive altitude, time step or attitude,
             or token arrays of the wrong shape.
     """
-    config = _checked(config)
     z_prev = _scalar("altitude_prev_m", altitude_prev_m, positive=True)
     z_curr = _scalar("altitude_curr_m", altitude_curr_m, positive=True)
     dt = _scalar("dt_s", dt_s, positive=True)
@@ -194,7 +176,7 @@ def speed_from_tokens(
     uv0 = _token_array("uv_prev_px", uv_prev_px)
     uv1 = _token_array("uv_curr_px", uv_curr_px)
     if uv0.shape != uv1.shape:
-        raise InvalidMeasurementError(
+        raise InvalidArgumentError(
             f"uv_prev_px and uv_curr_px must hold the same tokens, got shapes {uv0.shape} and {uv1.shape}"
         )
     n_tokens = uv0.shape[0]
@@ -262,6 +244,8 @@ def speed_from_tokens(
             return _failure(n_tokens, "no consensus", config)
     speeds = d_m[valid][inl] / dt  # (n_inl, 2) m/s, one per inlier token
     speed = speeds.sum(axis=0) / n_inl
+    if float(np.hypot(speed[0], speed[1])) > config.max_speed_mps:
+        return _failure(n_tokens, "implausible speed", config)
     # Q: standard error of the mean from the inlier spread, each token's variance floored
     # at the a-priori token noise; plus the altitude scale error; plus the floor.
     token_var = (config.token_sigma_px / px_per_m / dt) ** 2
@@ -297,7 +281,7 @@ def _rotation_consensus(
     da, db = a_m[i] - a_m[j], b_m[i] - b_m[j]
     keep = np.einsum("kj,kj->k", db, db) > (8.0 * thr_m) ** 2
     th = np.arctan2(da[keep, 1], da[keep, 0]) - np.arctan2(db[keep, 1], db[keep, 0])
-    hyps = np.concatenate([[dpsi_rad], dpsi_rad + (th - dpsi_rad + np.pi) % (2.0 * np.pi) - np.pi])
+    hyps = np.concatenate([[dpsi_rad], dpsi_rad + wrap_angle(th - dpsi_rad)])
     c, s = np.cos(hyps)[:, None], np.sin(hyps)[:, None]
     t = np.stack([a_m[None, :, 0] - (c * b_m[:, 0] - s * b_m[:, 1]),
                   a_m[None, :, 1] - (s * b_m[:, 0] + c * b_m[:, 1])], axis=-1)  # (K, M, 2)
@@ -325,61 +309,11 @@ def _fuse_rotation(
     var_tok = 2.0 * token_sigma_m**2 / spread_m2
     var_prior = dpsi_sigma_rad**2
     # Wrap the token rotation next to the prior so that the weighted mean is meaningful.
-    theta = dpsi_rad + (theta - dpsi_rad + np.pi) % (2.0 * np.pi) - np.pi
+    theta = dpsi_rad + wrap_angle(theta - dpsi_rad)
     w = var_prior / (var_prior + var_tok) if np.isfinite(var_prior) else 1.0
     fused = dpsi_rad + w * (theta - dpsi_rad)
     var = var_tok * var_prior / (var_tok + var_prior) if np.isfinite(var_prior) else var_tok
     return float(fused), float(np.sqrt(var))
-
-
-class HeadingFilter:
-    """Heading from the compass, smoothed with the tokens' measured heading changes (beyond the paper).
-
-    A one-state Kalman filter: predict ``psi += dpsi`` (the fused rotation of
-    :func:`speed_from_tokens`, variance ``dpsi_sigma^2``), update with the compass reading
-    (variance ``compass_sigma^2``). Without token rotations it follows the compass. The paper
-    flew at constant heading and used the compass as it is; a noisy compass then turns every
-    step by its noise, which this removes.
-    """
-
-    def __init__(self, compass_sigma_rad: float):
-        self.compass_sigma_rad = float(compass_sigma_rad)
-        self.heading_rad: float | None = None
-        self.var_rad2 = 0.0
-
-    @property
-    def sigma_rad(self) -> float:
-        return float(np.sqrt(self.var_rad2))
-
-    def update(self, compass_rad: float, dpsi_rad: float | None = None, dpsi_sigma_rad: float = float("inf")) -> float:
-        """One step: the compass reading of this frame and the measured change since the last one.
-
-        A NaN compass (a video without navigation) leaves the tokens alone: the heading is
-        then their integrated rotation from 0 at the first frame, its variance growing.
-        """
-        if compass_rad is None or not np.isfinite(compass_rad):
-            if self.heading_rad is None:
-                self.heading_rad, self.var_rad2 = 0.0, 0.0
-            elif dpsi_rad is not None and np.isfinite(dpsi_sigma_rad):
-                psi = self.heading_rad + float(dpsi_rad)
-                self.heading_rad = float((psi + np.pi) % (2.0 * np.pi) - np.pi)
-                self.var_rad2 += float(dpsi_sigma_rad) ** 2
-            return self.heading_rad
-        c = _scalar("heading_rad", compass_rad)
-        r = self.compass_sigma_rad**2
-        if self.heading_rad is None or r == 0.0:
-            self.heading_rad, self.var_rad2 = c, r
-            return c
-        if dpsi_rad is not None and np.isfinite(dpsi_sigma_rad):
-            psi = self.heading_rad + float(dpsi_rad)
-            var = self.var_rad2 + float(dpsi_sigma_rad) ** 2
-        else:
-            psi, var = c, r  # nothing but the compass bridges this step
-        innov = (c - psi + np.pi) % (2.0 * np.pi) - np.pi
-        k = var / (var + r)
-        self.heading_rad = float((psi + k * innov + np.pi) % (2.0 * np.pi) - np.pi)
-        self.var_rad2 = (1.0 - k) * var
-        return self.heading_rad
 
 
 class SpeedEstimator:
@@ -392,7 +326,7 @@ class SpeedEstimator:
     """
 
     def __init__(self, config: OdometryConfig = OdometryConfig()):
-        self.config = _checked(config)
+        self.config = config
         self.reset()
 
     def reset(self) -> None:
@@ -446,7 +380,14 @@ class SpeedEstimator:
             self._last = m
             self._gap_s = 0.0
             return m
-        reason = "implausible acceleration" if m.ok else m.reason
+        return self.hold(dt_s, "implausible acceleration" if m.ok else m.reason, m.n_tokens, m.inlier_mask)
+
+    def hold(
+        self, dt_s: float, reason: str = "no tokens", n_tokens: int = 0, inlier_mask: np.ndarray | None = None
+    ) -> SpeedMeasurement:
+        """A step without a usable speed: the last good speed, its covariance grown by the gap (``ok=False``)."""
+        if inlier_mask is None:
+            inlier_mask = np.zeros(n_tokens, dtype=bool)
         self._gap_s += float(dt_s)
         grow = (self.config.gap_speed_sigma_mps * self._gap_s) ** 2
         if self._last is None:
@@ -457,4 +398,4 @@ class SpeedEstimator:
             base = self._last.cov_mps2
         cov = base + grow * np.eye(2)
         cov.setflags(write=False)
-        return SpeedMeasurement(False, surge, sway, cov, m.n_tokens, 0, m.inlier_mask, reason)
+        return SpeedMeasurement(False, surge, sway, cov, n_tokens, 0, inlier_mask, reason)

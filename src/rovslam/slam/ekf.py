@@ -7,10 +7,10 @@ mapped under one error and seen again under another turn the map. With ``eps`` i
 the re-observations estimate the change; its absolute value (a rotation of the whole map)
 stays unobservable and its variance says so.
 
-* Prediction (1), (2): ``[x, y] += R(psi) [u, v] dt``; the speed covariance Q is projected
+* Prediction (1), (2) (:mod:`rovslam.slam.motion`): ``[x, y] += R(psi) [u, v] dt``; the speed covariance Q is projected
   through ``R(psi) dt``, an optional heading noise through ``dR/dpsi [u, v] dt``; landmarks
   are static with an optional process noise per step.
-* Update (3): ``[m, n] = f/Z R(psi)^T (X_i - x)``. H is non-zero only in the vehicle's and the
+* Update (3) (:mod:`rovslam.slam.observation`): ``[m, n] = f/Z R(psi)^T (X_i - x)``. H is non-zero only in the vehicle's and the
   landmark's columns, so the Joseph-form covariance update
   ``P' = (I - K H) P (I - K H)^T + K R K^T = P - K M^T - M K^T + K S K^T`` (``M = P H^T``)
   is a rank-4 correction ``P -= [K W] [W K]^T`` with ``W = M - K S / 2``, applied in place
@@ -33,11 +33,17 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg.blas import dgemm
 
-from rovslam.camera import rot2
 from rovslam.config import SlamConfig
-from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError, finite_scalar
+from rovslam.errors import FilterInconsistencyError, InvalidMeasurementError, finite_scalar
 from rovslam.slam import gating
-from rovslam.slam.observation import observation_noise_px2
+from rovslam.slam.motion import motion_jacobians, motion_step_m
+from rovslam.slam.observation import (
+    landmark_from_mn,
+    landmark_jacobians,
+    observation_jacobians,
+    observation_noise_px2,
+    observe_mn,
+)
 
 __all__ = ["EkfSlam", "UpdateResult", "ConsistencyReport"]
 
@@ -115,29 +121,6 @@ def _cov2(name: str, value) -> np.ndarray:
     return 0.5 * (a + a.T)
 
 
-def _check_config(config: SlamConfig) -> SlamConfig:
-    if config.augmentation not in ("full", "paper"):
-        raise ConfigError(
-            f"[slam] augmentation must be 'full' or 'paper', got {config.augmentation!r}"
-        )
-    if config.gate_covariance not in ("relative", "paper"):
-        raise ConfigError(
-            f"[slam] gate_covariance must be 'relative' or 'paper', got {config.gate_covariance!r}"
-        )
-    for name in ("pixel_sigma_px", "visibility_lambda", "new_landmark_mu", "innovation_gate"):
-        v = getattr(config, name)
-        if not (np.isfinite(v) and v > 0):
-            raise ConfigError(f"[slam] {name} must be a positive number, got {v!r}")
-    if not (np.isfinite(config.heading_bias_tau_s) and config.heading_bias_tau_s > 0):
-        raise ConfigError(f"[slam] heading_bias_tau_s must be a positive number, got {config.heading_bias_tau_s!r}")
-    for name in ("initial_position_sigma_m", "heading_sigma_rad", "landmark_process_sigma_m", "new_landmark_spacing_m",
-                 "heading_bias_sigma_rad"):
-        v = getattr(config, name)
-        if not (np.isfinite(v) and v >= 0):
-            raise ConfigError(f"[slam] {name} must be zero or positive, got {v!r}")
-    return config
-
-
 class EkfSlam:
     """EKF-SLAM over the vehicle position and N point landmarks (equations (1)-(6)).
 
@@ -155,7 +138,7 @@ class EkfSlam:
         initial_cov_m2=None,
         initial_capacity: int = 16,
     ):
-        self.config = _check_config(config)
+        self.config = config  # validated when it was built (rovslam.config)
         xy = _vector2("initial_xy_m", initial_xy_m)
         if initial_cov_m2 is None:
             cov = np.eye(2) * config.initial_position_sigma_m**2
@@ -204,6 +187,18 @@ class EkfSlam:
     @property
     def heading_bias_sigma_rad(self) -> float:
         return float(np.sqrt(max(self._P[2, 2], 0.0))) if self._v == 3 else 0.0
+
+    def map_heading_rad(self, heading_rad: float) -> float:
+        """The heading the filter believes for a heading input: ``psi - eps`` (the input without its slow bias)."""
+        return float(heading_rad) - self.heading_bias_rad
+
+    def inflate_vehicle_covariance(self, cov_m2) -> None:
+        """Add a (2, 2) PSD covariance to the vehicle position block (an uncertainty the filter was not told of).
+
+        At the first frame this is the start's uncertainty (e.g. the AHRS tilt offset); the
+        whole covariance stays positive semi-definite.
+        """
+        self._P[:2, :2] += _cov2("added vehicle covariance", cov_m2)
 
     @property
     def landmark_ids(self) -> list[int]:
@@ -300,11 +295,10 @@ class EkfSlam:
         s_psi = self.config.heading_sigma_rad if heading_sigma_rad is None else heading_sigma_rad
         s_psi = _finite("heading_sigma_rad", s_psi, nonnegative=True)
 
-        theta = psi - self.heading_bias_rad  # the heading the filter believes
-        r = rot2(theta)
+        theta = self.map_heading_rad(psi)
         speed = np.array([u, v])
-        self._x[:2] += r @ speed * dt  # (1)
-        j = np.array([[-r[1, 0], -r[0, 0]], [r[0, 0], -r[1, 0]]]) @ speed * dt  # dR/dpsi [u, v] dt
+        g, j = motion_jacobians(speed, theta, dt)  # d(position) / d(speed), d(position) / d(psi)
+        self._x[:2] += motion_step_m(speed, theta, dt)  # (1)
         n = self._n
         if self._v == 3:
             # F = I except d(position)/d(eps) = -j: P <- F P F^T as two O(N) rank-1 steps.
@@ -316,7 +310,6 @@ class EkfSlam:
             p[2, :n] *= a
             p[:n, 2] *= a
             p[2, 2] += self.config.heading_bias_sigma_rad**2 * (1.0 - a * a)
-        g = r * dt  # d(position) / d(speed)
         add = g @ q @ g.T
         if s_psi > 0.0:
             add += s_psi**2 * np.outer(j, j)
@@ -329,12 +322,12 @@ class EkfSlam:
 
     # ------------------------------------------------------------------ (3)
     def _observation_terms(self, k: int, psi: float, z: float, f: float):
-        """h (2,), the non-zero columns of H (2, 4 or 5), their state indices, of landmark row k."""
-        a = (f / z) * rot2(psi - self.heading_bias_rad).T
-        d = self._x[k : k + 2] - self._x[:2]
-        h = a @ d
-        if self._v == 3:  # d h / d eps = -d h / d psi = -[n, -m]
-            return h, np.hstack([-a, np.array([[-h[1]], [h[0]]]), a]), np.array([0, 1, 2, k, k + 1])
+        """h (2,) by (3), the non-zero columns of H (2, 4 or 5), their state indices, of landmark row k."""
+        theta = self.map_heading_rad(psi)
+        h = observe_mn(self._x[k : k + 2], self._x[:2], theta, z, f)[0]
+        a, j_psi = observation_jacobians(h, theta, z, f)
+        if self._v == 3:  # d h / d eps = -d h / d psi
+            return h, np.hstack([-a, -j_psi.T, a]), np.array([0, 1, 2, k, k + 1])
         return h, np.hstack([-a, a]), np.array([0, 1, k, k + 1])
 
     def _noise_args(self, pixel_sigma_px, altitude_sigma_m, heading_sigma_rad):
@@ -364,6 +357,45 @@ class EkfSlam:
         h, hs, idx = self._observation_terms(k, psi, z, f)
         s = self._innovation_cov(hs, idx, observation_noise_px2(h, sp, z, sz, sh))
         return h, s
+
+    def predict_observations(
+        self,
+        ids: np.ndarray,
+        heading_rad: float,
+        altitude_m: float,
+        focal_px: float,
+        vehicle_offset_m=(0.0, 0.0),
+        pixel_sigma_px: float | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(3) for several landmarks at once, with the vehicle moved by ``vehicle_offset_m``.
+
+        This is the landmark search of the loop: it comes before this frame's speed is known,
+        so the pipeline moves the vehicle by the last speed. Returns the predicted [m, n]
+        (K, 2) and the innovation covariances S (K, 2, 2) with the pixel noise only, in O(K).
+        """
+        idx = np.asarray(ids, dtype=np.intp).reshape(-1)
+        for i in idx:
+            self._index(i)
+        psi = _finite("heading_rad", heading_rad)
+        z = _finite("altitude_m", altitude_m, positive=True)
+        f = _finite("focal_px", focal_px, positive=True)
+        sp, _, _ = self._noise_args(pixel_sigma_px, 0.0, 0.0)
+        offset = _vector2("vehicle_offset_m", vehicle_offset_m)
+        theta = self.map_heading_rad(psi)
+        rows = self._v + 2 * idx  # (K,) first state row of each landmark
+        h = observe_mn(self._x[np.stack([rows, rows + 1], axis=1)], self._x[:2] + offset, theta, z, f)
+        a, j_psi = observation_jacobians(h, theta, z, f)
+        p = self._P
+        c = p[0:2][:, np.stack([rows, rows + 1], axis=1)].transpose(1, 0, 2)  # (K, 2, 2) cov(x, X_i)
+        p_ll = p[rows[:, None, None] + np.arange(2)[None, :, None], rows[:, None, None] + np.arange(2)[None, None, :]]
+        cov_d = p_ll + p[0:2, 0:2] - c - np.swapaxes(c, 1, 2)  # cov(X_i - x)
+        s = a @ cov_d @ a.T
+        if self._v == 3:  # d h / d eps = -J_psi
+            e = -j_psi  # (K, 2)
+            q = (p[2, np.stack([rows, rows + 1], axis=1)] - p[2, 0:2]) @ a.T  # (K, 2) A (cov(eps, X_i) - cov(eps, x))
+            s = s + e[:, :, None] * q[:, None, :] + q[:, :, None] * e[:, None, :] + p[2, 2] * e[:, :, None] * e[:, None, :]
+        s = s + np.eye(2) * sp**2
+        return h, 0.5 * (s + np.swapaxes(s, 1, 2))
 
     def _innovation_cov(self, hs: np.ndarray, idx: np.ndarray, r_m: np.ndarray) -> np.ndarray:
         p = self._P[np.ix_(idx, idx)]
@@ -503,15 +535,15 @@ class EkfSlam:
 
         self._reserve(2)
         n = self._n
-        r = rot2(psi - self.heading_bias_rad)
-        g = (z / f) * r  # d X / d [m, n]
+        theta = self.map_heading_rad(psi)
+        g, j_psi = landmark_jacobians(mn, theta, z, f)  # d X / d [m, n], d X / d psi
         r_m = observation_noise_px2(mn, sp, z, sz, sh)
         p = self._P
-        self._x[n : n + 2] = self._x[:2] + g @ mn  # (4)
+        self._x[n : n + 2] = landmark_from_mn(mn, self._x[:2], theta, z, f)[0]  # (4)
         # cov(X, .) = cov(x, .) [+ d X / d eps cov(eps, .)]: the rows of J = [I (, je)].
         cross = p[0:2, :n].copy()
         if self._v == 3:
-            je = -(z / f) * np.array([[-r[1, 0], -r[0, 0]], [r[0, 0], -r[1, 0]]]) @ mn  # d X / d eps
+            je = -j_psi[0]  # d X / d eps = -d X / d psi
             cross += np.outer(je, p[2, :n])
             block = cross[:, 0:2] + np.outer(cross[:, 2], je) + g @ r_m @ g.T
         else:
@@ -531,27 +563,34 @@ class EkfSlam:
         cross = self.vehicle_landmark_cov_m2() if self.config.gate_covariance == "relative" else None
         return self._x[self._v : self._n].reshape(-1, 2), self.landmarks_cov_m2(), self._x[:2], self._P[:2, :2], cross
 
-    def visibility_statistics(
-        self, heading_rad: float, altitude_m: float, focal_px: float, width_px: float, height_px: float
-    ) -> np.ndarray:
-        """(N,) left-hand side of (5) for every landmark."""
+    def _footprint(self, heading_rad, altitude_m, focal_px, width_px, height_px) -> np.ndarray:
+        """D of (5) at the map heading, the inputs checked."""
         psi = _finite("heading_rad", heading_rad)
         z = _finite("altitude_m", altitude_m, positive=True)
         f = _finite("focal_px", focal_px, positive=True)
         w = _finite("width_px", width_px, positive=True)
         hgt = _finite("height_px", height_px, positive=True)
+        return gating.footprint_matrix_m2(self.map_heading_rad(psi), z, f, w, hgt)
+
+    def visibility_statistics(
+        self, heading_rad: float, altitude_m: float, focal_px: float, width_px: float, height_px: float
+    ) -> np.ndarray:
+        """(N,) left-hand side of (5) for every landmark."""
+        d_fp = self._footprint(heading_rad, altitude_m, focal_px, width_px, height_px)
         if self.n_landmarks == 0:
             return np.zeros(0)
         xy, cov, vxy, vcov, cross = self._gate_inputs()
-        d_fp = gating.footprint_matrix_m2(psi, z, f, w, hgt)
         return gating.visibility_statistics(xy, cov, vxy, vcov, d_fp, cross)
 
     def visible_landmarks(
         self, heading_rad: float, altitude_m: float, focal_px: float, width_px: float, height_px: float
     ) -> np.ndarray:
         """Ids (int array) of the landmarks that pass the visibility gate (5)."""
-        stats = self.visibility_statistics(heading_rad, altitude_m, focal_px, width_px, height_px)
-        return np.flatnonzero(stats <= self.config.visibility_lambda)
+        d_fp = self._footprint(heading_rad, altitude_m, focal_px, width_px, height_px)
+        if self.n_landmarks == 0:
+            return np.zeros(0, dtype=np.intp)
+        xy, cov, vxy, vcov, cross = self._gate_inputs()
+        return np.flatnonzero(gating.visibility_gate(xy, cov, vxy, vcov, d_fp, self.config.visibility_lambda, cross))
 
     def new_landmark_statistics(self) -> np.ndarray:
         """(N,) left-hand side of (6) for every landmark."""
@@ -563,9 +602,9 @@ class EkfSlam:
 
     def may_add_landmark(self) -> bool:
         """Test (6) against every landmark: True when the vehicle is far enough from all (or none exist)."""
-        if self.n_landmarks == 0:
-            return True
-        return bool(np.all(self.new_landmark_statistics() >= self.config.new_landmark_mu))
+        xy, cov, vxy, vcov, cross = self._gate_inputs()
+        spacing = gating.spacing_matrix_m2(self.config.new_landmark_spacing_m, self.config.new_landmark_mu)
+        return gating.new_landmark_test(xy, cov, vxy, vcov, spacing, self.config.new_landmark_mu, cross)
 
     # ------------------------------------------------------------------ health
     def check_consistency(self, repair: bool = True) -> ConsistencyReport:

@@ -6,7 +6,7 @@ Both tests are Mahalanobis distances of the landmark-to-vehicle offset ``d = X_i
   ``D = (Z/f)^2 R(psi) diag((H/2)^2, (W/2)^2) R(psi)^T`` is the seabed footprint of an
   H x W image (H along forward / m, W along starboard / n). The paper prints
   ``diag(H/2, W/2)`` without the squares and without the trailing ``R^T``, which is
-  dimensionally wrong (metres, not metres squared); DESIGN.md uses the squared form.
+  dimensionally wrong (metres, not metres squared); rovslam uses the squared form.
 * (6) ``d^T (P_Xi + P_x + L)^-1 d >= mu`` for every i: the vehicle is far enough from all
   landmarks to add a new one; ``L = (spacing^2 / mu) I`` fixes the minimum spacing, so that
   with a certain filter a new landmark is allowed exactly ``spacing`` metres from the others.

@@ -1,18 +1,26 @@
-"""Observation model (3), its inverse (4) and the observation noise R_m, as pure functions.
+"""Observation model (3), its inverse (4), their Jacobians and the noise R_m, as pure functions.
 
 ``[m, n] = f/Z R(psi)^T [X - x, Y - y]``: the level-equivalent image coordinates of a seabed
 point, m forward (``cy - v``), n starboard (``u - cx``). Real pixels from a tilted, distorted
 or yaw-offset camera are turned into these with :func:`pixels_to_mn`, so the filter sees
-exactly (3) with the vehicle heading psi.
+exactly (3) with the vehicle heading psi. These are the only implementations of (3) and (4):
+the filter, the landmark search and the tests all call them.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from rovslam.camera import Camera, ground_to_mn, pixels_to_ground, rot2
+from rovslam.camera import Camera, drot2, ground_to_mn, pixels_to_ground, rot2
 
-__all__ = ["observe_mn", "landmark_from_mn", "observation_noise_px2", "pixels_to_mn"]
+__all__ = [
+    "landmark_from_mn",
+    "landmark_jacobians",
+    "observation_jacobians",
+    "observation_noise_px2",
+    "observe_mn",
+    "pixels_to_mn",
+]
 
 
 def observe_mn(
@@ -24,12 +32,38 @@ def observe_mn(
     return (focal_px / altitude_m) * (d @ rot2(heading_rad))
 
 
+def observation_jacobians(
+    mn_px: np.ndarray, heading_rad: float, altitude_m: float, focal_px: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobians of (3) at the predicted (N, 2) [m, n].
+
+    Returns ``(A, J_psi)``: ``A = f/Z R(psi)^T`` (2, 2), the derivative with respect to the
+    landmark (and ``-A`` with respect to the vehicle position); ``J_psi`` (N, 2) ``= [n, -m]``,
+    the derivative with respect to the heading.
+    """
+    mn = np.asarray(mn_px, dtype=np.float64).reshape(-1, 2)
+    return (focal_px / altitude_m) * rot2(heading_rad).T, np.column_stack([mn[:, 1], -mn[:, 0]])
+
+
 def landmark_from_mn(
     mn_px: np.ndarray, vehicle_xy_m: np.ndarray, heading_rad: float, altitude_m: float, focal_px: float
 ) -> np.ndarray:
     """Equation (4): (N, 2) [m, n] pixels -> (N, 2) world landmark positions."""
     mn = np.asarray(mn_px, dtype=np.float64).reshape(-1, 2)
     return np.asarray(vehicle_xy_m).reshape(1, 2) + (altitude_m / focal_px) * (mn @ rot2(heading_rad).T)
+
+
+def landmark_jacobians(
+    mn_px: np.ndarray, heading_rad: float, altitude_m: float, focal_px: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobians of (4) (the derivative with respect to the vehicle position is I).
+
+    Returns ``(G, J_psi)``: ``G = Z/f R(psi)`` (2, 2), the derivative with respect to [m, n];
+    ``J_psi`` (N, 2) ``= Z/f dR/dpsi [m, n]``, the derivative with respect to the heading.
+    """
+    mn = np.asarray(mn_px, dtype=np.float64).reshape(-1, 2)
+    s = altitude_m / focal_px
+    return s * rot2(heading_rad), s * (mn @ drot2(heading_rad).T)
 
 
 def observation_noise_px2(

@@ -32,7 +32,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from rovslam.errors import ConfigError, ImageReadError
+from rovslam.errors import InvalidArgumentError
 
 CHANNELS = ("grey", "green", "blue")
 """Channels the templates may use. Red is reserved for the laser spots (paper, Fig. 1)."""
@@ -57,20 +57,20 @@ def template_channel(image: np.ndarray, channel: str) -> np.ndarray:
     ``(H, W) float32`` on the 8-bit scale 0..255 (a new array).
     """
     if channel not in CHANNELS:
-        raise ConfigError(
+        raise InvalidArgumentError(
             f"template channel must be one of {', '.join(CHANNELS)}, got {channel!r}"
             + (" (red is reserved for the laser spots)" if channel == "red" else "")
         )
     img = np.asarray(image)
     if img.dtype != np.uint8:
-        raise ImageReadError(
+        raise InvalidArgumentError(
             f"template_channel needs an 8-bit image (uint8), got dtype {img.dtype}; "
             "convert with np.clip(x, 0, 255).astype(np.uint8)"
         )
     if img.ndim == 2:
         return img.astype(np.float32)
     if img.ndim != 3 or img.shape[2] != 3:
-        raise ImageReadError(
+        raise InvalidArgumentError(
             f"template_channel needs an (H, W) grey or (H, W, 3) RGB image, got shape {img.shape}"
         )
     if channel == "grey":
@@ -110,7 +110,7 @@ def gaussian_kernel(sigma_px: float) -> np.ndarray:
 def _check_image(img: np.ndarray, name: str) -> np.ndarray:
     arr = np.asarray(img)
     if arr.ndim != 2:
-        raise ImageReadError(f"{name} needs a (H, W) single-channel image, got shape {arr.shape}")
+        raise InvalidArgumentError(f"{name} needs a (H, W) single-channel image, got shape {arr.shape}")
     if arr.dtype != np.float32:
         arr = arr.astype(np.float32)
     return arr
@@ -137,11 +137,11 @@ def bandpass(channel_img: np.ndarray, sigma_fine_px: float, sigma_coarse_px: flo
     """
     img = _check_image(channel_img, "bandpass")
     if not (np.isfinite(sigma_fine_px) and np.isfinite(sigma_coarse_px)):
-        raise ConfigError(
+        raise InvalidArgumentError(
             f"band-pass sigmas must be finite, got fine={sigma_fine_px}, coarse={sigma_coarse_px}"
         )
     if sigma_fine_px < 0 or sigma_coarse_px <= sigma_fine_px:
-        raise ConfigError(
+        raise InvalidArgumentError(
             "band-pass needs 0 <= sigma_fine_px < sigma_coarse_px, got "
             f"fine={sigma_fine_px}, coarse={sigma_coarse_px}; swap or fix them in [bandpass]"
         )
@@ -177,9 +177,9 @@ def local_variance(img: np.ndarray, size_px: int) -> np.ndarray:
     arr = _check_image(img, "local_variance")
     size = int(size_px)
     if size != size_px or size < 2:
-        raise ConfigError(f"local variance window must be a whole number >= 2 px, got {size_px}")
+        raise InvalidArgumentError(f"local variance window must be a whole number >= 2 px, got {size_px}")
     if size > min(arr.shape):
-        raise ConfigError(
+        raise InvalidArgumentError(
             f"local variance window {size} px is larger than the image {arr.shape[1]}x{arr.shape[0]}"
         )
     ksize = (size, size)

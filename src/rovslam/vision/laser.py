@@ -27,7 +27,7 @@ from scipy.optimize import linear_sum_assignment
 
 from rovslam.camera import Camera, LaserPointer, ground_to_pixels, level_from_body, pixel_rays_level
 from rovslam.config import LaserConfig
-from rovslam.errors import ConfigError, ImageReadError, InvalidMeasurementError
+from rovslam.errors import InvalidArgumentError, InvalidMeasurementError
 
 SOURCE_LASER = "laser"
 SOURCE_LASER_SONAR = "laser+sonar"
@@ -126,7 +126,7 @@ def red_excess(image_rgb: np.ndarray) -> np.ndarray:
     """``(H, W) uint8`` red dominance ``max(0, R - max(G, B))`` of an ``(H, W, 3) uint8`` RGB image."""
     img = np.asarray(image_rgb)
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
-        raise ImageReadError(
+        raise InvalidArgumentError(
             f"laser spots need an (H, W, 3) uint8 RGB image, got shape {img.shape} dtype {img.dtype}"
         )
     r = np.ascontiguousarray(img[:, :, 0])
@@ -213,14 +213,14 @@ def detect_laser_spots(
     """
     img = np.asarray(image_rgb)
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
-        raise ImageReadError(
+        raise InvalidArgumentError(
             f"laser spots need an (H, W, 3) uint8 RGB image, got shape {img.shape} dtype {img.dtype}"
         )
     if predicted_uv_px is None:
         return _spot_candidates(img, config)[0]
     pred = np.asarray(predicted_uv_px, dtype=np.float64)
     if pred.ndim != 2 or pred.shape[1] != 2:
-        raise ConfigError(f"predicted_uv_px must be (L, 2), got shape {pred.shape}")
+        raise InvalidArgumentError(f"predicted_uv_px must be (L, 2), got shape {pred.shape}")
     cents, _ = _spot_candidates(img, config, pred)
     out = np.full(pred.shape, np.nan)
     if len(cents) == 0 or len(pred) == 0:
@@ -262,7 +262,7 @@ def triangulate_points(
     _check_attitude(roll_rad, pitch_rad)
     spots = np.asarray(spots_uv_px, dtype=np.float64).reshape(-1, 2)
     if len(spots) != len(lasers):
-        raise ConfigError(
+        raise InvalidArgumentError(
             f"spots_uv_px has {len(spots)} rows but there are {len(lasers)} lasers; pass one row "
             "per laser (NaN for a missing spot)"
         )
@@ -341,11 +341,11 @@ def _points_and_sigmas(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(L, 3) triangulated points and (L,) altitude sigmas from one stacked triangulation."""
     if not (np.isfinite(spot_sigma_px) and spot_sigma_px > 0):
-        raise ConfigError(f"spot_sigma_px must be positive, got {spot_sigma_px}")
+        raise InvalidArgumentError(f"spot_sigma_px must be positive, got {spot_sigma_px}")
     spots = np.asarray(spots_uv_px, dtype=np.float64).reshape(-1, 2)
     n = len(spots)
     if n != len(lasers):
-        raise ConfigError(
+        raise InvalidArgumentError(
             f"spots_uv_px has {n} rows but there are {len(lasers)} lasers; pass one row "
             "per laser (NaN for a missing spot)"
         )
@@ -433,7 +433,7 @@ def fuse_altitude(
     alts = np.asarray(laser_altitudes_m, dtype=np.float64).reshape(-1)
     sigs = np.asarray(laser_sigmas_m, dtype=np.float64).reshape(-1)
     if sigs.shape != alts.shape:
-        raise ConfigError(
+        raise InvalidArgumentError(
             f"laser_sigmas_m has shape {sigs.shape}, laser_altitudes_m {alts.shape}: give one sigma per spot"
         )
     if not (np.isfinite(fallback_altitude_m) and fallback_altitude_m > 0):
@@ -496,7 +496,7 @@ class LaserAltimeter:
     def __init__(self, camera: Camera, lasers: Sequence[LaserPointer], config: LaserConfig,
                  fallback_altitude_m: float) -> None:
         if not (np.isfinite(fallback_altitude_m) and fallback_altitude_m > 0):
-            raise ConfigError(
+            raise InvalidArgumentError(
                 f"fallback altitude must be a positive number of metres, got {fallback_altitude_m}; "
                 "set [vehicle] altitude_m in sequence.toml"
             )

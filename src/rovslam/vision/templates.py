@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from rovslam.errors import ConfigError, ImageReadError
+from rovslam.errors import InvalidArgumentError
 
 
 @dataclass(frozen=True, eq=False)
@@ -56,7 +56,7 @@ class Template:
 
 def _check_shape_hw(shape_hw: tuple[int, ...]) -> tuple[int, int]:
     if len(shape_hw) < 2 or int(shape_hw[0]) <= 0 or int(shape_hw[1]) <= 0:
-        raise ImageReadError(f"image shape must be (H, W) with positive sides, got {shape_hw}")
+        raise InvalidArgumentError(f"image shape must be (H, W) with positive sides, got {shape_hw}")
     return int(shape_hw[0]), int(shape_hw[1])
 
 
@@ -69,7 +69,7 @@ def _points(points_uv_px: np.ndarray | None, name: str) -> np.ndarray:
     if pts.ndim == 1 and pts.shape[0] == 2:
         pts = pts.reshape(1, 2)
     if pts.ndim != 2 or pts.shape[1] != 2:
-        raise ConfigError(f"{name} must be an (N, 2) array of (u, v) pixels, got shape {pts.shape}")
+        raise InvalidArgumentError(f"{name} must be an (N, 2) array of (u, v) pixels, got shape {pts.shape}")
     return pts[np.all(np.isfinite(pts), axis=1)]
 
 
@@ -97,11 +97,11 @@ def inhibition_mask(
     """
     h, w = _check_shape_hw(shape_hw)
     if not np.isfinite(radius_px) or radius_px < 0:
-        raise ConfigError(f"inhibition radius must be finite and >= 0 px, got {radius_px}")
+        raise InvalidArgumentError(f"inhibition radius must be finite and >= 0 px, got {radius_px}")
     if out is None:
         out = np.zeros((h, w), dtype=bool)
     elif out.shape != (h, w) or out.dtype != np.bool_:
-        raise ConfigError(f"out must be an ({h}, {w}) bool mask, got {out.shape} {out.dtype}")
+        raise InvalidArgumentError(f"out must be an ({h}, {w}) bool mask, got {out.shape} {out.dtype}")
     r = float(radius_px)
     for pu, pv in _points(points_uv_px, "points_uv_px"):
         u0, u1 = max(0, int(np.ceil(pu - r))), min(w - 1, int(np.floor(pu + r)))
@@ -127,9 +127,9 @@ def inhibit_boxes(mask: np.ndarray, centres_uv_px: np.ndarray | None, half_size_
     half_size_px: half side >= 0.
     """
     if mask.ndim != 2 or mask.dtype != np.bool_:
-        raise ConfigError(f"mask must be an (H, W) bool array, got {mask.shape} {mask.dtype}")
+        raise InvalidArgumentError(f"mask must be an (H, W) bool array, got {mask.shape} {mask.dtype}")
     if not np.isfinite(half_size_px) or half_size_px < 0:
-        raise ConfigError(f"half_size_px must be finite and >= 0, got {half_size_px}")
+        raise InvalidArgumentError(f"half_size_px must be finite and >= 0, got {half_size_px}")
     h, w = mask.shape
     hs = float(half_size_px)
     for cu, cv in _points(centres_uv_px, "centres_uv_px"):
@@ -197,21 +197,21 @@ def extract_templates(
     img = np.asarray(track_img)
     lv = np.asarray(local_var)
     if img.ndim != 2 or lv.shape != img.shape:
-        raise ImageReadError(
+        raise InvalidArgumentError(
             f"track_img and local_var must be (H, W) arrays of the same shape, got "
             f"{img.shape} and {lv.shape}"
         )
     size = int(size_px)
     if size != size_px or size < 2:
-        raise ConfigError(f"template size must be a whole number >= 2 px, got {size_px}")
+        raise InvalidArgumentError(f"template size must be a whole number >= 2 px, got {size_px}")
     if int(max_count) != max_count or max_count < 0:
-        raise ConfigError(f"max_count must be a whole number >= 0, got {max_count}")
+        raise InvalidArgumentError(f"max_count must be a whole number >= 0, got {max_count}")
     if not np.isfinite(min_local_variance) or min_local_variance < 0:
-        raise ConfigError(f"min_local_variance must be finite and >= 0, got {min_local_variance}")
+        raise InvalidArgumentError(f"min_local_variance must be finite and >= 0, got {min_local_variance}")
     if int(border_px) != border_px or border_px < 0:
-        raise ConfigError(f"border_px must be a whole number >= 0, got {border_px}")
+        raise InvalidArgumentError(f"border_px must be a whole number >= 0, got {border_px}")
     if inhibit is not None and (inhibit.shape != img.shape or inhibit.dtype != np.bool_):
-        raise ConfigError(
+        raise InvalidArgumentError(
             f"inhibit must be an (H, W) bool mask of shape {img.shape}, got "
             f"{inhibit.shape} {inhibit.dtype}"
         )

@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from rovslam.config import SpeedTemplateConfig, TrackerConfig
-from rovslam.errors import ConfigError, ImageReadError
+from rovslam.errors import InvalidArgumentError
 from rovslam.vision.templates import Template, extract_templates, window_inhibited
 
 # Reasons of a failed match (Match.reason).
@@ -48,7 +48,6 @@ REASON_AMBIGUOUS = "ambiguous: second peak almost as high"
 REASON_INHIBITED = "match overlaps inhibited pixels"
 REASON_NOT_FINITE = "correlation not finite"
 
-_SUBPIXEL_METHODS = ("parabolic", "gaussian", "none")
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,15 +76,6 @@ class Match:
 def _fail(reason: str, uv: np.ndarray | None = None, score: float = float("nan"),
           second: float = -1.0) -> Match:
     return Match(False, np.full(2, np.nan) if uv is None else uv, score, reason, second)
-
-
-def _check_tracker_config(config: TrackerConfig) -> None:
-    if config.subpixel not in _SUBPIXEL_METHODS:
-        raise ConfigError(
-            f"[tracker] subpixel must be one of {', '.join(_SUBPIXEL_METHODS)}, got {config.subpixel!r}"
-        )
-    if not -1.0 <= config.min_correlation <= 1.0:
-        raise ConfigError(f"[tracker] min_correlation must be in [-1, 1], got {config.min_correlation}")
 
 
 def _subpixel_offset(c3: np.ndarray, method: str) -> np.ndarray:
@@ -158,15 +148,14 @@ def match_template(
     img = np.asarray(track_img)
     tpl = np.asarray(patch)
     if img.ndim != 2 or tpl.ndim != 2:
-        raise ImageReadError(
+        raise InvalidArgumentError(
             f"match_template needs 2-D image and patch, got {img.shape} and {tpl.shape}"
         )
     if int(search_radius_px) != search_radius_px or search_radius_px < 1:
-        raise ConfigError(f"search radius must be a whole number >= 1 px, got {search_radius_px}")
+        raise InvalidArgumentError(f"search radius must be a whole number >= 1 px, got {search_radius_px}")
     pred = np.asarray(predicted_uv_px, dtype=np.float64).reshape(-1)
     if pred.shape != (2,):
-        raise ConfigError(f"predicted_uv_px must be 2 numbers (u, v), got shape {pred.shape}")
-    _check_tracker_config(config)
+        raise InvalidArgumentError(f"predicted_uv_px must be 2 numbers (u, v), got shape {pred.shape}")
     if not np.all(np.isfinite(pred)):
         return _fail(REASON_OUTSIDE)
     if img.dtype != np.float32:
@@ -257,7 +246,7 @@ def global_shift(prev: np.ndarray, curr: np.ndarray) -> tuple[np.ndarray, float]
     a = np.asarray(prev)
     b = np.asarray(curr)
     if a.ndim != 2 or a.shape != b.shape:
-        raise ImageReadError(
+        raise InvalidArgumentError(
             f"global_shift needs two (H, W) images of the same shape, got {a.shape} and {b.shape}"
         )
     a = a.astype(np.float32, copy=False)
@@ -336,17 +325,6 @@ class TokenTracker:
     """
 
     def __init__(self, speed_config: SpeedTemplateConfig, tracker_config: TrackerConfig) -> None:
-        _check_tracker_config(tracker_config)
-        if speed_config.search_radius_px < 1 or tracker_config.global_search_radius_px < 1:
-            raise ConfigError(
-                "search radii must be >= 1 px: [speed_templates] search_radius_px = "
-                f"{speed_config.search_radius_px}, [tracker] global_search_radius_px = "
-                f"{tracker_config.global_search_radius_px}"
-            )
-        if not 0.0 <= tracker_config.min_tracked_fraction <= 1.0:
-            raise ConfigError(
-                f"[tracker] min_tracked_fraction must be in [0, 1], got {tracker_config.min_tracked_fraction}"
-            )
         self.speed_config = speed_config
         self.tracker_config = tracker_config
         self._tokens: list[Template] = []
@@ -414,10 +392,10 @@ class TokenTracker:
         """
         img = np.asarray(track_img)
         if img.ndim != 2:
-            raise ImageReadError(f"track_img must be (H, W), got shape {img.shape}")
+            raise InvalidArgumentError(f"track_img must be (H, W), got shape {img.shape}")
         img = img.astype(np.float32, copy=False)
         if inhibit is not None and (inhibit.shape != img.shape or inhibit.dtype != np.bool_):
-            raise ConfigError(
+            raise InvalidArgumentError(
                 f"inhibit must be an (H, W) bool mask of shape {img.shape}, got {inhibit.shape} {inhibit.dtype}"
             )
         tokens = self._tokens
@@ -425,7 +403,7 @@ class TokenTracker:
         if n == 0 or self._prev_img is None:
             return _empty_tracks(n)
         if self._prev_img.shape != img.shape:
-            raise ImageReadError(
+            raise InvalidArgumentError(
                 f"frame size changed from {self._prev_img.shape} to {img.shape}; call reset() first"
             )
         cfg = self.tracker_config
@@ -434,7 +412,7 @@ class TokenTracker:
         if rotation_offsets_uv_px is not None:
             rot = np.asarray(rotation_offsets_uv_px, dtype=np.float64)
             if rot.shape != (n, 2) or not np.all(np.isfinite(rot)):
-                raise ConfigError(
+                raise InvalidArgumentError(
                     f"rotation_offsets_uv_px must be ({n}, 2) finite pixels (one row per token), got {rot.shape}"
                 )
 
@@ -443,7 +421,7 @@ class TokenTracker:
         if predicted_shift_uv_px is not None:
             pred = np.asarray(predicted_shift_uv_px, dtype=np.float64).reshape(-1)
             if pred.shape != (2,) or not np.all(np.isfinite(pred)):
-                raise ConfigError(
+                raise InvalidArgumentError(
                     f"predicted_shift_uv_px must be 2 finite numbers (u, v) or None, got {predicted_shift_uv_px!r}"
                 )
             matches = _match_all(img, tokens, pred + rot, self.speed_config.search_radius_px, cfg, inhibit)

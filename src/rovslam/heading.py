@@ -1,0 +1,181 @@
+"""The heading inputs of the loop: the compass, smoothed with the turn the speed tokens measure.
+
+The paper flew at constant heading and used the compass as it is. A compass reading has white
+noise (0.2 to 0.5 degree), so its frame-to-frame difference is mostly noise at 5 Hz and above,
+and every degree of heading error turns each token 150 px from the image centre by 2.6 px.
+Two objects hold all heading state of a run:
+
+* :class:`HeadingFilter`, a one-state Kalman filter: predict ``psi += dpsi`` with the rotation
+  the tokens measured, update with the compass reading. Without a compass (a bare video) the
+  heading is the integrated token rotation from 0 at the first frame.
+* :class:`HeadingTracker`, what the per-frame loop talks to: :meth:`HeadingTracker.prior`
+  before the tokens are tracked (the previous heading and the compass step, which predict where
+  the tokens went), :meth:`HeadingTracker.update` once the speed estimator has measured the turn,
+  :meth:`HeadingTracker.skip` for an unusable frame.
+
+The slow compass error (magnetic disturbance, drift) is not removed here: it is a state of the
+filter (``[slam] heading_bias_sigma_rad``, :class:`rovslam.slam.EkfSlam`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from rovslam.camera import wrap_angle
+from rovslam.config import OdometryConfig, SlamConfig
+from rovslam.errors import finite_scalar
+
+__all__ = ["HeadingEstimate", "HeadingFilter", "HeadingPrior", "HeadingTracker"]
+
+# Prior standard deviation of one step's heading change when no compass is given.
+NO_COMPASS_STEP_SIGMA_RAD = 0.2
+
+
+class HeadingFilter:
+    """Heading from the compass, smoothed with the tokens' measured heading changes (beyond the paper).
+
+    Predict ``psi += dpsi`` (the fused rotation of :func:`rovslam.odometry.speed_from_tokens`,
+    variance ``dpsi_sigma^2``), update with the compass reading (variance ``compass_sigma^2``).
+    Without token rotations it follows the compass.
+    """
+
+    def __init__(self, compass_sigma_rad: float):
+        self.compass_sigma_rad = float(compass_sigma_rad)
+        self.heading_rad: float | None = None
+        self.var_rad2 = 0.0
+
+    @property
+    def sigma_rad(self) -> float:
+        return math.sqrt(self.var_rad2)
+
+    def update(self, compass_rad: float, dpsi_rad: float | None = None, dpsi_sigma_rad: float = math.inf) -> float:
+        """One step: the compass reading of this frame and the measured change since the last one.
+
+        A NaN compass (a video without navigation) leaves the tokens alone: the heading is
+        then their integrated rotation from 0 at the first frame, its variance growing.
+        """
+        measured = dpsi_rad is not None and math.isfinite(dpsi_sigma_rad)
+        if compass_rad is None or not math.isfinite(compass_rad):
+            if self.heading_rad is None:
+                self.heading_rad, self.var_rad2 = 0.0, 0.0
+            elif measured:
+                self.heading_rad = wrap_angle(self.heading_rad + float(dpsi_rad))
+                self.var_rad2 += float(dpsi_sigma_rad) ** 2
+            return self.heading_rad
+        c = finite_scalar("heading_rad", compass_rad)
+        r = self.compass_sigma_rad**2
+        if self.heading_rad is None or r == 0.0:
+            self.heading_rad, self.var_rad2 = c, r
+            return c
+        if measured:
+            psi = self.heading_rad + float(dpsi_rad)
+            var = self.var_rad2 + float(dpsi_sigma_rad) ** 2
+        else:
+            psi, var = c, r  # nothing but the compass bridges this step
+        k = var / (var + r)
+        self.heading_rad = wrap_angle(psi + k * wrap_angle(c - psi))
+        self.var_rad2 = (1.0 - k) * var
+        return self.heading_rad
+
+
+@dataclass(frozen=True)
+class HeadingPrior:
+    """The heading known before this frame's tokens are tracked.
+
+    Attributes:
+        compass_rad: this frame's compass reading (NaN without a compass).
+        previous_rad: the filtered heading of the previous frame: the heading of the
+            prediction (1) over the step that ends at this frame.
+        step_rad: compass difference since the previous frame (0 without a compass).
+        step_sigma_rad: prior standard deviation of ``step_rad`` for the token rotation
+            consensus; None when the compass is used as it is (``compass_sigma_rad = 0``).
+    """
+
+    compass_rad: float
+    previous_rad: float
+    step_rad: float
+    step_sigma_rad: float | None
+
+    @property
+    def has_compass(self) -> bool:
+        return math.isfinite(self.compass_rad)
+
+    @property
+    def predicted_rad(self) -> float:
+        """This frame's heading before the tokens measure the turn (not wrapped)."""
+        return self.previous_rad + self.step_rad
+
+
+@dataclass(frozen=True)
+class HeadingEstimate:
+    """This frame's heading after the tokens measured the turn.
+
+    Attributes:
+        heading_rad: the heading input of (1) and (3) (compass convention; the filter removes
+            its slow bias).
+        sigma_rad: its white-noise standard deviation as told to the filter's prediction
+            (None: the filter's configured ``heading_sigma_rad``).
+        observation_sigma_rad: the heading noise told to the landmark observations (3), (4):
+            ``sigma_rad``, plus the compass drift when the filter holds no bias state (a
+            landmark seen again minutes later was mapped under another drift).
+    """
+
+    heading_rad: float
+    sigma_rad: float | None
+    observation_sigma_rad: float | None
+
+
+class HeadingTracker:
+    """All heading state of a run: the previous compass reading, the previous heading, the filter."""
+
+    def __init__(self, odometry: OdometryConfig = OdometryConfig(), slam: SlamConfig = SlamConfig()):
+        self.odometry = odometry
+        self.slam = slam
+        self.filter = HeadingFilter(odometry.compass_sigma_rad)
+        self._previous_rad: float | None = None  # filtered heading of the previous frame
+        self._previous_compass_rad: float | None = None
+        self.has_compass = True  # whether the last frame had a compass reading
+
+    @property
+    def previous_rad(self) -> float | None:
+        return self._previous_rad
+
+    def prior(self, compass_rad: float) -> HeadingPrior:
+        """The heading before the tokens: previous heading and compass step (first frame: the compass, or 0)."""
+        has_compass = math.isfinite(compass_rad)
+        self.has_compass = has_compass
+        previous_compass = compass_rad if self._previous_compass_rad is None else self._previous_compass_rad
+        if self._previous_rad is None:
+            previous = compass_rad if has_compass else 0.0
+        else:
+            previous = self._previous_rad
+        step = wrap_angle(compass_rad - previous_compass) if has_compass and math.isfinite(previous_compass) else 0.0
+        sigma_c = self.odometry.compass_sigma_rad if has_compass else 0.0
+        if sigma_c > 0:
+            step_sigma: float | None = math.sqrt(2.0) * sigma_c  # difference of two readings
+        else:
+            step_sigma = None if has_compass else NO_COMPASS_STEP_SIGMA_RAD
+        return HeadingPrior(compass_rad, previous, step, step_sigma)
+
+    def update(self, prior: HeadingPrior, dpsi_rad: float | None, dpsi_sigma_rad: float) -> HeadingEstimate:
+        """Fuse the compass with the turn the tokens measured (``dpsi_rad`` None: not measured)."""
+        psi = self.filter.update(prior.compass_rad, dpsi_rad, dpsi_sigma_rad)
+        smoothing = self.odometry.compass_sigma_rad > 0 and prior.has_compass
+        sigma = self.filter.sigma_rad if smoothing or not prior.has_compass else None
+        if smoothing and self.slam.heading_bias_sigma_rad == 0:
+            obs_sigma = math.hypot(sigma, self.odometry.compass_drift_sigma_rad)
+        else:
+            obs_sigma = sigma
+        self._remember(psi, prior.compass_rad)
+        return HeadingEstimate(psi, sigma, obs_sigma)
+
+    def skip(self, compass_rad: float) -> float:
+        """An unusable frame: follow the compass alone; returns the heading."""
+        psi = self.filter.update(compass_rad)
+        self._remember(psi, compass_rad)
+        return psi
+
+    def _remember(self, heading_rad: float, compass_rad: float) -> None:
+        self._previous_rad = heading_rad
+        self._previous_compass_rad = compass_rad
