@@ -96,7 +96,7 @@ def plot_gallery(blocks: list[tuple[int, list[View], np.ndarray | None]], path: 
                  note: str = "") -> Path:
     """One block of two rows per landmark: ``(landmark id, views, template (32, 32) uint8 or None)``."""
     plt = pyplot()
-    n_cols = max([len(v) for _, v, _ in blocks] + [1])
+    n_cols = max([len(v) for _, v, _ in blocks] + [3])  # at least 3 columns: room for the title
     n_rows = 2 * len(blocks)
     fig, axes = plt.subplots(n_rows, n_cols, figsize=(2.5 * n_cols + 0.4, 3.4 * len(blocks) + 0.7),
                              gridspec_kw={"height_ratios": [2.0, 1.0] * len(blocks), "hspace": 0.5},

@@ -276,7 +276,7 @@ def write_report(
         else:
             acc = runinfo.accuracy(res, gt_xy)
     alt = runinfo.altitude_sources(res)
-    head = runinfo.heading_source(res, runinfo_source(res, seq_path))
+    head = runinfo.heading_source(res, _frames_source(res, seq_path))
     rep = Report(f"rovslam report: {res.summary.get('sequence_name', folder.name)}")
     rep.keys = _key_figures(res, acc, alt, head, gt_xy)
     if alt.assumed:
@@ -309,7 +309,7 @@ def write_report(
     return path
 
 
-def runinfo_source(res: RunResults, seq: Path | None) -> Path | None:
+def _frames_source(res: RunResults, seq: Path | None) -> Path | None:
     from rovslam.viz.frames import source_path
 
     return source_path(res.summary, seq)
