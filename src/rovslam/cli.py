@@ -194,6 +194,7 @@ def report(
     results: Path = typer.Argument(..., help="The --out folder of `rovslam run`."),
     groundtruth: Optional[Path] = typer.Option(None, "--groundtruth", "-g", help="groundtruth.csv, if known."),
     seq: Optional[Path] = typer.Option(None, "--seq", help="The run's sequence folder or video, if it moved (default: the one summary.json names)."),
+    camera: Optional[Path] = typer.Option(None, "--camera", help="Camera file of a video run (default: the one summary.json names)."),
     landmarks: Optional[str] = typer.Option(None, "--landmarks", help="Landmark ids for Figures 5 and 6, e.g. 0,3,7 (default: 0 and the two most revisited)."),
     mosaic: bool = typer.Option(True, "--mosaic/--no-mosaic", help="Include the seabed mosaic (estimate, and truth when given)."),
     mosaic_every: Optional[int] = typer.Option(None, "--mosaic-every", help="Lay every k-th frame in the mosaic (default: about 1,500 frames)."),
@@ -201,13 +202,15 @@ def report(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display."),
 ) -> None:
     """One self-contained HTML report: Figures 2 to 6, Table 1, the mosaic and the configuration."""
+    from rovslam.errors import InvalidArgumentError
     from rovslam.viz.report import write_report
 
     if mosaic_every is not None and mosaic_every < 1:
-        _fail(f"--mosaic-every must be a whole number >= 1, got {mosaic_every}")
+        raise InvalidArgumentError(f"--mosaic-every must be a whole number >= 1, got {mosaic_every}")
     with _progress(quiet, "mosaic") as bar:
         path = write_report(results, groundtruth, seq=seq, landmarks=_landmark_ids(landmarks), mosaic=mosaic,
-                            mosaic_every=mosaic_every, progress=(lambda d, n: bar(d, n)) if bar else None)
+                            mosaic_every=mosaic_every, progress=(lambda d, n: bar(d, n)) if bar else None,
+                            camera_file=camera)
     typer.echo(f"wrote {path}")
     if open_browser:
         import webbrowser
@@ -220,6 +223,7 @@ def report(
 def mosaic_cmd(
     results: Path = typer.Argument(..., help="The --out folder of `rovslam run`."),
     seq: Optional[Path] = typer.Option(None, "--seq", help="The run's sequence folder or video, if it moved."),
+    camera: Optional[Path] = typer.Option(None, "--camera", help="Camera file of a video run (default: the one summary.json names)."),
     mm_per_px: Optional[float] = typer.Option(None, "--mm-per-px", help="Mosaic scale (default: the camera's ground resolution)."),
     every: int = typer.Option(1, "--every", help="Lay every k-th frame."),
     groundtruth: Optional[Path] = typer.Option(None, "--groundtruth", "-g", help="Lay the frames by this groundtruth.csv instead of the estimate."),
@@ -237,7 +241,7 @@ def mosaic_cmd(
         raise InvalidArgumentError(f"--mm-per-px must be a positive number, got {mm_per_px}")
     with _progress(quiet, "mosaic") as bar:
         m = mosaic_of_run(results, out_png, seq=seq, mm_per_px=mm_per_px, every=every, groundtruth=groundtruth,
-                          overlay=overlay, progress=(lambda d, n: bar(d, n)) if bar else None)
+                          overlay=overlay, progress=(lambda d, n: bar(d, n)) if bar else None, camera_file=camera)
     g = m.mosaic.grid
     typer.echo(f"wrote {m.png} ({g.width_px}x{g.height_px} px, {g.mm_per_px:g} mm/px, {m.mosaic.frames_used} frames) "
                f"and {m.world_file}")

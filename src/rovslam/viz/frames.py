@@ -84,7 +84,7 @@ def open_frames(summary: dict, seq: str | Path | None = None, camera_file: str |
     if not cam or not Path(cam).is_file():
         raise SequenceFormatError(
             f"{path}: a video needs its camera file (sequence.toml syntax); summary.json names "
-            f"{cam!r}. Give the sequence folder with --seq."
+            f"{cam!r}. Give it with --camera FILE.toml."
         )
     from rovslam.io.video import open_video
 

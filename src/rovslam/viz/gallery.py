@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from rovslam.io.results import RunResults
-from rovslam.viz.plots import _save, pyplot
+from rovslam.viz.plots import pyplot, save_figure
 from rovslam.viz.runinfo import passages
 
 LANDMARK_PX = 32
@@ -148,7 +148,7 @@ def plot_gallery(blocks: list[tuple[int, list[View], np.ndarray | None]], path: 
                  color="tab:red")
     fig.subplots_adjust(left=0.01, right=0.99, top=1 - 0.75 / fig.get_figheight(), bottom=0.1 if note else 0.02,
                         wspace=0.08)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def read_template(out_dir: Path, landmark_id: int) -> np.ndarray | None:

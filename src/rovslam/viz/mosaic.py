@@ -432,17 +432,19 @@ def mosaic_of_run(
     overlay: bool = True,
     grid: MosaicGrid | None = None,
     progress: Callable[[int, int], None] | None = None,
+    camera_file: str | Path | None = None,
 ) -> MosaicFiles:
     """The mosaic of a run: laid by the estimate, or by ``groundtruth`` (a groundtruth.csv) when given.
 
     Writes ``out_png`` (default ``OUT/mosaic.png``, ``OUT/mosaic_truth.png`` for the truth) and
     its ``.pgw`` world file; with ``overlay`` the path (and, for the estimate, the landmarks) is drawn.
+    ``camera_file`` is the camera of a video run (default: the one summary.json names).
     """
     from rovslam.io.results import read_results
     from rovslam.viz.frames import open_frames
 
     res = read_results(results_dir)
-    store = open_frames(res.summary, seq)
+    store = open_frames(res.summary, seq, camera_file)
     if groundtruth is not None:
         from rovslam.io.sequence import read_groundtruth
 

@@ -38,7 +38,7 @@ def pyplot():
     return plt
 
 
-def _save(fig, path: Path) -> Path:
+def save_figure(fig, path: Path) -> Path:
     fig.savefig(path, dpi=DPI)
     pyplot().close(fig)
     return path
@@ -88,7 +88,7 @@ def plot_altitude_speed(res: RunResults, path: Path, altitude: SourceShare | Non
         a.grid(alpha=0.3)
     fig.suptitle("Fig. 2  Altitude, horizontal speed (laser-triangulation optical-correlation sensor) and heading")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _landmark_track_panel(ax, res: RunResults) -> None:
@@ -165,7 +165,7 @@ def plot_position(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None
         a.grid(alpha=0.3)
     fig.suptitle("Fig. 3  Estimated position with its +-2 sigma bounds and the tracked SLAM landmarks")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def ellipse_points(centre: np.ndarray, cov: np.ndarray, n_sigma: float = 2.0, scale: float = 1.0, n: int = 48) -> np.ndarray:
@@ -218,13 +218,13 @@ def plot_map(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None) -> 
         scale = nice_scale(0.03 * extent / med) if med > 0 else 1
         for k in range(n_lm):
             e = ellipse_points(np.array([lm["x_m"][k], lm["y_m"][k]]), covs[k], 2.0, scale)
-            ax.plot(e[:, 1], e[:, 0], color="tab:red", lw=0.7,
+            ax.plot(e[:, 1], e[:, 0], color="tab:red", lw=0.8, zorder=4,
                     label=f"2-sigma ellipses x{scale} (magnified {scale} times)" if k == 0 else None)
             if scale > 1:
                 e1 = ellipse_points(np.array([lm["x_m"][k], lm["y_m"][k]]), covs[k], 2.0, 1.0)
                 ax.fill(e1[:, 1], e1[:, 0], color="tab:red", alpha=0.6, lw=0,
                         label="2-sigma ellipses, true scale" if k == 0 else None)
-        ax.scatter(pts[:, 0], pts[:, 1], marker="+", color="tab:red", s=36, lw=0.9, label="landmarks", zorder=3)
+        ax.scatter(pts[:, 0], pts[:, 1], marker="+", color="tab:red", s=36, lw=0.9, label="landmarks", zorder=4)
         # the vehicle's final 2-sigma ellipse at the same magnification
         e = ellipse_points(xy[-1], res.cov_m2[-1], 2.0, scale)
         ax.plot(e[:, 1], e[:, 0], color="tab:blue", lw=0.7, label=f"final vehicle 2-sigma x{scale}")
@@ -240,9 +240,9 @@ def plot_map(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None) -> 
         ax.autoscale_view()
         fig.canvas.draw()  # final limits before labels are placed in pixels
         order = np.argsort(lm["id"])
-        label_points(ax, pts[order], [str(int(lm["id"][k])) for k in order], fontsize=7, color="darkred",
+        label_points(ax, pts[order], [str(int(lm["id"][k])) for k in order], fontsize=7, color="darkred", zorder=5,
                      bbox={"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.75})
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_errors(res: RunResults, path: Path, gt_xy_m: np.ndarray) -> Path:
@@ -263,4 +263,4 @@ def plot_errors(res: RunResults, path: Path, gt_xy_m: np.ndarray) -> Path:
     ax[1].set_xlabel("time [s]")
     fig.suptitle("Position error against the ground truth")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)

@@ -151,7 +151,8 @@ def _choose_landmarks(res: RunResults, landmarks: list[int] | None) -> list[int]
     return ([0] if 0 in ids else []) + runinfo.most_revisited(res, 2, exclude=(0,))
 
 
-def _gallery_section(res: RunResults, out: Path, folder: Path, chosen: list[int], seq: Path | None) -> str:
+def _gallery_section(res: RunResults, out: Path, folder: Path, chosen: list[int], seq: Path | None,
+                     camera_file: Path | None) -> str:
     from rovslam.viz.frames import open_frames
 
     if not chosen:
@@ -160,7 +161,7 @@ def _gallery_section(res: RunResults, out: Path, folder: Path, chosen: list[int]
     note = ""
     images: dict[int, np.ndarray] = {}
     try:
-        store = open_frames(res.summary, seq)
+        store = open_frames(res.summary, seq, camera_file)
         images = store.images(v.frame for vs in views.values() for v in vs)
     except RovslamError as exc:
         saved = (folder / "revisits").is_dir()
@@ -189,7 +190,7 @@ def _gallery_section(res: RunResults, out: Path, folder: Path, chosen: list[int]
 
 
 def _mosaic_section(folder: Path, out: Path, seq: Path | None, groundtruth: Path | None, every: int | None,
-                    progress: Callable[[int, int], None] | None) -> str:
+                    progress: Callable[[int, int], None] | None, camera_file: Path | None) -> str:
     from rovslam.viz.mosaic import mosaic_of_run
 
     head = "<h2>Seabed mosaic</h2>"
@@ -197,11 +198,11 @@ def _mosaic_section(folder: Path, out: Path, seq: Path | None, groundtruth: Path
         res = read_results(folder)
         n = len(res.t_s)
         k = every or max(1, n // 1500)
-        est = mosaic_of_run(folder, out / "mosaic.png", seq=seq, every=k, progress=progress)
+        est = mosaic_of_run(folder, out / "mosaic.png", seq=seq, every=k, progress=progress, camera_file=camera_file)
         truth = None
         if groundtruth is not None:
             truth = mosaic_of_run(folder, out / "mosaic_truth.png", seq=seq, every=k, groundtruth=groundtruth,
-                                  grid=est.mosaic.grid, progress=progress)
+                                  grid=est.mosaic.grid, progress=progress, camera_file=camera_file)
     except RovslamError as exc:
         return head + f"<p class='note'>No mosaic: {html.escape(str(exc))}</p>"
     g = est.mosaic.grid
@@ -247,11 +248,12 @@ def write_report(
     mosaic: bool = True,
     mosaic_every: int | None = None,
     progress: Callable[[int, int], None] | None = None,
+    camera_file: str | Path | None = None,
 ) -> Path:
     """Write ``results_dir/report/`` (PNGs + one self-contained index.html) and return the HTML path.
 
     ``seq`` overrides the sequence (or video) named in summary.json for the gallery and the
-    mosaic; ``landmarks`` chooses the gallery's landmarks (default: 0 and the two most revisited).
+    mosaic (``camera_file`` the camera of a video run); ``landmarks`` chooses the gallery's landmarks (default: 0 and the two most revisited).
     """
     folder = Path(results_dir)
     res = read_results(folder)
@@ -262,6 +264,7 @@ def write_report(
     out = folder / "report"
     out.mkdir(exist_ok=True)
     seq_path = Path(seq) if seq is not None else None
+    cam_path = Path(camera_file) if camera_file is not None else None
     chosen = _choose_landmarks(res, landmarks)
     gt_xy = None
     acc = None
@@ -295,14 +298,14 @@ def write_report(
     if gt_xy is not None:
         figs.append(("Position error", plots.plot_errors(res, out / "errors.png", gt_xy)))
     rep.sections.append("<h2>Figures 2 to 4</h2>" + "".join(_img(p, name) for name, p in figs))
-    rep.sections.append(_gallery_section(res, out, folder, chosen, seq_path))
+    rep.sections.append(_gallery_section(res, out, folder, chosen, seq_path, cam_path))
     t1_id = chosen[0] if chosen else 0
     rep.sections.append(f"<h2>Table 1: vehicle position at each passage over landmark {t1_id}</h2>"
                         "<p>Displacement since the landmark was initialised, as in the paper.</p>"
                         + _table1_html(table1(res, gt_xy, t1_id), t1_id))
     if mosaic:
         rep.sections.append(_mosaic_section(folder, out, seq_path, Path(groundtruth) if gt_xy is not None else None,
-                                            mosaic_every, progress))
+                                            mosaic_every, progress, cam_path))
     rep.sections.append(_config_html(folder, res))
     path = out / "index.html"
     path.write_text(render_html(rep), encoding="utf-8")
