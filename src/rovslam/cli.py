@@ -84,14 +84,24 @@ def run(
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML configuration (defaults: the paper's)."),
     max_frames: Optional[int] = typer.Option(None, help="Process only the first N frames."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display."),
+    viewer: bool = typer.Option(False, "--viewer", help="Show the run live in the rerun viewer (saved to OUT/run.rrd without a display)."),
+    save_rrd: Optional[Path] = typer.Option(None, "--save-rrd", help="Save the live view as a rerun recording (.rrd)."),
 ) -> None:
     """Run vision-based SLAM on a sequence: trajectory with covariance, landmark map, summary."""
     from rovslam.config import RunConfig, load_config
     from rovslam.runner import run_sequence
 
     cfg = load_config(config) if config is not None else RunConfig()
-    with _progress(quiet, "SLAM", extra=True) as bar:
-        summary = run_sequence(sequence, out, cfg, max_frames=max_frames, camera_file=camera, **_slam_callbacks(bar))
+    live = _live_viewer(viewer, save_rrd, out) if viewer or save_rrd is not None else None
+    try:
+        with _progress(quiet, "SLAM", extra=True) as bar:
+            summary = run_sequence(sequence, out, cfg, max_frames=max_frames, camera_file=camera,
+                                   on_frame_image=live, **_slam_callbacks(bar))
+    finally:
+        if live is not None:
+            live.close()
+            if live.save_path is not None:
+                typer.echo(f"live view saved to {live.save_path} (open it with: rerun {live.save_path})", err=True)
     msg = (
         f"{summary.frames}/{summary.total_frames} frames, {summary.landmarks} landmarks, "
         f"{len(summary.skipped)} skipped, {summary.fps:.0f} frames/s -> {out}"
@@ -153,16 +163,88 @@ def demo(
     typer.echo(f"report: {report}")
 
 
+def _live_viewer(spawn: bool, save_rrd: Optional[Path], out: Path):
+    """The rerun live viewer of `run --viewer / --save-rrd` (rerun is imported only here)."""
+    from rovslam.viz.viewer import RerunViewer, display_available
+
+    if spawn and not display_available():
+        typer.echo("no display found for the viewer: saving the live view instead", err=True)
+        spawn = False
+        save_rrd = save_rrd or out / "run.rrd"
+    return RerunViewer(spawn=spawn, save_path=save_rrd)
+
+
+def _landmark_ids(text: Optional[str]) -> Optional[list[int]]:
+    if text is None:
+        return None
+    from rovslam.errors import InvalidArgumentError
+
+    try:
+        ids = [int(t) for t in text.replace(" ", "").split(",") if t]
+    except ValueError:
+        raise InvalidArgumentError(f"--landmarks takes landmark ids separated by commas (e.g. 0,3,7), got {text!r}") from None
+    if not ids or min(ids) < 0:
+        raise InvalidArgumentError(f"--landmarks takes landmark ids >= 0 separated by commas, got {text!r}")
+    return ids
+
+
 @app.command()
 @_guard
 def report(
     results: Path = typer.Argument(..., help="The --out folder of `rovslam run`."),
     groundtruth: Optional[Path] = typer.Option(None, "--groundtruth", "-g", help="groundtruth.csv, if known."),
+    seq: Optional[Path] = typer.Option(None, "--seq", help="The run's sequence folder or video, if it moved (default: the one summary.json names)."),
+    camera: Optional[Path] = typer.Option(None, "--camera", help="Camera file of a video run (default: the one summary.json names)."),
+    landmarks: Optional[str] = typer.Option(None, "--landmarks", help="Landmark ids for Figures 5 and 6, e.g. 0,3,7 (default: 0 and the two most revisited)."),
+    mosaic: bool = typer.Option(True, "--mosaic/--no-mosaic", help="Include the seabed mosaic (estimate, and truth when given)."),
+    mosaic_every: Optional[int] = typer.Option(None, "--mosaic-every", help="Lay every k-th frame in the mosaic (default: about 1,500 frames)."),
+    open_browser: bool = typer.Option(False, "--open", help="Open the report in the web browser."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display."),
 ) -> None:
-    """Write the paper's figures (altitude and speed, position with bounds, path and map) and an HTML report."""
+    """One self-contained HTML report: Figures 2 to 6, Table 1, the mosaic and the configuration."""
+    from rovslam.errors import InvalidArgumentError
     from rovslam.viz.report import write_report
 
-    typer.echo(f"wrote {write_report(results, groundtruth)}")
+    if mosaic_every is not None and mosaic_every < 1:
+        raise InvalidArgumentError(f"--mosaic-every must be a whole number >= 1, got {mosaic_every}")
+    with _progress(quiet, "mosaic") as bar:
+        path = write_report(results, groundtruth, seq=seq, landmarks=_landmark_ids(landmarks), mosaic=mosaic,
+                            mosaic_every=mosaic_every, progress=(lambda d, n: bar(d, n)) if bar else None,
+                            camera_file=camera)
+    typer.echo(f"wrote {path}")
+    if open_browser:
+        import webbrowser
+
+        webbrowser.open(path.resolve().as_uri())
+
+
+@app.command(name="mosaic")
+@_guard
+def mosaic_cmd(
+    results: Path = typer.Argument(..., help="The --out folder of `rovslam run`."),
+    seq: Optional[Path] = typer.Option(None, "--seq", help="The run's sequence folder or video, if it moved."),
+    camera: Optional[Path] = typer.Option(None, "--camera", help="Camera file of a video run (default: the one summary.json names)."),
+    mm_per_px: Optional[float] = typer.Option(None, "--mm-per-px", help="Mosaic scale (default: the camera's ground resolution)."),
+    every: int = typer.Option(1, "--every", help="Lay every k-th frame."),
+    groundtruth: Optional[Path] = typer.Option(None, "--groundtruth", "-g", help="Lay the frames by this groundtruth.csv instead of the estimate."),
+    out_png: Optional[Path] = typer.Option(None, "--out", "-o", help="PNG to write (default OUT/mosaic.png, OUT/mosaic_truth.png with --groundtruth)."),
+    overlay: bool = typer.Option(True, "--overlay/--no-overlay", help="Draw the path and the landmarks."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display."),
+) -> None:
+    """Lay the frames on the seabed by their poses: a north-up PNG with scale bar, north arrow and world file (.pgw)."""
+    from rovslam.errors import InvalidArgumentError
+    from rovslam.viz.mosaic import mosaic_of_run
+
+    if every < 1:
+        raise InvalidArgumentError(f"--every must be a whole number >= 1, got {every}")
+    if mm_per_px is not None and not (mm_per_px > 0):
+        raise InvalidArgumentError(f"--mm-per-px must be a positive number, got {mm_per_px}")
+    with _progress(quiet, "mosaic") as bar:
+        m = mosaic_of_run(results, out_png, seq=seq, mm_per_px=mm_per_px, every=every, groundtruth=groundtruth,
+                          overlay=overlay, progress=(lambda d, n: bar(d, n)) if bar else None, camera_file=camera)
+    g = m.mosaic.grid
+    typer.echo(f"wrote {m.png} ({g.width_px}x{g.height_px} px, {g.mm_per_px:g} mm/px, {m.mosaic.frames_used} frames) "
+               f"and {m.world_file}")
 
 
 @app.command(name="config")

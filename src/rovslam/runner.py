@@ -9,9 +9,9 @@ from pathlib import Path
 
 from rovslam import __version__
 from rovslam.config import RunConfig, save_config, to_dict
-from rovslam.io.results import ResultWriter
+from rovslam.io.results import GalleryWriter, ResultWriter
 from rovslam.errors import SequenceFormatError
-from rovslam.io.sequence import open_sequence
+from rovslam.io.sequence import Frame, open_sequence
 from rovslam.pipeline import FrameResult, SlamPipeline
 
 
@@ -59,16 +59,20 @@ def run_sequence(
     on_frame: Callable[[FrameResult], None] | None = None,
     camera_file: str | Path | None = None,
     on_start: Callable[[int], None] | None = None,
+    on_frame_image: Callable[[Frame, FrameResult, Callable[[], list[dict]]], None] | None = None,
 ) -> RunSummary:
     """Run SLAM on a sequence folder (or video) and write ``out_dir``. Ctrl-C keeps what was computed.
 
     ``on_start`` is called once with the number of frames to process (0: unknown, a stream);
     ``on_frame`` with each result record (progress bars, live viewers).
+    ``on_frame_image(frame, result, landmark_rows)`` also gets the decoded frame and a function
+    returning the current map as landmarks.csv rows (the live viewer; called only when given).
     """
     seq = open_source(sequence_dir, camera_file)
     pipe = SlamPipeline(seq.info, config)
     out = Path(out_dir)
     writer = ResultWriter(out)
+    gallery = GalleryWriter(out)
     save_config(config, out / "config.toml")
     total = len(seq) if max_frames is None else (min(len(seq), max_frames) if len(seq) else max_frames)  # 0: unknown
     if on_start is not None:
@@ -80,11 +84,14 @@ def run_sequence(
         for frame in seq.frames(stop=max_frames):
             res = pipe.process(frame)
             writer.write_frame(res)
+            gallery.write_frame(frame.image, res)
             if res.new_landmark_id is not None:
                 writer.write_landmark_template(res.new_landmark_id, pipe.landmarks[res.new_landmark_id].patch)
             n += 1
             if on_frame is not None:
                 on_frame(res)
+            if on_frame_image is not None:
+                on_frame_image(frame, res, pipe.landmark_rows)
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -96,6 +103,7 @@ def run_sequence(
                 "software": {"name": "rovslam", "version": __version__},
                 "sequence": str(Path(sequence_dir).resolve()),
                 "sequence_name": seq.info.name,
+                "camera_file": str(Path(camera_file).resolve()) if camera_file is not None else None,
                 "frames_processed": n,
                 "frames_in_sequence": len(seq),
                 "interrupted": interrupted,
@@ -107,4 +115,5 @@ def run_sequence(
             }
         )
         writer.close()
+        gallery.close()
     return summary

@@ -6,6 +6,8 @@
 ``OUT/landmarks.csv``    final landmark map: id, position, 2x2 covariance, first time, observation count
 ``OUT/landmarks/<id>.png`` the landmark templates
 ``OUT/summary.json``     configuration, software version, counts, skipped frames, timing
+``OUT/tokens.csv``       the speed tokens tracked in each frame (their pixels), for the report's gallery
+``OUT/revisits/<id>/<frame>.png`` the image around a landmark at its initialisation and at each revisit
 
 Rows are flushed every ``flush_every`` frames and at close, so an interrupted run leaves
 complete lines only; landmarks.csv and summary.json are rewritten at close.
@@ -56,6 +58,11 @@ LANDMARK_COLUMNS = (
     "observations",
     "local_variance",
 )
+
+
+TOKEN_COLUMNS = ("t_s", "frame", "u_px", "v_px")
+REVISIT_CROP_PX = 64  # side of the saved crop around a landmark match (twice the paper's template)
+REVISIT_GAP_S = 2.0  # a landmark seen again after a gap this long starts a new passage (a revisit)
 
 
 def heading_quaternion(heading_rad: float) -> tuple[float, float, float, float]:
@@ -139,6 +146,54 @@ class ResultWriter:
     def close(self) -> None:
         for fh in (self._traj_fh, self._tum_fh, self._obs_fh):
             fh.close()
+
+
+class GalleryWriter:
+    """What the report's revisit gallery needs, saved as the run goes.
+
+    ``OUT/tokens.csv``: one row per tracked speed token per frame (``t_s,frame,u_px,v_px``).
+    ``OUT/revisits/<id>/<frame>.png``: a ``REVISIT_CROP_PX`` square RGB crop of the frame
+    around the landmark at its initialisation and at the first accepted observation of each
+    later passage (after a gap of more than ``REVISIT_GAP_S``), so the gallery works even
+    when the sequence is gone.
+    """
+
+    def __init__(self, out_dir: str | Path, flush_every: int = 50):
+        self.out = Path(out_dir)
+        self._fh = (self.out / "tokens.csv").open("w", newline="", encoding="utf-8")
+        self._w = csv.writer(self._fh, lineterminator="\n")
+        self._w.writerow(TOKEN_COLUMNS)
+        self._last_seen: dict[int, float] = {}
+        self.flush_every = max(1, flush_every)
+        self._n = 0
+
+    def write_frame(self, image: np.ndarray | None, r: Any) -> None:
+        """Record one frame: ``image`` (H, W, 3) uint8 RGB (None when unreadable), ``r`` its FrameResult."""
+        t = _f(r.t_s)
+        for u, v in np.asarray(getattr(r, "token_uv_px", np.zeros((0, 2)))).reshape(-1, 2):
+            self._w.writerow([t, r.index, _f(u), _f(v)])
+        for ob in r.observations:
+            if not ob.accepted:
+                continue
+            last = self._last_seen.get(ob.landmark_id, -math.inf)
+            self._last_seen[ob.landmark_id] = r.t_s
+            if image is not None and (ob.kind == "init" or r.t_s - last > REVISIT_GAP_S):
+                self._save_crop(image, ob.landmark_id, r.index, ob.uv_px)
+        self._n += 1
+        if self._n % self.flush_every == 0:
+            self._fh.flush()
+
+    def _save_crop(self, image: np.ndarray, landmark_id: int, frame: int, uv_px: np.ndarray) -> None:
+        import cv2
+
+        n = REVISIT_CROP_PX
+        crop = cv2.getRectSubPix(np.ascontiguousarray(image), (n, n), (float(uv_px[0]), float(uv_px[1])))
+        folder = self.out / "revisits" / str(int(landmark_id))
+        folder.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(folder / f"{int(frame)}.png"), cv2.cvtColor(crop, cv2.COLOR_RGB2BGR))
+
+    def close(self) -> None:
+        self._fh.close()
 
 
 def _json_default(o: Any) -> Any:

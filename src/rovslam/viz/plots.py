@@ -1,23 +1,35 @@
 """The paper's figures from a run's result files (matplotlib, Agg; no screen needed).
 
-* ``altitude_speed.png``  Fig. 2: altitude and surge / sway speed measured by the LTOC sensor.
-* ``position.png``        Fig. 3: estimated x and y with +-2 sigma bounds and the tracked landmark ids
-                          (and the truth, when given).
-* ``map.png``             Fig. 4: estimated path and landmark positions with 2-sigma ellipses
-                          (and the true path / dead reckoning).
+* ``altitude_speed.png``  Fig. 2: altitude (titled with where it came from), surge and sway, heading.
+* ``position.png``        Fig. 3: x and y against time, the +-2 sigma bounds drawn at a scale where
+                          they can be seen (error against the truth, or the 2-sigma width itself),
+                          and the identifiers of the tracked landmarks along the time axis.
+* ``map.png``             Fig. 4: path and landmark map, 2-sigma ellipses magnified by a stated
+                          factor, labels that never overlap, the true and dead-reckoning paths.
 * ``errors.png``          position error against the truth with the filter's +-2 sigma bounds.
+
+Every function takes the :class:`~rovslam.io.results.RunResults` of a run (and the truth,
+aligned with its rows, when known), writes one PNG and returns its path.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 
 from rovslam.io.results import RunResults
+from rovslam.viz.labels import label_points
+from rovslam.viz.runinfo import SourceShare, altitude_sources
+
+DPI = 110
+_SOURCE_COLOURS = {"laser": "tab:red", "laser+sonar": "tab:purple", "sonar": "tab:blue", "fixed": "tab:gray",
+                   "none": "k"}
 
 
-def _plt():
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (imported lazily: heavy)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -26,99 +38,223 @@ def _plt():
     return plt
 
 
-def plot_altitude_speed(res: RunResults, path: Path) -> Path:
-    plt = _plt()
-    t = res.trajectory
-    fig, ax = plt.subplots(3, 1, figsize=(9, 6.5), sharex=True)
-    ax[0].plot(t["t_s"], t["altitude_m"], lw=0.8)
-    ax[0].set_ylabel("altitude Z [m]")
-    ax[1].plot(t["t_s"], t["surge_mps"], lw=0.6)
-    ax[1].set_ylabel("surge u [m/s]")
-    ax[2].plot(t["t_s"], t["sway_mps"], lw=0.6, color="tab:orange")
-    ax[2].set_ylabel("sway v [m/s]")
-    ax[2].set_xlabel("time [s]")
-    for a in ax:
-        a.grid(alpha=0.3)
-    fig.suptitle("Altitude and horizontal speed from the laser-triangulation optical-correlation sensor")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+def save_figure(fig, path: Path) -> Path:
+    fig.savefig(path, dpi=DPI)
+    pyplot().close(fig)
     return path
 
 
-def plot_position(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None) -> Path:
-    plt = _plt()
+def sigma_m(res: RunResults) -> np.ndarray:
+    """(N, 2) standard deviations of x and y (m)."""
+    t = res.trajectory
+    return np.sqrt(np.maximum(np.stack([t["var_x_m2"], t["var_y_m2"]], axis=1), 0.0))
+
+
+def plot_altitude_speed(res: RunResults, path: Path, altitude: SourceShare | None = None) -> Path:
+    """Fig. 2: altitude with its source, surge and sway speed, heading; all against time."""
+    plt = pyplot()
+    tr = res.trajectory
     t = res.t_s
-    xy = res.xy_m
-    sd = np.sqrt(np.maximum(np.stack([res.trajectory["var_x_m2"], res.trajectory["var_y_m2"]], 1), 0))
-    fig, ax = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
-    for k, name in enumerate(("x (north)", "y (east)")):
-        ax[k].plot(t, xy[:, k], lw=0.8, label="estimate")
-        ax[k].fill_between(t, xy[:, k] - 2 * sd[:, k], xy[:, k] + 2 * sd[:, k], alpha=0.25, label="+-2 sigma")
-        if gt_xy_m is not None:
-            ax[k].plot(t, gt_xy_m[:, k], lw=0.6, color="k", ls="--", label="truth")
-        ax[k].set_ylabel(f"{name} [m]")
-        ax[k].grid(alpha=0.3)
+    altitude = altitude or altitude_sources(res)
+    fig, ax = plt.subplots(4, 1, figsize=(9, 8.2), sharex=True)
+    src = np.asarray(tr.get("altitude_source", np.full(len(t), "unknown")), dtype=str)
+    for name in np.unique(src):
+        z = np.where(src == name, tr["altitude_m"], np.nan)
+        label = "ASSUMED (fixed, not measured)" if name == "fixed" else name
+        ax[0].plot(t, z, lw=0.9, color=_SOURCE_COLOURS.get(name, "tab:green"), label=label)
+    if "altitude_sigma_m" in tr:
+        s = np.nan_to_num(tr["altitude_sigma_m"], nan=0.0)
+        ax[0].fill_between(t, tr["altitude_m"] - 2 * s, tr["altitude_m"] + 2 * s, color="tab:purple", alpha=0.2,
+                           lw=0, label="+-2 sigma")
+    title = "Altitude Z: " + altitude.label
+    ax[0].set_title(title, fontsize=10, color="tab:red" if altitude.assumed else "k", loc="left")
+    ax[0].set_ylabel("altitude Z [m]")
     ax[0].legend(loc="upper right", fontsize=8)
+    ax[1].plot(t, tr["surge_mps"], lw=0.6)
+    ax[1].set_ylabel("surge u [m/s]")
+    ax[2].plot(t, tr["sway_mps"], lw=0.6, color="tab:orange")
+    ax[2].set_ylabel("sway v [m/s]")
+    if "speed_ok" in tr:
+        bad = tr["speed_ok"] < 0.5
+        if np.any(bad[1:]):
+            for a, key in ((ax[1], "surge_mps"), (ax[2], "sway_mps")):
+                a.plot(t[bad], tr[key][bad], ".", ms=3, color="tab:red", label="not measured (held)")
+            ax[1].legend(loc="upper right", fontsize=8)
+    if "heading_rad" in tr:
+        ax[3].plot(t, np.degrees(np.unwrap(tr["heading_rad"])), lw=0.8, color="tab:green")
+    ax[3].set_ylabel("heading [deg]")
+    ax[3].set_xlabel("time [s]")
+    for a in ax:
+        a.grid(alpha=0.3)
+    fig.suptitle("Fig. 2  Altitude, horizontal speed (laser-triangulation optical-correlation sensor) and heading")
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def _landmark_track_panel(ax, res: RunResults) -> None:
+    """Tracked landmark identifiers against time (accepted observations; initialisations ringed)."""
     obs = res.observations
     if obs and len(obs.get("t_s", [])):
         ok = obs["accepted"] > 0
-        ax[2].scatter(obs["t_s"][ok], obs["landmark_id"][ok], s=2, c="tab:green")
-    ax[2].set_ylabel("tracked landmark id")
-    ax[2].set_xlabel("time [s]")
-    ax[2].grid(alpha=0.3)
-    fig.suptitle("Estimated position and tracked landmarks")
+        ax.scatter(obs["t_s"][ok], obs["landmark_id"][ok], s=3, c="tab:green", label="tracked")
+        kind = np.asarray(obs.get("kind", np.array([], dtype=object)), dtype=str)
+        init = kind == "init"
+        if np.any(init):
+            ax.scatter(obs["t_s"][init], obs["landmark_id"][init], s=22, facecolors="none", edgecolors="k",
+                       lw=0.7, label="initialised")
+        rej = ~ok
+        if np.any(rej):
+            ax.scatter(obs["t_s"][rej], obs["landmark_id"][rej], s=10, marker="x", c="tab:red", lw=0.7,
+                       label="rejected by the NIS gate")
+        ax.legend(loc="upper left", fontsize=7, ncol=3)
+        top = int(np.nanmax(obs["landmark_id"])) if len(obs["landmark_id"]) else 0
+        ax.set_ylim(-0.8, top + 1.2)
+        from matplotlib.ticker import MaxNLocator
+
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    else:
+        ax.text(0.5, 0.5, "no landmark observed", transform=ax.transAxes, ha="center")
+    ax.set_ylabel("landmark id")
+
+
+def plot_position(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None) -> Path:
+    """Fig. 3: x and y against time with visible bounds, and the tracked landmark identifiers.
+
+    The +-2 sigma band is millimetres wide on a plot metres high, so it gets panels of its
+    own in centimetres: the error against the truth inside +-2 sigma when the truth is known,
+    the 2-sigma half-width of x and y otherwise.
+    """
+    plt = pyplot()
+    t = res.t_s
+    xy = res.xy_m
+    sd = sigma_m(res)
+    n_rows = 5 if gt_xy_m is not None else 4
+    ratios = [1.2, 1.2, 1, 1, 1.1] if gt_xy_m is not None else [1.2, 1.2, 1, 1.1]
+    fig, ax = plt.subplots(n_rows, 1, figsize=(9, 2.0 * n_rows + 0.6), sharex=True,
+                           gridspec_kw={"height_ratios": ratios})
+    for k, name in enumerate(("x (north)", "y (east)")):
+        ax[k].fill_between(t, xy[:, k] - 2 * sd[:, k], xy[:, k] + 2 * sd[:, k], color="tab:blue", alpha=0.3,
+                           lw=0, label="+-2 sigma (see below, too thin here)")
+        ax[k].plot(t, xy[:, k], lw=0.8, color="tab:blue", label="estimate")
+        if gt_xy_m is not None:
+            ax[k].plot(t, gt_xy_m[:, k], lw=0.7, color="k", ls="--", label="truth")
+        ax[k].set_ylabel(f"{name} [m]")
+    ax[0].legend(loc="upper right", fontsize=7, ncol=3)
+    if gt_xy_m is not None:
+        err = res.xy_m - gt_xy_m
+        for k, name in enumerate(("x", "y")):
+            a = ax[2 + k]
+            a.fill_between(t, -200 * sd[:, k], 200 * sd[:, k], color="tab:blue", alpha=0.25, lw=0, label="+-2 sigma")
+            a.plot(t, 100 * err[:, k], lw=0.8, color="tab:red", label="estimate - truth")
+            a.axhline(0, color="k", lw=0.4)
+            a.set_ylabel(f"{name} error [cm]")
+            inside = float(np.mean(np.abs(err[:, k]) <= 2 * sd[:, k] + 1e-12)) * 100
+            a.set_title(f"{name} error inside +-2 sigma in {inside:.1f} % of frames", fontsize=9, loc="left")
+        ax[2].legend(loc="upper right", fontsize=7, ncol=2)
+    else:
+        a = ax[2]
+        a.plot(t, 200 * sd[:, 0], lw=0.9, label="2 sigma x")
+        a.plot(t, 200 * sd[:, 1], lw=0.9, label="2 sigma y")
+        a.set_ylabel("2 sigma [cm]")
+        a.set_ylim(bottom=0)
+        a.set_title("bound half-width (no ground truth given: the error itself is unknown)", fontsize=9, loc="left")
+        a.legend(loc="upper left", fontsize=7)
+    _landmark_track_panel(ax[-1], res)
+    ax[-1].set_xlabel("time [s]")
+    for a in ax:
+        a.grid(alpha=0.3)
+    fig.suptitle("Fig. 3  Estimated position with its +-2 sigma bounds and the tracked SLAM landmarks")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
-def _ellipse(ax, centre, cov, **kw) -> None:
-    w, v = np.linalg.eigh(cov)
-    w = np.sqrt(np.maximum(w, 0)) * 2.0
-    a = np.linspace(0, 2 * np.pi, 40)
-    pts = centre + (v @ (np.stack([np.cos(a), np.sin(a)]) * w[:, None])).T
-    ax.plot(pts[:, 1], pts[:, 0], **kw)
+def ellipse_points(centre: np.ndarray, cov: np.ndarray, n_sigma: float = 2.0, scale: float = 1.0, n: int = 48) -> np.ndarray:
+    """(n, 2) points of the ``n_sigma`` ellipse of ``cov`` (2, 2) around ``centre`` (2,), magnified by ``scale``."""
+    w, v = np.linalg.eigh(np.asarray(cov, dtype=float))
+    r = np.sqrt(np.maximum(w, 0.0)) * n_sigma * scale
+    a = np.linspace(0, 2 * np.pi, n)
+    return np.asarray(centre, dtype=float) + (v @ (np.stack([np.cos(a), np.sin(a)]) * r[:, None])).T
+
+
+def nice_scale(want: float) -> int:
+    """The 1-2-5 number nearest below ``want`` (at least 1): an ellipse magnification to state."""
+    if not math.isfinite(want) or want <= 1:
+        return 1
+    e = 10 ** math.floor(math.log10(want))
+    for m in (5, 2, 1):
+        if m * e <= want:
+            return int(m * e)
+    return 1
 
 
 def plot_map(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None) -> Path:
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(7.5, 7))
+    """Fig. 4: the path and the landmark map, north up.
+
+    The 2-sigma ellipses are magnified by a stated 1-2-5 factor so the median one is about
+    3 % of the plot's size, and drawn at true scale too when that is visible. Landmark
+    labels are placed by :func:`rovslam.viz.labels.label_points` and never overlap.
+    """
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(8.5, 7), dpi=DPI)
     xy = res.xy_m
     if gt_xy_m is not None:
-        ax.plot(gt_xy_m[:, 1], gt_xy_m[:, 0], color="k", lw=0.6, ls="--", label="truth")
-    ax.plot(res.dr_xy_m[:, 1], res.dr_xy_m[:, 0], color="tab:gray", lw=0.6, alpha=0.8, label="dead reckoning")
-    ax.plot(xy[:, 1], xy[:, 0], lw=0.8, label="SLAM estimate")
+        ax.plot(gt_xy_m[:, 1], gt_xy_m[:, 0], color="k", lw=0.7, ls="--", label="truth")
+    if "dr_x_m" in res.trajectory:
+        ax.plot(res.dr_xy_m[:, 1], res.dr_xy_m[:, 0], color="tab:gray", lw=0.6, alpha=0.8, label="dead reckoning")
+    ax.plot(xy[:, 1], xy[:, 0], lw=0.8, color="tab:blue", label="SLAM estimate")
+    ax.plot(xy[0, 1], xy[0, 0], "o", color="tab:blue", ms=5)
     lm = res.landmarks
-    if lm and len(lm.get("id", [])):
-        ax.scatter(lm["y_m"], lm["x_m"], marker="+", color="tab:red", s=40, label="landmarks")
-        for k in range(len(lm["id"])):
-            cov = np.array([[lm["var_x_m2"][k], lm["cov_xy_m2"][k]], [lm["cov_xy_m2"][k], lm["var_y_m2"][k]]])
-            _ellipse(ax, np.array([lm["x_m"][k], lm["y_m"][k]]), cov, color="tab:red", lw=0.4)
-            if len(lm["id"]) <= 60:
-                ax.annotate(str(int(lm["id"][k])), (lm["y_m"][k], lm["x_m"][k]), fontsize=7, color="tab:red")
+    n_lm = len(lm.get("id", [])) if lm else 0
+    pts = np.zeros((0, 2))
+    if n_lm:
+        pts = np.column_stack([lm["y_m"], lm["x_m"]])  # plotted (east, north)
+        covs = np.empty((n_lm, 2, 2))
+        covs[:, 0, 0], covs[:, 1, 1] = lm["var_x_m2"], lm["var_y_m2"]
+        covs[:, 0, 1] = covs[:, 1, 0] = lm["cov_xy_m2"]
+        all_pts = np.vstack([pts, xy[:, ::-1]])
+        extent = float(np.max(np.ptp(all_pts, axis=0))) or 1.0
+        semi = 2.0 * np.sqrt(np.maximum(np.linalg.eigvalsh(covs)[:, 1], 0.0))
+        med = float(np.median(semi)) if np.any(semi > 0) else 0.0
+        scale = nice_scale(0.03 * extent / med) if med > 0 else 1
+        for k in range(n_lm):
+            e = ellipse_points(np.array([lm["x_m"][k], lm["y_m"][k]]), covs[k], 2.0, scale)
+            ax.plot(e[:, 1], e[:, 0], color="tab:red", lw=0.8, zorder=4,
+                    label=f"2-sigma ellipses x{scale} (magnified {scale} times)" if k == 0 else None)
+            if scale > 1:
+                e1 = ellipse_points(np.array([lm["x_m"][k], lm["y_m"][k]]), covs[k], 2.0, 1.0)
+                ax.fill(e1[:, 1], e1[:, 0], color="tab:red", alpha=0.6, lw=0,
+                        label="2-sigma ellipses, true scale" if k == 0 else None)
+        ax.scatter(pts[:, 0], pts[:, 1], marker="+", color="tab:red", s=36, lw=0.9, label="landmarks", zorder=4)
+        # the vehicle's final 2-sigma ellipse at the same magnification
+        e = ellipse_points(xy[-1], res.cov_m2[-1], 2.0, scale)
+        ax.plot(e[:, 1], e[:, 0], color="tab:blue", lw=0.7, label=f"final vehicle 2-sigma x{scale}")
     ax.set_xlabel("y east [m]")
     ax.set_ylabel("x north [m]")
-    ax.set_aspect("equal")
+    ax.set_aspect("equal", adjustable="datalim")
     ax.grid(alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
-    ax.set_title("Estimated path and landmark map (2-sigma ellipses)")
+    ax.legend(loc="upper left", fontsize=7, framealpha=0.85, bbox_to_anchor=(1.01, 1.0))
+    ax.set_title("Fig. 4  Estimated path and SLAM landmark map", fontsize=11)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    if n_lm:
+        ax.margins(0.08)
+        ax.autoscale_view()
+        fig.canvas.draw()  # final limits before labels are placed in pixels
+        order = np.argsort(lm["id"])
+        label_points(ax, pts[order], [str(int(lm["id"][k])) for k in order], fontsize=7, color="darkred", zorder=5,
+                     bbox={"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.75})
+    return save_figure(fig, path)
 
 
 def plot_errors(res: RunResults, path: Path, gt_xy_m: np.ndarray) -> Path:
-    plt = _plt()
+    """Position error of SLAM and dead reckoning against the truth, with the +-2 sigma bounds."""
+    plt = pyplot()
     t = res.t_s
     err = res.xy_m - gt_xy_m
     dr_err = res.dr_xy_m - gt_xy_m
-    sd = np.sqrt(np.maximum(np.stack([res.trajectory["var_x_m2"], res.trajectory["var_y_m2"]], 1), 0))
+    sd = sigma_m(res)
     fig, ax = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
     for k, name in enumerate(("x", "y")):
-        ax[k].fill_between(t, -200 * sd[:, k], 200 * sd[:, k], alpha=0.25, label="+-2 sigma")
+        ax[k].fill_between(t, -200 * sd[:, k], 200 * sd[:, k], alpha=0.25, lw=0, label="+-2 sigma")
         ax[k].plot(t, 100 * err[:, k], lw=0.7, label="SLAM error")
         ax[k].plot(t, 100 * dr_err[:, k], lw=0.6, color="tab:gray", alpha=0.7, label="dead reckoning error")
         ax[k].set_ylabel(f"{name} error [cm]")
@@ -127,6 +263,4 @@ def plot_errors(res: RunResults, path: Path, gt_xy_m: np.ndarray) -> Path:
     ax[1].set_xlabel("time [s]")
     fig.suptitle("Position error against the ground truth")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

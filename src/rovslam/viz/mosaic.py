@@ -1,0 +1,468 @@
+"""The seabed mosaic: every (k-th) frame laid on the seabed by its pose, altitude and camera model.
+
+Geometry: a pixel's viewing ray (lens distortion removed, then the camera's yaw offset,
+roll and pitch: :func:`rovslam.camera.level_from_body`, :func:`~rovslam.camera.body_from_camera`)
+meets the seabed plane ``altitude_m`` below the camera and is turned by the heading into
+the world: equation (4) of the paper, ``X = x + Z R(psi) q_xy / q_z``. For a pinhole camera
+this chain is one 3x3 homography from image pixels to mosaic pixels per frame, applied with
+OpenCV ``warpPerspective`` into the frame's footprint only.
+
+The mosaic grid is north up: column c, row r (pixel centres) lie at
+
+    east  y = y_left_m + c * s,    north  x = x_top_m - r * s,    s = mm_per_px / 1000,
+
+in the run's metric frame (x north, y east, the origin where the dive started). The world
+file (``.pgw``) says exactly that, with easting as its X and northing as its Y.
+
+Blending: each frame is divided by the flat field of the lamps and lens (the blurred mean
+of a sample of frames), its laser spots are masked, and it is weighted by a feather that
+falls to 0 at its border; the mosaic is the weighted mean. The accumulators are tiles
+allocated only where frames land, so memory follows the surveyed area, not its bounding
+box, and frames are streamed one at a time.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rovslam.camera import Camera, body_from_camera, level_from_body
+from rovslam.errors import InvalidArgumentError
+
+TILE_PX = 512
+MAX_MOSAIC_PX = 40_000  # per side; beyond it, ask for a coarser --mm-per-px
+BACKGROUND_RGB = (235, 235, 235)
+LEGEND_BAND_PX = 44  # white band under the mosaic for the scale bar and north arrow (south of the data)
+
+
+@dataclass(frozen=True)
+class Poses:
+    """Camera poses of the frames to lay down, each ``(N,)``: frame index, position, altitude, attitude."""
+
+    frame: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    altitude_m: np.ndarray
+    heading_rad: np.ndarray
+    roll_rad: np.ndarray
+    pitch_rad: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.frame)
+        for name in ("x_m", "y_m", "altitude_m", "heading_rad", "roll_rad", "pitch_rad"):
+            if len(getattr(self, name)) != n:
+                raise InvalidArgumentError(f"Poses.{name} has {len(getattr(self, name))} values for {n} frames")
+
+    def every(self, k: int) -> "Poses":
+        """Every ``k``-th pose, keeping only finite ones with a positive altitude."""
+        if k < 1:
+            raise InvalidArgumentError(f"--every must be a whole number >= 1, got {k}")
+        ok = np.isfinite(self.x_m) & np.isfinite(self.y_m) & np.isfinite(self.heading_rad) & (self.altitude_m > 0)
+        sel = np.nonzero(ok)[0][::k]
+        return Poses(*(np.asarray(getattr(self, f))[sel] for f in Poses.__dataclass_fields__))
+
+
+@dataclass(frozen=True)
+class MosaicGrid:
+    """North-up pixel grid: pixel centre (c, r) at east ``y_left_m + c s``, north ``x_top_m - r s``."""
+
+    x_top_m: float
+    y_left_m: float
+    mm_per_px: float
+    width_px: int
+    height_px: int
+
+    @property
+    def m_per_px(self) -> float:
+        return self.mm_per_px / 1000.0
+
+    def world_to_px(self, xy_m: np.ndarray) -> np.ndarray:
+        """(N, 2) world (x north, y east) -> (N, 2) mosaic pixels (col, row)."""
+        xy = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+        return np.column_stack([(xy[:, 1] - self.y_left_m) / self.m_per_px, (self.x_top_m - xy[:, 0]) / self.m_per_px])
+
+    def px_to_world(self, cr_px: np.ndarray) -> np.ndarray:
+        """(N, 2) mosaic pixels (col, row) -> (N, 2) world (x north, y east)."""
+        cr = np.asarray(cr_px, dtype=float).reshape(-1, 2)
+        return np.column_stack([self.x_top_m - cr[:, 1] * self.m_per_px, self.y_left_m + cr[:, 0] * self.m_per_px])
+
+    @property
+    def world_from_px(self) -> np.ndarray:
+        """(3, 3) homogeneous map (col, row, 1) -> (x north, y east, 1)."""
+        s = self.m_per_px
+        return np.array([[0.0, -s, self.x_top_m], [s, 0.0, self.y_left_m], [0.0, 0.0, 1.0]])
+
+    @property
+    def px_from_world(self) -> np.ndarray:
+        """(3, 3) homogeneous map (x north, y east, 1) -> (col, row, 1)."""
+        return np.linalg.inv(self.world_from_px)
+
+    def world_file(self) -> str:
+        """ESRI world file text: easting and northing (metres) of each pixel centre, origin at pixel (0, 0)."""
+        s = self.m_per_px
+        return "\n".join(f"{v:.10f}" for v in (s, 0.0, 0.0, -s, self.y_left_m, self.x_top_m)) + "\n"
+
+
+def read_world_file(path: str | Path) -> np.ndarray:
+    """A ``.pgw`` as the (3, 3) map (col, row, 1) -> (easting, northing, 1)."""
+    a, d, b, e, c, f = (float(v) for v in Path(path).read_text(encoding="utf-8").split())
+    return np.array([[a, b, c], [d, e, f], [0.0, 0.0, 1.0]])
+
+
+def frame_homography(camera: Camera, grid: MosaicGrid, x_m: float, y_m: float, altitude_m: float,
+                     heading_rad: float, roll_rad: float = 0.0, pitch_rad: float = 0.0) -> np.ndarray:
+    """(3, 3) map from ideal (undistorted) image pixels (u, v, 1) to mosaic pixels (col, row, 1)."""
+    r_lc = level_from_body(roll_rad, pitch_rad) @ body_from_camera(camera)
+    c, s, z = math.cos(heading_rad), math.sin(heading_rad), altitude_m
+    world = np.array([[z * c, -z * s, x_m], [z * s, z * c, y_m], [0.0, 0.0, 1.0]])  # eq. (4), homogeneous
+    return grid.px_from_world @ world @ r_lc @ np.linalg.inv(camera.K)
+
+
+def _outline_px(camera: Camera) -> np.ndarray:
+    """(K, 2) pixels along the image border (corners and edge points) for footprint bounds."""
+    w, h = camera.width_px - 1, camera.height_px - 1
+    t = np.linspace(0.0, 1.0, 9)
+    return np.vstack([np.column_stack([t * w, np.zeros_like(t)]), np.column_stack([t * w, np.full_like(t, h)]),
+                      np.column_stack([np.zeros_like(t), t * h]), np.column_stack([np.full_like(t, w), t * h])])
+
+
+def _footprints(camera: Camera, poses: Poses, grid: MosaicGrid) -> np.ndarray:
+    """(N, 4) footprint bounds [col0, row0, col1, row1] of every pose on ``grid``."""
+    border = np.column_stack([_outline_px(camera), np.ones(len(_outline_px(camera)))])
+    out = np.empty((len(poses.frame), 4))
+    for k in range(len(poses.frame)):
+        h = frame_homography(camera, grid, poses.x_m[k], poses.y_m[k], poses.altitude_m[k], poses.heading_rad[k],
+                             poses.roll_rad[k], poses.pitch_rad[k])
+        p = border @ h.T
+        p = p[:, :2] / p[:, 2:3]
+        out[k] = (p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max())
+    return out
+
+
+def plan_grid(camera: Camera, poses: Poses, mm_per_px: float, margin_px: int = 4) -> MosaicGrid:
+    """The smallest north-up grid at ``mm_per_px`` holding every footprint (pixel centres on multiples of s)."""
+    if not (math.isfinite(mm_per_px) and mm_per_px > 0):
+        raise InvalidArgumentError(f"--mm-per-px must be a positive number, got {mm_per_px}")
+    if len(poses.frame) == 0:
+        raise InvalidArgumentError("no frame to lay down (no pose with a finite position and a positive altitude)")
+    s = mm_per_px / 1000.0
+    unit = MosaicGrid(0.0, 0.0, mm_per_px, 1, 1)
+    fp = _footprints(camera, poses, unit)
+    col0, row0 = math.floor(fp[:, 0].min()) - margin_px, math.floor(fp[:, 1].min()) - margin_px
+    col1, row1 = math.ceil(fp[:, 2].max()) + margin_px, math.ceil(fp[:, 3].max()) + margin_px
+    w, h = col1 - col0 + 1, row1 - row0 + 1
+    if max(w, h) > MAX_MOSAIC_PX:
+        raise InvalidArgumentError(
+            f"the mosaic would be {w}x{h} px at {mm_per_px} mm/px (more than {MAX_MOSAIC_PX} px a side); "
+            f"give a coarser --mm-per-px (e.g. {mm_per_px * max(w, h) / MAX_MOSAIC_PX * 1.1:.1f})"
+        )
+    return MosaicGrid(x_top_m=-row0 * s, y_left_m=col0 * s, mm_per_px=mm_per_px, width_px=w, height_px=h)
+
+
+class TiledAccumulator:
+    """Weighted sums of RGB in ``tile_px`` square float32 tiles, allocated only where something lands."""
+
+    def __init__(self, width_px: int, height_px: int, tile_px: int = TILE_PX):
+        self.width_px, self.height_px, self.tile_px = width_px, height_px, tile_px
+        self.tiles: dict[tuple[int, int], np.ndarray] = {}
+
+    def add(self, rgb_w: np.ndarray, col0: int, row0: int) -> None:
+        """Add ``rgb_w`` (h, w, 4) float32 (weighted RGB, weight) with its top-left at mosaic (col0, row0)."""
+        h, w = rgb_w.shape[:2]
+        t = self.tile_px
+        for tr in range(max(row0, 0) // t, (min(row0 + h, self.height_px) - 1) // t + 1):
+            for tc in range(max(col0, 0) // t, (min(col0 + w, self.width_px) - 1) // t + 1):
+                r_lo, r_hi = max(row0, tr * t), min(row0 + h, (tr + 1) * t, self.height_px)
+                c_lo, c_hi = max(col0, tc * t), min(col0 + w, (tc + 1) * t, self.width_px)
+                if r_hi <= r_lo or c_hi <= c_lo:
+                    continue
+                tile = self.tiles.get((tr, tc))
+                if tile is None:
+                    tile = self.tiles[(tr, tc)] = np.zeros((t, t, 4), np.float32)
+                tile[r_lo - tr * t : r_hi - tr * t, c_lo - tc * t : c_hi - tc * t] += \
+                    rgb_w[r_lo - row0 : r_hi - row0, c_lo - col0 : c_hi - col0]
+
+    def image(self, background_rgb: tuple[int, int, int] = BACKGROUND_RGB) -> tuple[np.ndarray, np.ndarray]:
+        """``(rgb (H, W, 3) uint8, covered (H, W) bool)``: the weighted mean where any weight landed."""
+        rgb = np.empty((self.height_px, self.width_px, 3), np.uint8)
+        rgb[:] = background_rgb
+        covered = np.zeros((self.height_px, self.width_px), bool)
+        t = self.tile_px
+        for (tr, tc), tile in self.tiles.items():
+            h = min(t, self.height_px - tr * t)
+            w = min(t, self.width_px - tc * t)
+            acc = tile[:h, :w]
+            wsum = acc[:, :, 3]
+            ok = wsum > 1e-6
+            mean = acc[:, :, :3] / np.maximum(wsum, 1e-6)[:, :, None]
+            view = rgb[tr * t : tr * t + h, tc * t : tc * t + w]
+            view[ok] = np.clip(mean[ok] + 0.5, 0, 255).astype(np.uint8)
+            covered[tr * t : tr * t + h, tc * t : tc * t + w] = ok
+        return rgb, covered
+
+
+def feather_weight(camera: Camera) -> np.ndarray:
+    """(H, W) float32 blending weight: 1 at the image centre, falling to 0 at the border."""
+    h, w = camera.height_px, camera.width_px
+    wu = 1.0 - np.abs(np.linspace(-1.0, 1.0, w))
+    wv = 1.0 - np.abs(np.linspace(-1.0, 1.0, h))
+    return (np.outer(wv, wu) + 1e-3).astype(np.float32)
+
+
+def laser_mask(rgb: np.ndarray, dilate_px: int = 6) -> np.ndarray:
+    """(H, W) bool: saturated red laser spots (and a rim) to leave out of the mosaic."""
+    import cv2
+
+    r, g = rgb[:, :, 0].astype(np.int16), rgb[:, :, 1].astype(np.int16)
+    m = ((r > 200) & (r - g > 80)).astype(np.uint8)
+    if not m.any():
+        return m.astype(bool)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * dilate_px + 1, 2 * dilate_px + 1))
+    return cv2.dilate(m, k).astype(bool)
+
+
+def flat_field(images: Iterable[np.ndarray], sigma_frac: float = 0.12) -> np.ndarray | None:
+    """(H, W, 3) float32 gain of the lamps and lens, mean 1 per channel (None without images)."""
+    import cv2
+
+    acc, n = None, 0
+    for img in images:
+        f = img.astype(np.float32)
+        acc = f if acc is None else acc + f
+        n += 1
+    if acc is None:
+        return None
+    mean = acc / n
+    sigma = sigma_frac * max(mean.shape[:2])
+    flat = cv2.GaussianBlur(mean, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    flat /= np.maximum(flat.reshape(-1, 3).mean(axis=0), 1e-3)
+    return np.maximum(flat, 0.05)
+
+
+def lay_frame(acc: TiledAccumulator, camera: Camera, grid: MosaicGrid, image: np.ndarray, h_px: np.ndarray,
+              weight: np.ndarray, flat: np.ndarray | None) -> None:
+    """Warp one frame ``image`` (H, W, 3) uint8 by ``h_px`` (ideal pixels -> mosaic) and add it to ``acc``."""
+    import cv2
+
+    img = image
+    if camera.has_distortion:
+        img = cv2.undistort(image, camera.K, camera.dist_coeffs)
+    f = img.astype(np.float32)
+    if flat is not None:
+        f /= flat
+    w = weight * (~laser_mask(image)).astype(np.float32)
+    if camera.has_distortion:
+        w = cv2.undistort(w, camera.K, camera.dist_coeffs)
+    border = np.column_stack([_outline_px(camera), np.ones(len(_outline_px(camera)))]) @ h_px.T
+    border = border[:, :2] / border[:, 2:3]
+    c0, r0 = int(math.floor(border[:, 0].min())), int(math.floor(border[:, 1].min()))
+    c1, r1 = int(math.ceil(border[:, 0].max())), int(math.ceil(border[:, 1].max()))
+    c0, r0, c1, r1 = max(c0, 0), max(r0, 0), min(c1, grid.width_px - 1), min(r1, grid.height_px - 1)
+    if c1 < c0 or r1 < r0:
+        return
+    shift = np.array([[1.0, 0.0, -c0], [0.0, 1.0, -r0], [0.0, 0.0, 1.0]]) @ h_px
+    size = (c1 - c0 + 1, r1 - r0 + 1)
+    src = np.dstack([f * w[:, :, None], w])
+    out = cv2.warpPerspective(src, shift, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    acc.add(out, c0, r0)
+
+
+@dataclass(frozen=True)
+class Mosaic:
+    rgb: np.ndarray  # (H, W, 3) uint8, the blended seabed (background where nothing landed)
+    covered: np.ndarray  # (H, W) bool
+    grid: MosaicGrid
+    frames_used: int
+    tiles: int  # accumulator tiles allocated (memory: tiles x TILE_PX^2 x 16 bytes)
+
+
+def build_mosaic(
+    camera: Camera,
+    poses: Poses,
+    images: Callable[[list[int]], Iterable[tuple[int, np.ndarray]]],
+    mm_per_px: float,
+    flat_samples: int = 48,
+    progress: Callable[[int, int], None] | None = None,
+    grid: MosaicGrid | None = None,
+) -> Mosaic:
+    """Blend the frames of ``poses`` into a north-up mosaic.
+
+    ``images(indices)`` yields ``(index, (H, W, 3) uint8 RGB)`` in order (e.g.
+    :meth:`rovslam.viz.frames.FrameStore.stream`); frames it leaves out are skipped.
+    ``grid`` fixes the pixel grid (to compare two mosaics pixel for pixel), else it is planned
+    to hold every footprint.
+    """
+    grid = grid or plan_grid(camera, poses, mm_per_px)
+    idx = [int(i) for i in poses.frame]
+    sample = idx[:: max(1, len(idx) // flat_samples)][:flat_samples]
+    flat = flat_field(img for _, img in images(sample)) if len(idx) >= 8 else None
+    acc = TiledAccumulator(grid.width_px, grid.height_px)
+    weight = feather_weight(camera)
+    row = {f: k for k, f in enumerate(idx)}
+    used = 0
+    for i, img in images(idx):
+        k = row.get(i)
+        if k is None or img.shape[:2] != camera.shape:
+            continue
+        h = frame_homography(camera, grid, poses.x_m[k], poses.y_m[k], poses.altitude_m[k], poses.heading_rad[k],
+                             poses.roll_rad[k], poses.pitch_rad[k])
+        lay_frame(acc, camera, grid, img, h, weight, flat)
+        used += 1
+        if progress is not None:
+            progress(used, len(idx))
+    rgb, covered = acc.image()
+    return Mosaic(rgb, covered, grid, used, len(acc.tiles))
+
+
+def nice_length_m(max_m: float) -> float:
+    """The largest 1-2-5 length (metres) not above ``max_m``."""
+    e = 10 ** math.floor(math.log10(max_m))
+    for m in (5, 2, 1):
+        if m * e <= max_m:
+            return m * e
+    return e
+
+
+def decorate(mosaic: Mosaic, path_xy_m: np.ndarray | None = None, landmarks: dict | None = None,
+             path_colour=(30, 110, 230)) -> np.ndarray:
+    """The mosaic with the path and landmarks drawn and, in a band below it, a scale bar and a north arrow.
+
+    The band is added under the last row (south), so pixel (0, 0) and the world file stay exact.
+    """
+    import cv2
+
+    g = mosaic.grid
+    img = np.ascontiguousarray(mosaic.rgb.copy())
+    aa = cv2.LINE_AA
+    if path_xy_m is not None and len(path_xy_m) > 1:
+        pts = g.world_to_px(path_xy_m)
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        cv2.polylines(img, [np.round(pts * 4).astype(np.int32).reshape(-1, 1, 2)], False, path_colour, 1, aa, shift=2)
+    if landmarks and len(landmarks.get("id", [])):
+        lp = g.world_to_px(np.column_stack([landmarks["x_m"], landmarks["y_m"]]))
+        for (c, r), lid in zip(lp, landmarks["id"]):
+            c, r = int(round(c)), int(round(r))
+            cv2.drawMarker(img, (c, r), (220, 30, 30), cv2.MARKER_CROSS, 9, 1, aa)
+            cv2.putText(img, str(int(lid)), (c + 4, r - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (220, 30, 30), 1, aa)
+    band = np.full((LEGEND_BAND_PX, img.shape[1], 3), 255, np.uint8)
+    w_px = img.shape[1]
+    bar_m = nice_length_m(max(0.25 * w_px * g.m_per_px, 1e-4))
+    bar_px = max(1, int(round(bar_m / g.m_per_px)))
+    x0, y0 = 10, 14
+    n_seg = 4
+    for s in range(n_seg):
+        xa = x0 + s * bar_px // n_seg
+        xb = x0 + (s + 1) * bar_px // n_seg
+        cv2.rectangle(band, (xa, y0), (xb, y0 + 6), (0, 0, 0) if s % 2 == 0 else (255, 255, 255), -1)
+    cv2.rectangle(band, (x0, y0), (x0 + bar_px, y0 + 6), (0, 0, 0), 1)
+    label = f"{bar_m * 100:g} cm" if bar_m < 1 else f"{bar_m:g} m"
+    cv2.putText(band, label, (x0, y0 + 22), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, aa)
+    cv2.putText(band, f"{g.mm_per_px:g} mm/px", (x0 + bar_px + 12, y0 + 8), cv2.FONT_HERSHEY_SIMPLEX, 0.35,
+                (60, 60, 60), 1, aa)
+    ax = w_px - 22
+    if ax > x0 + bar_px + 90:
+        cv2.arrowedLine(band, (ax, LEGEND_BAND_PX - 6), (ax, 6), (0, 0, 0), 2, aa, tipLength=0.35)
+        cv2.putText(band, "N", (ax - 18, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, aa)
+    return np.vstack([img, band])
+
+
+def write_mosaic(path: str | Path, rgb: np.ndarray, grid: MosaicGrid) -> tuple[Path, Path]:
+    """Write the PNG and its world file (same name, ``.pgw``). Returns both paths."""
+    import cv2
+
+    png = Path(path)
+    png.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(png), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
+        raise InvalidArgumentError(f"{png}: could not write the PNG (is the folder writable?)")
+    pgw = png.with_suffix(".pgw")
+    pgw.write_text(grid.world_file(), encoding="utf-8")
+    return png, pgw
+
+
+def native_mm_per_px(camera: Camera, altitude_m: np.ndarray) -> float:
+    """The camera's ground resolution at the median altitude, rounded up to 0.1 mm."""
+    z = float(np.nanmedian(altitude_m)) if len(altitude_m) else 1.0
+    return max(0.1, math.ceil(10.0 * 1000.0 * z / camera.focal_px) / 10.0)
+
+
+def estimate_poses(res, roll_rad: np.ndarray, pitch_rad: np.ndarray) -> Poses:
+    """Poses of a run's frames (trajectory.csv row k is frame k), skipped frames left out."""
+    tr = res.trajectory
+    n = len(res.t_s)
+    keep = np.ones(n, bool) if "skipped" not in tr else tr["skipped"] < 0.5
+    frame = np.arange(n)[keep]
+    heading = tr["heading_rad"] if "heading_rad" in tr else np.zeros(n)
+    return Poses(frame, tr["x_m"][keep], tr["y_m"][keep], tr["altitude_m"][keep], heading[keep],
+                 _attitude(roll_rad, frame), _attitude(pitch_rad, frame))
+
+
+def truth_poses(gt, frame_t_s: np.ndarray, roll_rad: np.ndarray, pitch_rad: np.ndarray, tol_s: float = 1e-3) -> Poses:
+    """Poses from a ground truth (``GroundTruth``), matched to the frames by time."""
+    k = np.clip(np.searchsorted(frame_t_s, gt.t_s - tol_s), 0, max(len(frame_t_s) - 1, 0))
+    ok = np.abs(frame_t_s[k] - gt.t_s) <= tol_s if len(frame_t_s) else np.zeros(len(gt.t_s), bool)
+    frame = k[ok]
+    return Poses(frame, gt.x_m[ok], gt.y_m[ok], gt.altitude_m[ok], gt.heading_rad[ok],
+                 _attitude(roll_rad, frame), _attitude(pitch_rad, frame))
+
+
+def _attitude(values: np.ndarray, frame: np.ndarray) -> np.ndarray:
+    if len(values) == 0:
+        return np.zeros(len(frame))
+    return np.asarray(values, dtype=float)[np.clip(frame, 0, len(values) - 1)]
+
+
+@dataclass(frozen=True)
+class MosaicFiles:
+    png: Path
+    world_file: Path
+    mosaic: Mosaic
+
+
+def mosaic_of_run(
+    results_dir: str | Path,
+    out_png: str | Path | None = None,
+    seq: str | Path | None = None,
+    mm_per_px: float | None = None,
+    every: int = 1,
+    groundtruth: str | Path | None = None,
+    overlay: bool = True,
+    grid: MosaicGrid | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    camera_file: str | Path | None = None,
+) -> MosaicFiles:
+    """The mosaic of a run: laid by the estimate, or by ``groundtruth`` (a groundtruth.csv) when given.
+
+    Writes ``out_png`` (default ``OUT/mosaic.png``, ``OUT/mosaic_truth.png`` for the truth) and
+    its ``.pgw`` world file; with ``overlay`` the path (and, for the estimate, the landmarks) is drawn.
+    ``camera_file`` is the camera of a video run (default: the one summary.json names).
+    """
+    from rovslam.io.results import read_results
+    from rovslam.viz.frames import open_frames
+
+    res = read_results(results_dir)
+    store = open_frames(res.summary, seq, camera_file)
+    if groundtruth is not None:
+        from rovslam.io.sequence import read_groundtruth
+
+        gt = read_groundtruth(groundtruth)
+        t_frames = np.array([r.t_s for r in store.source.rows]) if not store.is_video else res.t_s
+        poses = truth_poses(gt, t_frames, store.roll_rad, store.pitch_rad)
+        path_xy = np.column_stack([gt.x_m, gt.y_m])
+        lms = None
+        default_name = "mosaic_truth.png"
+    else:
+        poses = estimate_poses(res, store.roll_rad, store.pitch_rad)
+        path_xy = res.xy_m
+        lms = res.landmarks
+        default_name = "mosaic.png"
+    if mm_per_px is None:
+        mm_per_px = grid.mm_per_px if grid is not None else native_mm_per_px(store.camera, poses.altitude_m)
+    poses = poses.every(int(every))
+    mosaic = build_mosaic(store.camera, poses, store.stream, mm_per_px, progress=progress, grid=grid)
+    rgb = decorate(mosaic, path_xy if overlay else None, lms if overlay else None)
+    png, pgw = write_mosaic(Path(out_png) if out_png is not None else Path(results_dir) / default_name, rgb, mosaic.grid)
+    return MosaicFiles(png, pgw, mosaic)
