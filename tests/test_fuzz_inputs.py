@@ -155,7 +155,7 @@ def _assert_inside(seq_folder: Path, image: str) -> None:
     assert real.is_relative_to(os.path.realpath(seq_folder)), image
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=frames_csv())
 def test_frames_csv_parser(data, parser_folder, shared):
     from rovslam.io.sequence import read_frames_csv
@@ -215,7 +215,7 @@ def sequence_toml(draw):
     return data
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=sequence_toml(), garbage=st.one_of(st.none(), st.binary(max_size=60)))
 def test_sequence_toml_parser(data, garbage, parser_folder):
     import tomli_w
@@ -239,7 +239,7 @@ def test_sequence_toml_parser(data, garbage, parser_folder):
     assert info.fixed_altitude_m is None or info.fixed_altitude_m > 0
 
 
-@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(column=st.sampled_from(["t_s", "x_m", "var_x_m2", "altitude_m", "skipped", "altitude_source"]),
        line=st.integers(1, 8), value=CELLS, cut=st.integers(0, 400),
        summary=st.one_of(st.none(), st.binary(max_size=40), st.sampled_from([b"{}", b"[]", b"null", b'{"a": NaN}'])))

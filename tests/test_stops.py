@@ -1,6 +1,6 @@
 """How a run ends when it is stopped (issue 15): SIGINT, SIGTERM and SIGHUP, in a real process.
 
-Each test starts ``rovslam run`` on a simulated 300-frame dive, waits until the first rows are
+Each test starts ``rovslam run`` on a 300-frame 360x272 dive, waits until the first rows are
 on disk (no clock involved), sends the signal(s) and checks that every file is complete and
 readable, that ``summary.json`` names the signal, and the exit code is 128 + the signal number.
 """
@@ -17,16 +17,13 @@ import time
 import numpy as np
 import pytest
 
+import fuzz_corpus as fc
 from rovslam.io.results import read_results
 
 
 @pytest.fixture(scope="module")
 def dive(tmp_path_factory):
-    root = tmp_path_factory.mktemp("stops")
-    proc = subprocess.run([sys.executable, "-m", "rovslam", "simulate", "--frames", "300", "--out", str(root / "seq"), "-q"],
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr
-    return root / "seq"
+    return fc.write_sequence(tmp_path_factory.mktemp("stops") / "seq", n=300, size=(360, 272))
 
 
 def _start(dive, out):
