@@ -295,7 +295,7 @@ def test_byte_mutations_of_every_file(shared, tmp_path):
     failures, outcomes = [], {0: 0, 2: 0}
     for kind, rel in targets:
         base = shared.base_seq if kind == "seq" else shared.base_results
-        for m, data in enumerate(_mutants((base / rel).read_bytes(), rng, 40)):
+        for m, data in enumerate(_mutants((base / rel).read_bytes(), rng, 60)):
             def build(d, sh, kind=kind, rel=rel, data=data):
                 folder = d / kind
                 shutil.copytree(base, folder)

@@ -370,11 +370,16 @@ class _progress:
 
         def lazy(done: int, total: Optional[int] = None, **fields) -> None:
             # The bar appears with the first progress report, so an input error comes alone.
+            # A display that fails (a closed terminal) turns the bar off; it never fails the run.
             nonlocal started
-            if not started:
-                started = True
-                self._start()
-            self._bar(done, total, **fields)
+            try:
+                if not started:
+                    started = True
+                    self._start()
+                if self._p is not None:
+                    self._bar(done, total, **fields)
+            except OSError:
+                self._p = None
 
         return lazy
 
@@ -387,8 +392,9 @@ class _progress:
         if self.extra:
             cols.append(TextColumn("landmarks {task.fields[landmarks]}  tokens {task.fields[tokens]}"))
         cols.append(TimeRemainingColumn())
-        self._p = Progress(*cols, console=Console(stderr=True), transient=False)
-        self._p.start()
+        progress = Progress(*cols, console=Console(stderr=True), transient=False)
+        progress.start()
+        self._p = progress
         self._task = self._p.add_task(self.label, total=None, fps=0.0, landmarks=0, tokens=0)
         import time
 
@@ -414,11 +420,14 @@ class _progress:
 
     def __exit__(self, *exc) -> None:
         if self._p is not None:
-            if self._final is not None:  # the last update may have been throttled
-                done, fields = self._final
-                self._last = 0.0
-                self._p.update(self._task, completed=done, **fields)
-            self._p.stop()
+            try:
+                if self._final is not None:  # the last update may have been throttled
+                    done, fields = self._final
+                    self._last = 0.0
+                    self._p.update(self._task, completed=done, **fields)
+                self._p.stop()
+            except OSError:  # the terminal is gone: nothing left to show
+                pass
 
 
 def _print_eval(f: dict) -> None:
