@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import errno
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+import fuzz_corpus as fc
 from rovslam.cli import app
 
 runner = CliRunner()
@@ -61,3 +68,260 @@ def test_bad_config_names_the_key(tiny_seq, tmp_path):
     cfg.write_text("[tracker]\nmin_corelation = 0.9\n")
     res = runner.invoke(app, ["run", str(tiny_seq / "seq"), "--out", str(tmp_path / "o"), "-c", str(cfg)])
     assert res.exit_code == 2 and "tracker.min_corelation" in res.output and "bad.toml" in res.output
+
+
+# --------------------------------------------------------------------------- issue 15: errors, outputs, limits
+
+
+@pytest.fixture
+def small_seq(tmp_path):
+    return fc.write_sequence(tmp_path / "seq")
+
+
+def _one_error_line(res, needle):
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.exit_code == 2, res.stderr
+    assert len(lines) == 1 and lines[0].startswith("rovslam: error: "), res.stderr
+    assert needle in lines[0], lines[0]
+    assert "Traceback" not in res.output
+    return lines[0]
+
+
+def _no_tmp(folder: Path) -> None:
+    assert not [p for p in folder.rglob("*") if p.name.endswith(".tmp")]
+
+
+def test_version():
+    from rovslam import __version__
+
+    res = runner.invoke(app, ["--version"])
+    assert res.exit_code == 0 and res.stdout.strip() == f"rovslam {__version__}"
+
+
+def test_messages_keep_their_brackets(small_seq, tmp_path):
+    """Rich markup must not eat '[camera]' or a folder called '[bold]x[/bold]'."""
+    fc.replace_in(small_seq / "sequence.toml", "[camera]", "[metadata]")
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(tmp_path / "o")])
+    _one_error_line(res, "missing [camera] table (width_px")
+    res = runner.invoke(app, ["run", str(tmp_path / "[red]dive[/red]"), "--out", str(tmp_path / "o")])
+    _one_error_line(res, "[red]dive[/red]: not found")
+
+
+@pytest.mark.parametrize("value", ["0", "-1"])
+def test_max_frames_must_be_positive(small_seq, tmp_path, value):
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(tmp_path / "o"), "--max-frames", value])
+    _one_error_line(res, f"--max-frames must be a whole number of frames >= 1, got {value}")
+    assert not (tmp_path / "o").exists()
+
+
+def test_max_frames_processes_exactly_n(small_seq, tmp_path):
+    from rovslam.io.results import read_results
+
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(tmp_path / "o"), "--max-frames", "3", "-q"])
+    assert res.exit_code == 0 and "3/3 frames" in res.stdout
+    assert len(read_results(tmp_path / "o").t_s) == 3
+
+
+def test_existing_results_are_refused_then_replaced_with_overwrite(small_seq, tmp_path):
+    from rovslam.io.results import read_results
+
+    out = tmp_path / "o"
+    assert runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q"]).exit_code == 0
+    (out / "landmarks" / "99.png").write_bytes(b"an old run's template")
+    (out / "eval.json").write_text("{}")
+    before = (out / "trajectory.csv").read_bytes()
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q", "--max-frames", "4"])
+    _one_error_line(res, "holds the results of an earlier run")
+    assert (out / "trajectory.csv").read_bytes() == before and (out / "eval.json").exists()  # untouched
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q", "--max-frames", "4", "--overwrite"])
+    assert res.exit_code == 0, res.stderr
+    # Nothing of the old run is mixed in: its extra landmark and its evaluation are gone.
+    assert not (out / "landmarks" / "99.png").exists() and not (out / "eval.json").exists()
+    assert len(read_results(out).t_s) == 4
+
+
+def test_overwrite_never_deletes_files_rovslam_did_not_write(small_seq, tmp_path):
+    out = tmp_path / "o"
+    assert runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q"]).exit_code == 0
+    (out / "notes.txt").write_text("my notes")
+    (out / "landmarks" / "sketch.jpg").write_bytes(b"mine")
+    names = sorted(p.relative_to(out) for p in out.rglob("*"))
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q", "--overwrite"])
+    _one_error_line(res, "holds files rovslam did not write (landmarks/sketch.jpg, notes.txt)")
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == names  # nothing deleted
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(small_seq), "-q", "--overwrite"])
+    _one_error_line(res, "holds files rovslam did not write (frames.csv")
+
+
+def test_a_dive_with_no_usable_frame_fails_and_says_why(small_seq, tmp_path):
+    import cv2
+
+    for p in (small_seq / "images").iterdir():
+        cv2.imwrite(str(p), np.zeros((fc.H, fc.W, 3), np.uint8))
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q"])
+    line = _one_error_line(res, "only 0 of 8 frames were usable")
+    assert "no texture" in line and "summary.json" in line
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "unusable" and summary["complete"] is False
+    assert summary["frames_usable"] == 0 and len(summary["skipped_frames"]) == 8
+    assert summary["reason"].startswith("only 0 of 8 frames were usable")
+
+
+def test_a_diverging_estimate_is_never_written(small_seq, tmp_path):
+    """A last frame 1e12 s later: its position uncertainty is absurd, so the row is refused."""
+    from rovslam.io.results import read_results
+
+    fc.set_cell(small_seq / "frames.csv", fc.N_FRAMES, "t_s", "1e12")
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q"])
+    _one_error_line(res, f"frame {fc.N_FRAMES - 1} (t=1e+12 s): the position uncertainty")
+    r = read_results(out)
+    assert r.summary["status"] == "unusable" and len(r.t_s) == fc.N_FRAMES - 1
+    assert float(np.max(r.trajectory["var_x_m2"])) < 1.0
+
+
+def test_one_frame_run_evaluates_to_strict_json(small_seq, tmp_path):
+    out = tmp_path / "o"
+    assert runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q", "--max-frames", "1"]).exit_code == 0
+    res = runner.invoke(app, ["eval", str(out), "-g", str(small_seq / "groundtruth.csv")])
+    assert res.exit_code in (0, 2), res.output
+    if res.exit_code == 0:  # JSON has no NaN: a figure that cannot be computed is null
+        json.loads((out / "eval.json").read_text(), parse_constant=lambda c: pytest.fail(f"eval.json holds {c}"))
+    else:
+        _one_error_line(res, "")
+
+
+def _enospc(*args, **kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_disk_full_during_a_run(small_seq, tmp_path, monkeypatch):
+    from rovslam.io.results import ResultWriter, read_summary
+
+    real = ResultWriter.write_frame
+    calls = []
+
+    def write_frame(self, r):
+        calls.append(r.index)
+        if len(calls) > 3:
+            _enospc()
+        real(self, r)
+
+    monkeypatch.setattr(ResultWriter, "write_frame", write_frame)
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q"])
+    _one_error_line(res, "No space left on device (the disk is full; free space or choose another --out)")
+    summary = read_summary(out / "summary.json")
+    assert summary["status"] == "failed" and "No space left" in summary["reason"] and not summary["complete"]
+    assert summary["frames_processed"] == 3
+    _no_tmp(out)
+
+
+def test_disk_full_for_every_write(small_seq, tmp_path, monkeypatch):
+    """Nothing can be written: no summary at all (so nothing looks complete), no temporary file."""
+    import rovslam.io.results as results
+
+    monkeypatch.setattr(results.os, "fsync", _enospc)
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q"])
+    _one_error_line(res, "config.toml: cannot write: No space left on device")
+    assert not (out / "summary.json").exists() and not (out / "config.toml").exists()
+    _no_tmp(out)
+
+
+def test_disk_full_at_the_end_leaves_a_running_summary(small_seq, tmp_path, monkeypatch):
+    """The final summary cannot be written: the one that stays says "running", never "complete"."""
+    import rovslam.io.results as results
+
+    real, calls = os.fsync, []
+
+    def fsync(fd):
+        calls.append(fd)
+        if len(calls) > 2:  # config.toml and the first summary.json succeed
+            _enospc()
+        real(fd)
+
+    monkeypatch.setattr(results.os, "fsync", fsync)
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q"])
+    _one_error_line(res, "No space left on device")
+    assert json.loads((out / "summary.json").read_text())["status"] == "running"
+    _no_tmp(out)
+
+
+def test_disk_full_writing_eval_json(small_seq, tmp_path, monkeypatch):
+    import rovslam.io.results as results
+
+    out = tmp_path / "o"
+    assert runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q"]).exit_code == 0
+    monkeypatch.setattr(results.os, "fsync", _enospc)
+    res = runner.invoke(app, ["eval", str(out), "-g", str(small_seq / "groundtruth.csv")])
+    _one_error_line(res, "eval.json: cannot write: No space left on device")
+    assert not (out / "eval.json").exists()
+    _no_tmp(out)
+
+
+def test_output_folder_that_cannot_be_created(small_seq, tmp_path, monkeypatch):
+    """A read-only place (simulated: the tests may run as root, who can write anywhere)."""
+    real = Path.mkdir
+
+    def mkdir(self, *a, **k):
+        if self.is_relative_to(tmp_path / "ro"):
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(self))
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(Path, "mkdir", mkdir)
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(tmp_path / "ro" / "o"), "-q"])
+    _one_error_line(res, "cannot create the folder: Permission denied (permission denied; choose a folder you can write to)")
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_read_only_output_folder(small_seq, tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        res = runner.invoke(app, ["run", str(small_seq), "--out", str(ro / "o"), "-q"])
+        _one_error_line(res, "Permission denied")
+    finally:
+        ro.chmod(0o700)
+
+
+def test_parent_is_a_file_and_json_is_a_folder(small_seq, tmp_path):
+    (tmp_path / "f").write_text("x")
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(tmp_path / "f" / "o"), "-q"])
+    _one_error_line(res, "a parent of this path is a file")
+    out = tmp_path / "o"
+    assert runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q"]).exit_code == 0
+    res = runner.invoke(app, ["eval", str(out), "-g", str(small_seq / "groundtruth.csv"), "--json", str(tmp_path)])
+    _one_error_line(res, "is a folder; --json needs a file name")
+
+
+def test_config_command_does_not_clobber(tmp_path):
+    c = tmp_path / "c.toml"
+    c.write_text("# my edits\n")
+    _one_error_line(runner.invoke(app, ["config", str(c)]), "exists; add --overwrite")
+    assert c.read_text() == "# my edits\n"
+    assert runner.invoke(app, ["config", str(c), "--overwrite"]).exit_code == 0
+    assert "min_correlation = 0.89" in c.read_text()
+    _no_tmp(tmp_path)
+
+
+def test_a_bug_is_one_line_and_exit_1(small_seq, tmp_path, monkeypatch):
+    import rovslam.runner
+
+    def boom(*a, **k):
+        raise ZeroDivisionError("float division by zero")
+
+    monkeypatch.setattr(rovslam.runner, "run_sequence", boom)
+    res = runner.invoke(app, ["run", str(small_seq), "--out", str(tmp_path / "o")])
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.exit_code == 1 and len(lines) == 1 and "internal error (ZeroDivisionError" in lines[0]
+
+
+def test_usage_errors_are_one_line_in_the_console_script(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "rovslam", "run", "--bogus"], capture_output=True, text=True, timeout=120)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert proc.returncode == 2 and len(lines) == 1, proc.stderr
+    assert lines[0].startswith("rovslam: error: No such option: --bogus")

@@ -66,10 +66,10 @@ def test_missing_file(tmp_path):
         ("[bandpass]\ndespeckle_px = 1\n", ["despeckle_px = 1", "0 (off) or >= 2"]),
         ("[bandpass]\nsigma_fine_px = 0\n", ["[bandpass] sigma_fine_px = 0.0", "> 0"]),
         ("[bandpass]\nsigma_fine_px = 5.0\n", ["sigma_coarse_px = 4.0", "larger than sigma_fine_px"]),
-        ("[tracker]\nmin_correlation = -1.5\n", ["[tracker] min_correlation = -1.5", ">= -1 and <= 1"]),
+        ("[tracker]\nmin_correlation = -1\n", ["[tracker] min_correlation = -1.0", "> 0 and <= 1"]),
         ("[tracker]\nmin_tracked_fraction = 2\n", ["min_tracked_fraction = 2.0", "<= 1"]),
         ("[laser]\nmin_altitude_m = 3.0\nmax_altitude_m = 2.0\n", ["max_altitude_m = 2.0", "min_altitude_m"]),
-        ("[laser]\nassumed_altitude_m = 50.0\n", ["assumed_altitude_m = 50.0", "[0.05, 30]"]),
+        ("[laser]\nassumed_altitude_m = -1.0\n", ["assumed_altitude_m = -1.0", "> 0"]),
         ("[odometry]\nmax_speed_mps = nan\n", ["max_speed_mps = nan", "finite"]),
         ("[slam]\nheading_bias_tau_s = 0\n", ["heading_bias_tau_s = 0.0", "> 0"]),
         ("[slam]\ninnovation_gate = inf\n", ["innovation_gate = inf", "finite"]),
@@ -97,3 +97,21 @@ def test_every_numeric_field_declares_its_range():
         for f in dataclasses.fields(cls):
             if hints[f.name] in (int, float):
                 assert any(f.metadata.get(k) is not None for k in ("gt", "ge", "le")), f"{cls.__name__}.{f.name}"
+
+
+def test_bom_is_accepted_and_other_encodings_are_named(tmp_path):
+    path = tmp_path / "bom.toml"
+    path.write_bytes(b"\xef\xbb\xbf[speed_templates]\nmax_count = 5\n")
+    assert load_config(path).speed_templates.max_count == 5
+    latin = tmp_path / "latin.toml"
+    latin.write_bytes(b"# caf\xe9\n[speed_templates]\nmax_count = 5\n")
+    with pytest.raises(ConfigError, match=r"latin.toml: line 1: not UTF-8"):
+        load_config(latin)
+
+
+def test_save_is_atomic_and_leaves_no_temporary_file(tmp_path):
+    path = tmp_path / "c.toml"
+    save_config(RunConfig(), path)
+    save_config(RunConfig(), path)
+    assert [p.name for p in tmp_path.iterdir()] == ["c.toml"]
+    assert load_config(path) == RunConfig()

@@ -31,6 +31,13 @@ _BODY_FROM_CAMERA_NOMINAL = np.array(
     [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
 )
 
+# Input checks of the camera model. A focal length under a pixel is a unit mistake (metres or
+# millimetres given for pixels); beyond 1e6 px no camera sees a seabed metres away.
+MIN_FOCAL_PX = 1.0
+MAX_FOCAL_PX = 1e6
+MAX_IMAGE_SIDE_PX = 65535
+MAX_LASER_OFFSET_M = 10.0  # a laser pointer mounted farther than this from the camera is a unit mistake
+
 
 @dataclass(frozen=True)
 class Camera:
@@ -46,18 +53,31 @@ class Camera:
     yaw_offset_rad: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.width_px <= 0 or self.height_px <= 0:
+        if not (0 < self.width_px <= MAX_IMAGE_SIDE_PX and 0 < self.height_px <= MAX_IMAGE_SIDE_PX):
             raise SequenceFormatError(
-                f"camera size must be positive, got {self.width_px}x{self.height_px} px"
+                f"camera size must be 1 to {MAX_IMAGE_SIDE_PX} px a side, got {self.width_px}x{self.height_px} px"
             )
-        if not (np.isfinite(self.fx_px) and np.isfinite(self.fy_px)) or min(self.fx_px, self.fy_px) <= 0:
+        focal = (self.fx_px, self.fy_px)
+        if not all(np.isfinite(focal)) or not all(MIN_FOCAL_PX <= f <= MAX_FOCAL_PX for f in focal):
             raise SequenceFormatError(
-                f"camera focal lengths must be positive and finite, got fx={self.fx_px}, fy={self.fy_px}"
+                f"camera focal lengths must be finite, from {MIN_FOCAL_PX:g} to {MAX_FOCAL_PX:g} px, got "
+                f"fx={self.fx_px}, fy={self.fy_px} (a focal length is in pixels: millimetres / pixel pitch)"
+            )
+        if not (np.isfinite(self.cx_px) and np.isfinite(self.cy_px)) or not (
+            0.0 <= self.cx_px <= self.width_px and 0.0 <= self.cy_px <= self.height_px
+        ):
+            raise SequenceFormatError(
+                f"camera principal point (cx={self.cx_px}, cy={self.cy_px}) px must lie inside the "
+                f"{self.width_px}x{self.height_px} px image"
             )
         if len(self.distortion) not in (4, 5, 8):
             raise SequenceFormatError(
                 f"camera distortion needs 4, 5 or 8 OpenCV coefficients (k1 k2 p1 p2 [k3 ...]), "
                 f"got {len(self.distortion)}"
+            )
+        if not (all(np.isfinite(self.distortion)) and np.isfinite(self.yaw_offset_rad)):
+            raise SequenceFormatError(
+                f"camera distortion and yaw_offset_rad must be finite, got {self.distortion}, {self.yaw_offset_rad}"
             )
 
     @property
@@ -101,6 +121,11 @@ class LaserPointer:
             )
         if len(self.origin_m) != 3 or not np.all(np.isfinite(self.origin_m)):
             raise SequenceFormatError(f"laser origin_m must be 3 finite numbers, got {self.origin_m}")
+        if np.linalg.norm(self.origin_m) > MAX_LASER_OFFSET_M:
+            raise SequenceFormatError(
+                f"laser origin_m {self.origin_m} is more than {MAX_LASER_OFFSET_M:g} m from the camera: "
+                "origins are in metres from the camera centre (body frame)"
+            )
 
     @property
     def unit_direction(self) -> np.ndarray:

@@ -1,13 +1,19 @@
 """The ``rovslam`` command. Parses, calls the library, prints. Heavy imports stay inside commands.
 
-Exit codes: 0 success, 2 bad input (one-line message, no traceback), 130 interrupted.
+Exit codes: 0 success; 2 bad input, an unusable run or an unusable output place (one line on
+stderr naming the problem, never a traceback); 128 + the signal number when a run is stopped
+by SIGINT (130), SIGTERM (143) or SIGHUP (129), its files complete; 1 an internal error (a
+bug: one line, the traceback with ``ROVSLAM_TRACEBACK=1``). Messages are printed as plain
+text, never interpreted as rich markup (``[camera]`` stays as it is).
 """
 
 from __future__ import annotations
 
-import json
+import os
+import re
+import sys
 from pathlib import Path
-from typing import Optional
+from typing import NoReturn, Optional
 
 import typer
 
@@ -19,15 +25,25 @@ app = typer.Typer(
 )
 
 
-def _fail(message: str, code: int = 2) -> None:
+def _error_line(message: str, prefix: str = "rovslam: error: ") -> None:
+    """Print ``prefix`` + ``message`` on one line of stderr, the message as plain text (no markup)."""
     from rich.console import Console
+    from rich.text import Text
 
-    Console(stderr=True).print(f"[bold red]rovslam: error:[/] {message}", highlight=False, soft_wrap=True)
+    line = re.sub(r"\s*[\r\n]+\s*", " ", str(message)).strip()
+    try:
+        Console(stderr=True, highlight=False, soft_wrap=True).print(Text.assemble((prefix, "bold red"), line))
+    except OSError:  # stderr gone (a closed terminal): nothing left to tell
+        pass
+
+
+def _fail(message: str, code: int = 2) -> NoReturn:
+    _error_line(message)
     raise typer.Exit(code)
 
 
 def _guard(fn):
-    """Turn rovslam's typed input errors into a one-line message and exit code 2."""
+    """Turn every error into one line on stderr and an exit code: 2 for bad input, 1 for a bug."""
     import functools
 
     @functools.wraps(fn)
@@ -36,10 +52,42 @@ def _guard(fn):
 
         try:
             return fn(*args, **kwargs)
+        except (typer.Exit, typer.Abort, typer.TyperException):
+            raise
         except RovslamError as exc:
             _fail(str(exc))
+        except KeyboardInterrupt:
+            _fail("interrupted", 130)
+        except OSError as exc:
+            from rovslam.io.results import describe_os_error
+
+            where = f"{exc.filename}: " if exc.filename else ""
+            _fail(f"{where}{describe_os_error(exc)}")
+        except Exception as exc:
+            if os.environ.get("ROVSLAM_TRACEBACK"):
+                raise
+            _fail(
+                f"internal error ({type(exc).__name__}: {exc}). This is a bug: please report it with the command "
+                "line; ROVSLAM_TRACEBACK=1 shows the traceback.",
+                1,
+            )
 
     return wrapper
+
+
+def _version(value: bool) -> None:
+    if value:
+        from rovslam import __version__
+
+        typer.echo(f"rovslam {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main_options(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version and exit."),
+) -> None:
+    """Vision-based SLAM for ROVs: laser altimeter, optical-correlation speed, EKF landmark map."""
 
 
 @app.command()
@@ -79,41 +127,81 @@ def simulate(
 @_guard
 def run(
     sequence: Path = typer.Argument(..., help="Sequence folder (format v1: sequence.toml, frames.csv, images/) or a video file."),
-    out: Path = typer.Option(..., "--out", "-o", help="Folder for the results."),
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for the results (new or empty, or see --overwrite)."),
     camera: Optional[Path] = typer.Option(None, "--camera", help="Camera file for a video input (sequence.toml syntax)."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML configuration (defaults: the paper's)."),
-    max_frames: Optional[int] = typer.Option(None, help="Process only the first N frames."),
+    max_frames: Optional[int] = typer.Option(None, help="Process only the first N frames (N >= 1)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the results of an earlier run in --out (only rovslam's own files)."),
+    min_usable_fraction: Optional[float] = typer.Option(
+        None, help="Fail (exit 2) when fewer than this fraction of the frames were usable (0 to 1; default [run] of the config, 0.5)."
+    ),
+    max_distance_m: Optional[float] = typer.Option(
+        None, help="Fail (exit 2) when the estimate goes farther than this from the start: it diverged (default [run], 1000 m)."
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display."),
     viewer: bool = typer.Option(False, "--viewer", help="Show the run live in the rerun viewer (saved to OUT/run.rrd without a display)."),
     save_rrd: Optional[Path] = typer.Option(None, "--save-rrd", help="Save the live view as a rerun recording (.rrd)."),
 ) -> None:
     """Run vision-based SLAM on a sequence: trajectory with covariance, landmark map, summary."""
     from rovslam.config import RunConfig, load_config
-    from rovslam.runner import run_sequence
+    from rovslam.errors import InvalidArgumentError
+    from rovslam.runner import StopRequest, run_sequence
 
+    if max_frames is not None and max_frames < 1:
+        raise InvalidArgumentError(f"--max-frames must be a whole number of frames >= 1, got {max_frames}")
+    if min_usable_fraction is not None and not 0.0 <= min_usable_fraction <= 1.0:
+        raise InvalidArgumentError(f"--min-usable-fraction must be from 0 to 1, got {min_usable_fraction}")
+    if max_distance_m is not None and not (max_distance_m > 0 and max_distance_m != float("inf")):
+        raise InvalidArgumentError(f"--max-distance-m must be a positive number of metres, got {max_distance_m}")
     cfg = load_config(config) if config is not None else RunConfig()
+    min_usable_fraction = cfg.run.min_usable_fraction if min_usable_fraction is None else min_usable_fraction
+    max_distance_m = cfg.run.max_distance_m if max_distance_m is None else max_distance_m
+    _quiet_native_logs()
     live = _live_viewer(viewer, save_rrd, out) if viewer or save_rrd is not None else None
     try:
-        with _progress(quiet, "SLAM", extra=True) as bar:
-            summary = run_sequence(sequence, out, cfg, max_frames=max_frames, camera_file=camera,
-                                   on_frame_image=live, **_slam_callbacks(bar))
+        # The outer StopRequest catches a signal that comes after the run's own handlers are gone; once a
+        # run was stopped, the process ignores further signals until it exits (nothing can be cut short).
+        with StopRequest() as late, _progress(quiet, "SLAM", extra=True) as bar:
+            summary = run_sequence(
+                sequence, out, cfg, max_frames=max_frames, camera_file=camera, overwrite=overwrite,
+                min_usable_fraction=min_usable_fraction, max_distance_m=max_distance_m, on_frame_image=live,
+                **_slam_callbacks(bar),
+            )
+            late.ignore_after = summary.interrupted
     finally:
         if live is not None:
             live.close()
-            if live.save_path is not None:
+            if live.save_path is not None and live.started:
                 typer.echo(f"live view saved to {live.save_path} (open it with: rerun {live.save_path})", err=True)
     msg = (
         f"{summary.frames}/{summary.total_frames} frames, {summary.landmarks} landmarks, "
         f"{len(summary.skipped)} skipped, {summary.fps:.0f} frames/s -> {out}"
     )
-    for idx, t, reason in summary.skipped[:10]:
-        typer.echo(f"skipped frame {idx} (t={t:.2f} s): {reason}", err=True)
-    if len(summary.skipped) > 10:
-        typer.echo(f"... and {len(summary.skipped) - 10} more skipped frames (see summary.json)", err=True)
     if summary.interrupted:
-        typer.echo(f"interrupted: {msg}; the files written so far are complete and readable", err=True)
-        raise typer.Exit(130)
+        _error_line(f"{msg}; every file written is complete and readable", f"rovslam: stopped by {summary.signal}: ")
+        raise typer.Exit(summary.exit_code)
+    _report_run(summary)
     typer.echo(msg)
+    if late.signum is not None:  # a signal just as the run completed: the files are whole, the exit says it
+        raise typer.Exit(128 + late.signum)
+
+
+def _quiet_native_logs() -> None:
+    """Silence OpenCV's own stderr log (a damaged PNG is reported once, in rovslam's words)."""
+    import cv2.utils.logging as cv_log
+
+    cv_log.setLogLevel(cv_log.LOG_LEVEL_SILENT)
+
+
+def _report_run(summary) -> None:
+    """Skipped frames, rejected sonar readings and damaged-source notes on stderr (a few, then a count)."""
+    for label, items in (("skipped frame", summary.skipped), ("sonar reading rejected, frame", summary.sonar_rejected)):
+        for idx, t, reason in items[:10]:
+            typer.echo(f"{label} {idx} (t={t:.2f} s): {reason}", err=True)
+        if len(items) > 10:
+            typer.echo(f"... and {len(items) - 10} more ({label.split(',')[0]}s: see summary.json)", err=True)
+    for note in summary.warnings:
+        typer.echo(f"warning: {note}", err=True)
 
 
 @app.command(name="eval")
@@ -124,6 +212,8 @@ def eval_cmd(
     json_out: Optional[Path] = typer.Option(None, "--json", help="Where to write the figures (default OUT/eval.json)."),
 ) -> None:
     """Compare a run with the ground truth: ATE, drift, dead reckoning, 2-sigma coverage, NEES, Table 1."""
+    if json_out is not None:
+        _check_output_file(json_out, "--json")
     path = json_out or (results / "eval.json")
     _evaluate(results, groundtruth, path)
     typer.echo(f"wrote {path}")
@@ -139,7 +229,7 @@ def demo(
     quiet: bool = typer.Option(False, "--quiet", "-q"),
 ) -> None:
     """Simulate the paper's trial, run SLAM, evaluate and write the report, in one go."""
-    from rovslam.runner import run_sequence
+    from rovslam.runner import StopRequest, run_sequence
     from rovslam.sim import simulate as run_sim
     from rovslam.viz.report import write_report
 
@@ -150,13 +240,19 @@ def demo(
         if seq.exists():
             import shutil
 
+            from rovslam.errors import OutputError
+
+            if not _is_simulated_sequence(seq):
+                raise OutputError(f"{seq}: exists and is not a sequence rovslam simulated; give the demo another --out.")
             shutil.rmtree(seq)  # the demo's own folder, from another scenario or seed
         with _progress(quiet, "simulating") as bar:
             run_sim(scenario, seq, frames=frames, seed=seed, progress=bar)
-    with _progress(quiet, "SLAM", extra=True) as bar:
-        summary = run_sequence(seq, res, **_slam_callbacks(bar))
+    _quiet_native_logs()
+    with StopRequest() as late, _progress(quiet, "SLAM", extra=True) as bar:
+        summary = run_sequence(seq, res, overwrite=True, **_slam_callbacks(bar))
+        late.ignore_after = summary.interrupted
     if summary.interrupted:
-        _fail("interrupted; partial results are in " + str(res), 130)
+        _fail(f"stopped by {summary.signal}; partial results are in {res}", summary.exit_code)
     _evaluate(res, seq / "groundtruth.csv", res / "eval.json")
     report = write_report(res, seq / "groundtruth.csv")
     typer.echo(f"{summary.frames} frames at {summary.fps:.0f} frames/s; results in {res}")
@@ -249,12 +345,45 @@ def mosaic_cmd(
 
 @app.command(name="config")
 @_guard
-def config_cmd(out: Path = typer.Argument(..., help="TOML file to write with every default.")) -> None:
+def config_cmd(
+    out: Path = typer.Argument(..., help="TOML file to write with every default."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the file if it exists."),
+) -> None:
     """Write the default configuration (the paper's values) to a TOML file to edit."""
-    from rovslam.config import RunConfig, save_config
+    import tomli_w
 
-    save_config(RunConfig(), out)
+    from rovslam.config import RunConfig, to_dict
+    from rovslam.errors import OutputError
+    from rovslam.io.results import atomic_write_text
+
+    _check_output_file(out, "the configuration file")
+    if out.exists() and not overwrite:
+        raise OutputError(f"{out}: exists; add --overwrite to replace it, or give another name.")
+    atomic_write_text(out, tomli_w.dumps(to_dict(RunConfig())))
     typer.echo(f"wrote {out}")
+
+
+def _check_output_file(path: Path, what: str) -> None:
+    """Refuse an output file path that is a folder or whose folder does not exist (one clear line)."""
+    from rovslam.errors import OutputError
+
+    if path.is_dir():
+        raise OutputError(f"{path}: is a folder; {what} needs a file name (e.g. {path / 'eval.json'}).")
+    parent = path.parent
+    if not parent.is_dir():
+        state = "is not a folder" if parent.exists() else "does not exist"
+        raise OutputError(f"{path}: the folder {parent} {state}; create it or choose another place for {what}.")
+
+
+def _is_simulated_sequence(seq: Path) -> bool:
+    """Whether ``seq`` is a sequence folder rovslam's simulator wrote (so the demo may replace it)."""
+    import tomllib
+
+    try:
+        meta = tomllib.loads((seq / "sequence.toml").read_text(encoding="utf-8")).get("metadata", {})
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return False
+    return isinstance(meta, dict) and meta.get("generator") == "rovslam.sim"
 
 
 def _same_simulation(seq: Path, scenario: str, frames: Optional[int], seed: int) -> bool:
@@ -290,11 +419,11 @@ def _slam_callbacks(bar) -> dict:
 def _evaluate(results: Path, groundtruth: Path, json_path: Path) -> None:
     """Evaluate a run against the truth, write the figures as JSON and print them as tables."""
     from rovslam.eval import evaluate
-    from rovslam.io.results import read_results
+    from rovslam.io.results import atomic_write_text, json_text, read_results
     from rovslam.io.sequence import read_groundtruth
 
     figures = evaluate(read_results(results), read_groundtruth(groundtruth))
-    json_path.write_text(json.dumps(figures, indent=2), encoding="utf-8")
+    atomic_write_text(json_path, json_text(figures) + "\n")  # strict JSON: a figure that cannot be computed is null
     _print_eval(figures)
 
 
@@ -325,11 +454,16 @@ class _progress:
 
         def lazy(done: int, total: Optional[int] = None, **fields) -> None:
             # The bar appears with the first progress report, so an input error comes alone.
+            # A display that fails (a closed terminal) turns the bar off; it never fails the run.
             nonlocal started
-            if not started:
-                started = True
-                self._start()
-            self._bar(done, total, **fields)
+            try:
+                if not started:
+                    started = True
+                    self._start()
+                if self._p is not None:
+                    self._bar(done, total, **fields)
+            except OSError:
+                self._p = None
 
         return lazy
 
@@ -342,8 +476,9 @@ class _progress:
         if self.extra:
             cols.append(TextColumn("landmarks {task.fields[landmarks]}  tokens {task.fields[tokens]}"))
         cols.append(TimeRemainingColumn())
-        self._p = Progress(*cols, console=Console(stderr=True), transient=False)
-        self._p.start()
+        progress = Progress(*cols, console=Console(stderr=True), transient=False)
+        progress.start()
+        self._p = progress
         self._task = self._p.add_task(self.label, total=None, fps=0.0, landmarks=0, tokens=0)
         import time
 
@@ -369,11 +504,14 @@ class _progress:
 
     def __exit__(self, *exc) -> None:
         if self._p is not None:
-            if self._final is not None:  # the last update may have been throttled
-                done, fields = self._final
-                self._last = 0.0
-                self._p.update(self._task, completed=done, **fields)
-            self._p.stop()
+            try:
+                if self._final is not None:  # the last update may have been throttled
+                    done, fields = self._final
+                    self._last = 0.0
+                    self._p.update(self._task, completed=done, **fields)
+                self._p.stop()
+            except OSError:  # the terminal is gone: nothing left to show
+                pass
 
 
 def _print_eval(f: dict) -> None:
@@ -414,7 +552,20 @@ def _print_eval(f: dict) -> None:
 
 
 def main() -> None:
-    app()
+    """The console script: like ``app()``, but a command-line usage error is one line too."""
+    from typer.main import get_command
+
+    try:
+        code = get_command(app).main(prog_name="rovslam", standalone_mode=False)
+    except typer.TyperException as exc:
+        fmt = getattr(exc, "format_message", None)
+        ctx = getattr(exc, "ctx", None)
+        hint = f" (see {ctx.command_path} --help)" if ctx is not None else ""
+        _error_line(f"{fmt() if fmt else exc}{hint}")
+        code = getattr(exc, "exit_code", 2)
+    except typer.Abort:
+        code = 130
+    sys.exit(code if isinstance(code, int) else 0)
 
 
 if __name__ == "__main__":

@@ -138,7 +138,7 @@ class TrackerConfig(_Checked):
     """Normalised-correlation matching (OpenCV TM_CCOEFF_NORMED)."""
 
     TABLE: ClassVar[str] = "tracker"
-    min_correlation: float = _num(0.89, ge=-1, le=1)  # paper: 0.89
+    min_correlation: float = _num(0.89, gt=0, le=1)  # paper: 0.89
     max_second_peak_ratio: float = _num(0.98, gt=0)  # reject if the 2nd peak >= ratio * 1st (ambiguous)
     second_peak_exclusion_px: int = _num(3, ge=0)  # the 2nd peak is sought outside this radius of the 1st
     subpixel: Subpixel = "parabolic"  # 2-D fit on the 3x3 peak ("gaussian": of its logarithm)
@@ -171,9 +171,6 @@ class LaserConfig(_Checked):
             self._fail("max_spot_area_px", f"must be >= min_spot_area_px = {self.min_spot_area_px}")
         if self.max_altitude_m <= self.min_altitude_m:
             self._fail("max_altitude_m", f"must be larger than min_altitude_m = {self.min_altitude_m!r}")
-        if not self.min_altitude_m <= self.assumed_altitude_m <= self.max_altitude_m:
-            self._fail("assumed_altitude_m", f"must lie in [min_altitude_m, max_altitude_m] = "
-                       f"[{self.min_altitude_m:g}, {self.max_altitude_m:g}]")
 
 
 @dataclass(frozen=True)
@@ -215,6 +212,15 @@ class SlamConfig(_Checked):
 
 
 @dataclass(frozen=True)
+class RunLimitsConfig(_Checked):
+    """When a run is refused as a whole (exit 2) rather than written as if it had worked."""
+
+    TABLE: ClassVar[str] = "run"
+    min_usable_fraction: float = _num(0.5, ge=0, le=1)  # fewer usable frames than this fraction: the run failed
+    max_distance_m: float = _num(1000.0, gt=0)  # an estimate farther than this from the start has diverged
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """Everything a run needs besides the sequence."""
 
@@ -225,6 +231,7 @@ class RunConfig:
     laser: LaserConfig = field(default_factory=LaserConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     slam: SlamConfig = field(default_factory=SlamConfig)
+    run: RunLimitsConfig = field(default_factory=RunLimitsConfig)
 
 
 def _convert(value: Any, tp: Any, where: str) -> Any:
@@ -307,14 +314,36 @@ def load_config(path: str | Path) -> RunConfig:
     if not p.is_file():
         raise ConfigError(f"{p}: configuration file not found. Give the path of a TOML file.")
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot be read ({exc.strerror or exc}).") from None
+    try:
+        text = raw.decode("utf-8-sig")  # a UTF-8 byte-order mark is accepted
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise ConfigError(f"{p}: line {line}: not UTF-8 text (byte {exc.start}); save the file as UTF-8.") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
     return from_dict(RunConfig, data, str(p))
 
 
 def save_config(config: RunConfig, path: str | Path) -> None:
     """Write ``config`` as TOML (every key, so the file documents the run)."""
+    import os
+    import tempfile
+
     import tomli_w
 
-    Path(path).write_text(tomli_w.dumps(to_dict(config)), encoding="utf-8")
+    target = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:  # written whole, then renamed: never half a file
+            fh.write(tomli_w.dumps(to_dict(config)))
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -30,6 +30,16 @@ class ResultsFormatError(RovslamError):
     """A results folder (what ``rovslam run`` writes) is missing a file, a column, or holds unreadable values."""
 
 
+class OutputError(RovslamError):
+    """An output place cannot be used: read-only, full disk, a file where a folder is needed, or
+    a folder holding an earlier run's results (``--overwrite``) or files rovslam did not write."""
+
+
+class UnusableRunError(RovslamError):
+    """A run ended but its result cannot be trusted: too few usable frames, or an estimate outside
+    the plausible range (diverged). The files are written and ``summary.json`` says why."""
+
+
 class InvalidMeasurementError(RovslamError, ValueError):
     """A measurement (speed, heading, altitude, pixel) is NaN, infinite or out of range."""
 

@@ -1,18 +1,44 @@
-"""Run the pipeline over a sequence and write the result files (the edge between core and disk)."""
+"""Run the pipeline over a sequence and write the result files (the edge between core and disk).
+
+How a run ends (``summary.json`` ``status``, and what :func:`run_sequence` does):
+
+* ``"complete"``: every frame processed; returns the :class:`RunSummary`.
+* ``"interrupted"``: SIGINT (Ctrl-C), SIGTERM (a scheduler, ``kill``) or SIGHUP (the terminal
+  closed) all end a run the same way: the frame in hand is finished and written, every file is
+  closed complete and readable, ``summary.json`` says ``"interrupted": true`` and the signal's
+  name; further signals are ignored while this happens. Returns the summary (``signal`` set);
+  the CLI exits with 128 + the signal number (130 for Ctrl-C).
+* ``"unusable"``: fewer than ``[run] min_usable_fraction`` of the frames were usable, or an estimate
+  left the plausible range (a position farther than ``[run] max_distance_m`` from the start, or not
+  finite: the filter diverged). Such an estimate is never written; the files hold what came
+  before it. Raises :class:`~rovslam.errors.UnusableRunError` once the files are written.
+* ``"failed"``: an output error (full disk, read-only folder) or an input error found
+  mid-run. Raises it (an :class:`~rovslam.errors.OutputError` for output problems) once
+  whatever can still be written is; ``summary.json`` says why if the disk allowed it.
+
+While a run goes, ``summary.json`` says ``"status": "running"``: a folder left in that state
+was cut off by something no program can catch (SIGKILL, power loss).
+"""
 
 from __future__ import annotations
 
+import math
+import signal
+import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from rovslam import __version__
-from rovslam.config import RunConfig, save_config, to_dict
-from rovslam.io.results import GalleryWriter, ResultWriter
-from rovslam.errors import SequenceFormatError
+from rovslam.config import RunConfig, to_dict
+from rovslam.errors import InvalidArgumentError, OutputError, RovslamError, SequenceFormatError, UnusableRunError
+from rovslam.io.results import GalleryWriter, ResultWriter, describe_os_error, prepare_output_folder
 from rovslam.io.sequence import Frame, open_sequence
 from rovslam.pipeline import FrameResult, SlamPipeline
+
+STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 
 
 @dataclass(frozen=True)
@@ -24,10 +50,59 @@ class RunSummary:
     wall_s: float
     interrupted: bool
     out_dir: Path
+    signal: str | None = None  # "SIGINT", "SIGTERM" or "SIGHUP" when interrupted by one
+    signum: int | None = None
+    status: str = "complete"  # "complete" | "interrupted" | "unusable" | "failed"
+    reason: str | None = None
+    sonar_rejected: list[tuple[int, float, str]] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # what the source left out (a damaged video)
 
     @property
     def fps(self) -> float:
         return self.frames / self.wall_s if self.wall_s > 0 else float("inf")
+
+    @property
+    def exit_code(self) -> int:
+        """The shell convention for the way the run ended: 0, or 128 + the signal number."""
+        return 128 + self.signum if self.signum is not None else 0
+
+
+class StopRequest:
+    """While active, SIGINT, SIGTERM and SIGHUP set :attr:`signum` instead of ending the process.
+
+    The first signal is kept; later ones are ignored, so a second Ctrl-C while the files are
+    being finalised cannot cut them short. Outside the main thread (where Python cannot install
+    handlers) nothing is installed and a run stops only on KeyboardInterrupt.
+    """
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self.ignore_after = False  # True: leave the signals ignored on exit (a process about to end)
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> StopRequest:
+        if threading.current_thread() is threading.main_thread():
+            for name in STOP_SIGNALS:
+                sig = getattr(signal, name, None)
+                if sig is not None:
+                    self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, _frame: object = None) -> None:
+        if self.signum is None:
+            self.signum = int(signum)
+
+    def request(self, signum: int) -> None:
+        """Record a stop as if ``signum`` had arrived (a KeyboardInterrupt raised by a callback)."""
+        self._handle(signum)
+
+    @property
+    def name(self) -> str | None:
+        return None if self.signum is None else signal.Signals(self.signum).name
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, old in self._previous.items():
+            signal.signal(sig, signal.SIG_IGN if self.ignore_after else old if old is not None else signal.SIG_DFL)
 
 
 def open_source(path: str | Path, camera_file: str | Path | None = None):
@@ -51,6 +126,66 @@ def open_source(path: str | Path, camera_file: str | Path | None = None):
     )
 
 
+def check_run_arguments(max_frames: int | None, min_usable_fraction: float, max_distance_m: float) -> None:
+    """Refuse limits that would silently change the answer (``max_frames`` 0 or negative, ...)."""
+    if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 1):
+        raise InvalidArgumentError(f"max_frames must be a whole number >= 1 (or None for all), got {max_frames!r}")
+    if not (isinstance(min_usable_fraction, (int, float)) and 0.0 <= min_usable_fraction <= 1.0):
+        raise InvalidArgumentError(f"min_usable_fraction must be from 0 to 1, got {min_usable_fraction!r}")
+    if not (isinstance(max_distance_m, (int, float)) and math.isfinite(max_distance_m) and max_distance_m > 0):
+        raise InvalidArgumentError(f"max_distance_m must be a positive number of metres, got {max_distance_m!r}")
+
+
+def check_source_against_config(info: Any, config: RunConfig, fallback_altitude_m: float, where: str) -> None:
+    """Refuse a source whose fallback altitude or image size the configuration cannot work with.
+
+    ``fallback_altitude_m``: the altitude used when neither lasers nor sonar give one
+    (``[vehicle] altitude_m``, or the pipeline's default).
+    """
+    lo, hi = config.laser.min_altitude_m, config.laser.max_altitude_m
+    if not lo <= fallback_altitude_m <= hi:
+        given = "vehicle.altitude_m" if info.fixed_altitude_m is not None else "the default altitude (no [vehicle] altitude_m)"
+        raise SequenceFormatError(
+            f"{where}: {given} = {fallback_altitude_m:g} m is outside the plausible altitude range [{lo:g}, {hi:g}] m "
+            "(laser.min_altitude_m, laser.max_altitude_m of the configuration)."
+        )
+    cam = info.camera
+    lm = config.landmark_templates
+    need = lm.size_px + 2 * lm.border_px + 2
+    if min(cam.width_px, cam.height_px) < need:
+        raise SequenceFormatError(
+            f"{where}: images of {cam.width_px}x{cam.height_px} px are too small: a landmark template "
+            f"({lm.size_px} px) with its border ({lm.border_px} px) needs at least {need}x{need} px."
+        )
+
+
+def implausible_result(res: FrameResult, max_distance_m: float) -> str | None:
+    """Why a frame's estimate cannot be right, or None.
+
+    Not finite, farther than ``max_distance_m`` from the start (estimate or dead reckoning), or
+    with a 1-sigma position uncertainty beyond ``max_distance_m``.
+    """
+    values = (res.t_s, res.x_m, res.y_m, res.altitude_m, res.heading_rad, res.dr_x_m, res.dr_y_m,
+              *(float(v) for v in res.cov_xy_m2.ravel()))
+    if not all(math.isfinite(v) for v in values):
+        return "the estimate is not finite (NaN or infinite): the filter diverged"
+    for label, x, y in (("position", res.x_m, res.y_m), ("dead-reckoning position", res.dr_x_m, res.dr_y_m)):
+        d = math.hypot(x, y)
+        if d > max_distance_m:
+            return (
+                f"{label} ({x:.4g}, {y:.4g}) m is {d:.4g} m from the start, beyond max_distance_m = {max_distance_m:g} m: "
+                "the estimate diverged (check the focal length, altitudes and time stamps) or, for a longer dive, "
+                "raise --max-distance-m"
+            )
+    sigma_m = math.sqrt(max(res.cov_xy_m2[0, 0], res.cov_xy_m2[1, 1], 0.0))
+    if sigma_m > max_distance_m:
+        return (
+            f"the position uncertainty (1 sigma {sigma_m:.4g} m) exceeds max_distance_m = {max_distance_m:g} m: "
+            f"the estimate says nothing (a time gap of {res.dt_s:.4g} s before this frame?)"
+        )
+    return None
+
+
 def run_sequence(
     sequence_dir: str | Path,
     out_dir: str | Path,
@@ -60,60 +195,187 @@ def run_sequence(
     camera_file: str | Path | None = None,
     on_start: Callable[[int], None] | None = None,
     on_frame_image: Callable[[Frame, FrameResult, Callable[[], list[dict]]], None] | None = None,
+    *,
+    overwrite: bool = False,
+    min_usable_fraction: float | None = None,
+    max_distance_m: float | None = None,
 ) -> RunSummary:
-    """Run SLAM on a sequence folder (or video) and write ``out_dir``. Ctrl-C keeps what was computed.
+    """Run SLAM on a sequence folder (or video) and write ``out_dir``; see the module notes for how it ends.
 
     ``on_start`` is called once with the number of frames to process (0: unknown, a stream);
     ``on_frame`` with each result record (progress bars, live viewers).
     ``on_frame_image(frame, result, landmark_rows)`` also gets the decoded frame and a function
     returning the current map as landmarks.csv rows (the live viewer; called only when given).
+    ``overwrite``: replace an earlier run's results in ``out_dir`` (never files rovslam did not write).
     """
-    seq = open_source(sequence_dir, camera_file)
-    pipe = SlamPipeline(seq.info, config)
-    out = Path(out_dir)
-    writer = ResultWriter(out)
-    gallery = GalleryWriter(out)
-    save_config(config, out / "config.toml")
-    total = len(seq) if max_frames is None else (min(len(seq), max_frames) if len(seq) else max_frames)  # 0: unknown
-    if on_start is not None:
-        on_start(total)
-    n = 0
-    interrupted = False
-    t0 = time.perf_counter()
-    try:
-        for frame in seq.frames(stop=max_frames):
-            res = pipe.process(frame)
-            writer.write_frame(res)
-            gallery.write_frame(frame.image, res)
-            if res.new_landmark_id is not None:
-                writer.write_landmark_template(res.new_landmark_id, pipe.landmarks[res.new_landmark_id].patch)
-            n += 1
-            if on_frame is not None:
-                on_frame(res)
-            if on_frame_image is not None:
-                on_frame_image(frame, res, pipe.landmark_rows)
-    except KeyboardInterrupt:
-        interrupted = True
-    finally:
+    min_usable_fraction = config.run.min_usable_fraction if min_usable_fraction is None else min_usable_fraction
+    max_distance_m = config.run.max_distance_m if max_distance_m is None else max_distance_m
+    check_run_arguments(max_frames, min_usable_fraction, max_distance_m)
+    with StopRequest() as stop:
+        seq = open_source(sequence_dir, camera_file)
+        pipe = SlamPipeline(seq.info, config)
+        where = str(camera_file if camera_file is not None else Path(sequence_dir) / "sequence.toml")
+        check_source_against_config(seq.info, config, pipe.altimeter_fallback, where)
+        out = prepare_output_folder(out_dir, overwrite)
+        writer = ResultWriter(out)
+        run = _Run(seq, pipe, writer, GalleryWriter(out), out, config, stop, min_usable_fraction, max_distance_m)
+        run.summary_base["sequence"] = str(Path(sequence_dir).resolve())
+        run.summary_base["camera_file"] = str(Path(camera_file).resolve()) if camera_file is not None else None
+        return run.execute(max_frames, on_frame, on_start, on_frame_image)
+
+
+class _Run:
+    """One run's loop and its finalisation (kept apart so that every way out writes the same files)."""
+
+    def __init__(self, seq: Any, pipe: SlamPipeline, writer: ResultWriter, gallery: GalleryWriter, out: Path,
+                 config: RunConfig, stop: StopRequest, min_usable_fraction: float, max_distance_m: float) -> None:
+        self.seq, self.pipe, self.writer, self.out, self.config, self.stop = seq, pipe, writer, out, config, stop
+        self.gallery = gallery
+        self.min_usable_fraction = float(min_usable_fraction)
+        self.max_distance_m = float(max_distance_m)
+        self.n = 0
+        self.total = len(seq)
+        self.sonar_rejected: list[tuple[int, float, str]] = []
+        self.status = "running"
+        self.reason: str | None = None
+        self.summary_base: dict[str, Any] = {
+            "software": {"name": "rovslam", "version": __version__},
+            "sequence_name": seq.info.name,
+            "frames_in_sequence": len(seq),
+        }
+
+    def execute(self, max_frames: int | None, on_frame: Any, on_start: Any, on_frame_image: Any = None) -> RunSummary:
+        from rovslam.vision.laser import sonar_reading_problem
+
+        seq, pipe, writer = self.seq, self.pipe, self.writer
+        error: BaseException | None = None
+        t0 = time.perf_counter()
+        frames = None
+        try:
+            writer.write_config(self.config)
+            writer.write_summary(self._summary(0.0))
+            self.total = len(seq) if max_frames is None else (min(len(seq), max_frames) if len(seq) else max_frames)
+            if on_start is not None:
+                on_start(self.total)
+            frames = seq.frames(stop=max_frames)
+            for frame in frames:
+                if self.stop.signum is not None:
+                    break
+                res = pipe.process(frame)
+                problem = implausible_result(res, self.max_distance_m)
+                if problem is not None:
+                    self.status, self.reason = "unusable", f"frame {res.index} (t={res.t_s:g} s): {problem}"
+                    break
+                writer.write_frame(res)
+                self.gallery.write_frame(frame.image, res)
+                if res.new_landmark_id is not None:
+                    writer.write_landmark_template(res.new_landmark_id, pipe.landmarks[res.new_landmark_id].patch)
+                sonar_problem = sonar_reading_problem(frame.sonar_altitude_m, self.config.laser)
+                if sonar_problem is not None and res.skipped_reason is None:
+                    self.sonar_rejected.append((frame.index, frame.t_s, sonar_problem))
+                self.n += 1
+                if on_frame is not None:
+                    on_frame(res)
+                if on_frame_image is not None:
+                    on_frame_image(frame, res, pipe.landmark_rows)
+                if self.stop.signum is not None:
+                    break
+        except KeyboardInterrupt:
+            self.stop.request(signal.SIGINT)
+        except OSError as exc:
+            error = OutputError(f"{self.out}: cannot write: {describe_os_error(exc)}.")
+        except BaseException as exc:  # an input error found mid-run, or a bug: the files still get finished
+            error = exc
+        finally:
+            if frames is not None:
+                frames.close()
         wall = time.perf_counter() - t0
-        writer.write_landmarks(pipe.landmark_rows())
-        summary = RunSummary(n, total, list(pipe.skipped), pipe.ekf.n_landmarks, wall, interrupted, out)
-        writer.write_summary(
-            {
-                "software": {"name": "rovslam", "version": __version__},
-                "sequence": str(Path(sequence_dir).resolve()),
-                "sequence_name": seq.info.name,
-                "camera_file": str(Path(camera_file).resolve()) if camera_file is not None else None,
-                "frames_processed": n,
-                "frames_in_sequence": len(seq),
-                "interrupted": interrupted,
-                "skipped_frames": [{"index": i, "t_s": t, "reason": r} for i, t, r in pipe.skipped],
-                "landmarks": pipe.ekf.n_landmarks,
-                "wall_time_s": wall,
-                "frames_per_second": summary.fps,
-                "config": to_dict(config),
-            }
+        if error is not None:
+            self.status, self.reason = "failed", str(error) or type(error).__name__
+        elif self.stop.signum is not None:
+            self.status = "interrupted"
+        elif self.status == "running":
+            self.status, self.reason = self._usable_verdict()
+        error = self._finish(wall, error)
+        if error is not None:
+            raise error
+        summary = self._run_summary(wall)
+        if self.status == "unusable":
+            exc = UnusableRunError(f"{str(self.reason).rstrip('.')}; see {self.out / 'summary.json'}")
+            exc.summary = summary  # type: ignore[attr-defined]
+            raise exc
+        return summary
+
+    def _usable_verdict(self) -> tuple[str, str | None]:
+        usable = self.n - len(self.pipe.skipped)
+        if self.n == 0:
+            return "unusable", "no frame was read"
+        if usable == 0 or usable < self.min_usable_fraction * self.n:
+            kinds: dict[str, int] = {}
+            for _, _, r in self.pipe.skipped:
+                kinds[_reason_kind(r)] = kinds.get(_reason_kind(r), 0) + 1
+            top = max(kinds, key=lambda k: kinds[k])
+            return "unusable", (
+                f"only {usable} of {self.n} frames were usable (fewer than min_usable_fraction = "
+                f"{self.min_usable_fraction:g}); most skipped frames ({kinds[top]}): {top}"
+            )
+        return "complete", None
+
+    def _finish(self, wall: float, error: BaseException | None) -> BaseException | None:
+        """Close every file, then write landmarks.csv and summary.json; the first error wins."""
+        writer = self.writer
+        try:
+            self.gallery.close()
+            writer.close(quiet=error is not None)
+        except OutputError as exc:
+            error = error or exc
+            self.status, self.reason = "failed", str(exc)
+        try:
+            writer.write_landmarks(self.pipe.landmark_rows())
+        except OutputError as exc:
+            if error is None:
+                error = exc
+                self.status, self.reason = "failed", str(exc)
+        try:
+            writer.write_summary(self._summary(wall))
+        except OutputError as exc:
+            error = error or exc
+        return error
+
+    def _summary(self, wall: float) -> dict[str, Any]:
+        pipe = self.pipe
+        return {
+            **self.summary_base,
+            "status": self.status,
+            "complete": self.status == "complete",
+            "interrupted": self.status == "interrupted",
+            "signal": self.stop.name if self.status == "interrupted" else None,
+            "reason": self.reason,
+            "frames_processed": self.n,
+            "frames_usable": self.n - len(pipe.skipped),
+            "min_usable_fraction": self.min_usable_fraction,
+            "max_distance_m": self.max_distance_m,
+            "skipped_frames": [{"index": i, "t_s": t, "reason": r} for i, t, r in pipe.skipped],
+            "sonar_rejected_frames": [{"index": i, "t_s": t, "reason": r} for i, t, r in self.sonar_rejected],
+            "source_warnings": list(getattr(self.seq, "warnings", [])),
+            "source_frames_left_out": int(getattr(self.seq, "left_out", 0)),
+            "landmarks": pipe.ekf.n_landmarks,
+            "wall_time_s": wall,
+            "frames_per_second": self.n / wall if wall > 0 else None,
+            "config": to_dict(self.config),
+        }
+
+    def _run_summary(self, wall: float) -> RunSummary:
+        interrupted = self.status == "interrupted"
+        return RunSummary(
+            self.n, self.total, list(self.pipe.skipped), self.pipe.ekf.n_landmarks, wall, interrupted, self.out,
+            signal=self.stop.name if interrupted else None, signum=self.stop.signum if interrupted else None,
+            status=self.status, reason=self.reason, sonar_rejected=list(self.sonar_rejected),
+            warnings=list(getattr(self.seq, "warnings", [])),
         )
-        writer.close()
-        gallery.close()
-    return summary
+
+
+def _reason_kind(reason: str) -> str:
+    """A skip reason without the file it names ("/x/images/1.png: not a readable ..." -> "not a readable ...")."""
+    head, sep, rest = reason.partition(": ")
+    return rest if sep and ("/" in head or "\\" in head or "#" in head) else reason

@@ -5,26 +5,44 @@
 ``OUT/observations.csv`` one row per landmark observation (re-observations and initialisations)
 ``OUT/landmarks.csv``    final landmark map: id, position, 2x2 covariance, first time, observation count
 ``OUT/landmarks/<id>.png`` the landmark templates
-``OUT/summary.json``     configuration, software version, counts, skipped frames, timing
+``OUT/summary.json``     status, configuration, software version, counts, skipped frames, timing
+``OUT/config.toml``      the configuration of the run
 ``OUT/tokens.csv``       the speed tokens tracked in each frame (their pixels), for the report's gallery
 ``OUT/revisits/<id>/<frame>.png`` the image around a landmark at its initialisation and at each revisit
 
 Rows are flushed every ``flush_every`` frames and at close, so an interrupted run leaves
-complete lines only; landmarks.csv and summary.json are rewritten at close.
+complete lines only (a reader drops a last line cut short by a crash). ``landmarks.csv``,
+``summary.json``, ``config.toml``, the landmark PNGs and ``eval.json`` are written atomically
+(:func:`atomic_write_bytes`: a temporary file in the same folder, fsync, rename), so they are
+either the old or the new file, never half of one. ``summary.json`` is written first with
+``"status": "running"`` and last with the outcome.
+
+Every write error (read-only folder, full disk) becomes an :class:`~rovslam.errors.OutputError`
+naming the file. :func:`prepare_output_folder` refuses an ``--out`` that holds an earlier run
+(unless ``overwrite``, which deletes only rovslam's own result files) or files rovslam did not
+write. :func:`read_results` validates what it reads and raises
+:class:`~rovslam.errors.ResultsFormatError` naming the file, line and column.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import errno
 import json
 import math
+import os
+import re
+import secrets
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rovslam.errors import SequenceFormatError
+from rovslam.errors import OutputError, ResultsFormatError
+from rovslam.io.sequence import float_cell, read_csv_table, read_text
 
 TRAJECTORY_COLUMNS = (
     "t_s",
@@ -74,43 +92,220 @@ def _f(v: float) -> str:
     return f"{v:.9g}"
 
 
+# --------------------------------------------------------------------------- writing safely
+
+
+def describe_os_error(exc: OSError) -> str:
+    """A short human reason for an OSError, with a hint for the common output problems."""
+    hints = {
+        errno.ENOSPC: "the disk is full; free space or choose another --out",
+        errno.EDQUOT: "the disk quota is exceeded; free space or choose another --out",
+        errno.EROFS: "the file system is read-only; choose another --out",
+        errno.EACCES: "permission denied; choose a folder you can write to",
+        errno.EPERM: "operation not permitted; choose a folder you can write to",
+        errno.ENOTDIR: "a parent of this path is a file, not a folder",
+        errno.EISDIR: "this is a folder; give a file name",
+        errno.ENOENT: "the folder does not exist",
+    }
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    hint = hints.get(exc.errno or -1)
+    return f"{reason} ({hint})" if hint else reason
+
+
+@contextlib.contextmanager
+def output_errors(path: Path, action: str = "cannot write") -> Iterator[None]:
+    """Turn an OSError raised inside the block into an :class:`OutputError` naming ``path``."""
+    try:
+        yield
+    except OSError as exc:
+        raise OutputError(f"{path}: {action}: {describe_os_error(exc)}.") from None
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically: a temporary file beside it, fsync, then rename.
+
+    Readers see the old file or the new one, never a part. On any error the temporary file is
+    removed and :class:`OutputError` names ``path``.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
+    with output_errors(path):
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """:func:`atomic_write_bytes` of UTF-8 text."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def json_text(data: Any) -> str:
+    """Strict JSON (no NaN / Infinity, which JSON does not allow): non-finite numbers become null."""
+    return json.dumps(_finite_or_null(data), indent=2, default=_json_default, allow_nan=False)
+
+
+def _finite_or_null(o: Any) -> Any:
+    if isinstance(o, float) or isinstance(o, np.floating):
+        return float(o) if math.isfinite(o) else None
+    if isinstance(o, dict):
+        return {k: _finite_or_null(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite_or_null(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _finite_or_null(o.tolist())
+    return o
+
+
+# Everything rovslam writes into a results folder (run, eval, report), so --overwrite knows what
+# it may delete. Other writers of the folder add their names here.
+RESULT_FILES = frozenset(
+    {"trajectory.csv", "trajectory.tum", "observations.csv", "landmarks.csv", "summary.json", "config.toml",
+     "eval.json", "tokens.csv", "run.rrd", "mosaic.png", "mosaic.pgw", "mosaic_truth.png", "mosaic_truth.pgw"}
+)
+# Folders rovslam writes, with the pattern of their files' paths relative to the folder.
+RESULT_DIRS = {
+    "landmarks": re.compile(r"\d+\.png"),
+    "report": re.compile(r"[\w.-]+\.(png|html|json|svg|csv|pgw|jpg)"),
+    "revisits": re.compile(r"\d+/\d+\.png"),
+}
+_TMP = re.compile(r"\.(?P<atomic>.+)\.[0-9a-f]{8}\.tmp|(?P<legacy>.+)\.tmp")
+
+
+def _is_ours(name: str, pattern: re.Pattern[str] | None = None) -> bool:
+    """Whether ``name`` is a result file rovslam writes (or one of its temporary files)."""
+    head, _, leaf = name.rpartition("/")
+    m = _TMP.fullmatch(leaf)
+    for n in (leaf, m and (m["atomic"] or m["legacy"])):
+        if n and (pattern.fullmatch(f"{head}/{n}" if head else n) if pattern is not None else n in RESULT_FILES):
+            return True
+    return False
+
+
+def classify_output_folder(out: Path) -> tuple[list[Path], list[str]]:
+    """(rovslam's own result entries, deepest first, names of the other entries) of an existing folder."""
+    ours: list[Path] = []
+    foreign: list[str] = []
+    with output_errors(out, "cannot list"):
+        for entry in sorted(out.iterdir()):
+            name = entry.name
+            pattern = RESULT_DIRS.get(name)
+            if pattern is not None and entry.is_dir() and not entry.is_symlink():
+                inside = sorted(entry.rglob("*"), key=lambda q: (-len(q.parts), str(q)))  # children before folders
+                for child in inside:
+                    rel = child.relative_to(entry).as_posix()
+                    if child.is_dir() and not child.is_symlink():
+                        ours.append(child)  # deleted only when nothing foreign is anywhere in the folder
+                    elif (child.is_file() or child.is_symlink()) and _is_ours(rel, pattern):
+                        ours.append(child)
+                    else:
+                        foreign.append(f"{name}/{rel}")
+                ours.append(entry)
+            elif (entry.is_file() or entry.is_symlink()) and _is_ours(name):
+                ours.append(entry)
+            else:
+                foreign.append(name)
+    return ours, foreign
+
+
+def prepare_output_folder(out: str | Path, overwrite: bool = False) -> Path:
+    """Make ``out`` ready for a run's results, or raise :class:`OutputError` saying why not.
+
+    A new or empty folder is used as it is. A folder holding an earlier run's results is refused
+    unless ``overwrite``, which deletes those files first (only names rovslam writes: see
+    ``RESULT_FILES`` and ``RESULT_DIRS``). A folder holding anything else is always refused: rovslam
+    never deletes or mixes in files it did not write.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: exists and is not a folder; choose another --out.")
+    if not out.exists():
+        with output_errors(out, "cannot create the folder"):
+            out.mkdir(parents=True)
+        return out
+    ours, foreign = classify_output_folder(out)
+    if foreign:
+        shown = ", ".join(foreign[:4]) + (f" and {len(foreign) - 4} more" if len(foreign) > 4 else "")
+        raise OutputError(
+            f"{out}: holds files rovslam did not write ({shown}); give --out a new or empty folder "
+            "(--overwrite only ever deletes rovslam's own result files)."
+        )
+    if ours and not overwrite:
+        shown = ", ".join(p.name for p in ours if p.parent == out)
+        raise OutputError(
+            f"{out}: holds the results of an earlier run ({shown}); add --overwrite to replace them, or choose another --out."
+        )
+    for entry in ours:  # children come before their folder
+        with output_errors(entry, "cannot delete"):
+            if entry.is_dir() and not entry.is_symlink():
+                entry.rmdir()
+            else:
+                entry.unlink()
+    return out
+
+
 class ResultWriter:
-    """Streams the per-frame results of a run into ``out_dir``."""
+    """Streams the per-frame results of a run into ``out_dir`` (which :func:`prepare_output_folder` readied).
+
+    Every write error is an :class:`OutputError` naming the file.
+    """
 
     def __init__(self, out_dir: str | Path, flush_every: int = 50):
         self.out = Path(out_dir)
         if self.out.exists() and not self.out.is_dir():
-            raise SequenceFormatError(f"{self.out}: exists and is not a folder; choose another --out.")
-        (self.out / "landmarks").mkdir(parents=True, exist_ok=True)
-        self._traj_fh = (self.out / "trajectory.csv").open("w", newline="", encoding="utf-8")
-        self._traj = csv.writer(self._traj_fh, lineterminator="\n")
-        self._traj.writerow(TRAJECTORY_COLUMNS)
-        self._tum_fh = (self.out / "trajectory.tum").open("w", encoding="utf-8")
-        self._tum_fh.write("# t x y z qx qy qz qw  (rovslam: z = altitude, heading about z)\n")
-        self._obs_fh = (self.out / "observations.csv").open("w", newline="", encoding="utf-8")
-        self._obs = csv.writer(self._obs_fh, lineterminator="\n")
-        self._obs.writerow(OBSERVATION_COLUMNS)
+            raise OutputError(f"{self.out}: exists and is not a folder; choose another --out.")
+        self._paths = {k: self.out / f"{k}" for k in ("trajectory.csv", "trajectory.tum", "observations.csv")}
+        self._fhs: dict[str, Any] = {}
+        with output_errors(self.out / "landmarks", "cannot create the folder"):
+            (self.out / "landmarks").mkdir(parents=True, exist_ok=True)
+        try:
+            for name, path in self._paths.items():
+                with output_errors(path, "cannot create"):
+                    # "x": never write through a file (or link) that appeared since the folder was prepared.
+                    self._fhs[name] = path.open("x", newline="", encoding="utf-8")
+            self._traj = csv.writer(self._fhs["trajectory.csv"], lineterminator="\n")
+            self._obs = csv.writer(self._fhs["observations.csv"], lineterminator="\n")
+            with output_errors(self._paths["trajectory.csv"]):
+                self._traj.writerow(TRAJECTORY_COLUMNS)
+            with output_errors(self._paths["trajectory.tum"]):
+                self._fhs["trajectory.tum"].write("# t x y z qx qy qz qw  (rovslam: z = altitude, heading about z)\n")
+            with output_errors(self._paths["observations.csv"]):
+                self._obs.writerow(OBSERVATION_COLUMNS)
+        except BaseException:
+            self.close(quiet=True)
+            raise
         self.flush_every = max(1, flush_every)
         self._n = 0
 
     def write_frame(self, r: Any) -> None:
         """Append one :class:`rovslam.pipeline.FrameResult`."""
         cov = r.cov_xy_m2
-        self._traj.writerow(
-            [
-                _f(r.t_s), _f(r.x_m), _f(r.y_m), _f(cov[0, 0]), _f(cov[0, 1]), _f(cov[1, 1]),
-                _f(r.altitude_m), _f(r.surge_mps), _f(r.sway_mps), r.tokens_tracked, r.landmarks_tracked,
-                _f(r.heading_rad), _f(r.altitude_sigma_m), r.altitude_source, int(r.speed_ok),
-                _f(r.dr_x_m), _f(r.dr_y_m), int(r.skipped_reason is not None),
-            ]
-        )
-        q = heading_quaternion(r.heading_rad)
-        self._tum_fh.write(" ".join(_f(v) for v in (r.t_s, r.x_m, r.y_m, r.altitude_m, *q)) + "\n")
-        for ob in r.observations:
-            self._obs.writerow(
-                [_f(r.t_s), r.index, ob.landmark_id, ob.kind, _f(ob.uv_px[0]), _f(ob.uv_px[1]),
-                 _f(ob.score), _f(ob.nis), int(ob.accepted)]
+        with output_errors(self._paths["trajectory.csv"]):
+            self._traj.writerow(
+                [
+                    _f(r.t_s), _f(r.x_m), _f(r.y_m), _f(cov[0, 0]), _f(cov[0, 1]), _f(cov[1, 1]),
+                    _f(r.altitude_m), _f(r.surge_mps), _f(r.sway_mps), r.tokens_tracked, r.landmarks_tracked,
+                    _f(r.heading_rad), _f(r.altitude_sigma_m), r.altitude_source, int(r.speed_ok),
+                    _f(r.dr_x_m), _f(r.dr_y_m), int(r.skipped_reason is not None),
+                ]
             )
+        q = heading_quaternion(r.heading_rad)
+        with output_errors(self._paths["trajectory.tum"]):
+            self._fhs["trajectory.tum"].write(" ".join(_f(v) for v in (r.t_s, r.x_m, r.y_m, r.altitude_m, *q)) + "\n")
+        with output_errors(self._paths["observations.csv"]):
+            for ob in r.observations:
+                self._obs.writerow(
+                    [_f(r.t_s), r.index, ob.landmark_id, ob.kind, _f(ob.uv_px[0]), _f(ob.uv_px[1]),
+                     _f(ob.score), _f(ob.nis), int(ob.accepted)]
+                )
         self._n += 1
         if self._n % self.flush_every == 0:
             self.flush()
@@ -122,30 +317,50 @@ class ResultWriter:
         p = np.asarray(patch, dtype=np.float32)
         lo, hi = float(p.min()), float(p.max())
         img = np.zeros(p.shape, np.uint8) if hi <= lo else ((p - lo) * (255.0 / (hi - lo))).astype(np.uint8)
-        cv2.imwrite(str(self.out / "landmarks" / f"{landmark_id}.png"), img)
+        path = self.out / "landmarks" / f"{landmark_id}.png"
+        ok, buf = cv2.imencode(".png", img)
+        if not ok:
+            raise OutputError(f"{path}: OpenCV could not encode the landmark template.")
+        atomic_write_bytes(path, buf.tobytes())
 
     def write_landmarks(self, rows: list[dict[str, Any]]) -> None:
         """(Re)write landmarks.csv atomically from dicts with the LANDMARK_COLUMNS keys."""
-        tmp = self.out / "landmarks.csv.tmp"
-        with tmp.open("w", newline="", encoding="utf-8") as fh:
-            w = csv.writer(fh, lineterminator="\n")
-            w.writerow(LANDMARK_COLUMNS)
-            for row in rows:
-                w.writerow([row[c] if isinstance(row[c], (int, str)) else _f(row[c]) for c in LANDMARK_COLUMNS])
-        tmp.replace(self.out / "landmarks.csv")
+        lines = [",".join(LANDMARK_COLUMNS)]
+        for row in rows:
+            lines.append(",".join(str(row[c]) if isinstance(row[c], (int, str)) else _f(row[c]) for c in LANDMARK_COLUMNS))
+        atomic_write_text(self.out / "landmarks.csv", "\n".join(lines) + "\n")
 
     def write_summary(self, summary: dict[str, Any]) -> None:
-        tmp = self.out / "summary.json.tmp"
-        tmp.write_text(json.dumps(summary, indent=2, default=_json_default), encoding="utf-8")
-        tmp.replace(self.out / "summary.json")
+        """(Re)write summary.json atomically (strict JSON: a non-finite number becomes null)."""
+        atomic_write_text(self.out / "summary.json", json_text(summary) + "\n")
+
+    def write_config(self, config: Any) -> None:
+        """Write config.toml atomically (every key, so the file documents the run)."""
+        import tomli_w
+
+        from rovslam.config import to_dict
+
+        atomic_write_text(self.out / "config.toml", tomli_w.dumps(to_dict(config)))
 
     def flush(self) -> None:
-        for fh in (self._traj_fh, self._tum_fh, self._obs_fh):
-            fh.flush()
+        for name, fh in self._fhs.items():
+            with output_errors(self._paths[name]):
+                fh.flush()
 
-    def close(self) -> None:
-        for fh in (self._traj_fh, self._tum_fh, self._obs_fh):
-            fh.close()
+    def close(self, quiet: bool = False) -> None:
+        """Flush and close the streamed files; ``quiet``: after an error, close without raising."""
+        fhs, self._fhs = self._fhs, {}
+        first: OutputError | None = None
+        for name, fh in fhs.items():
+            try:
+                with output_errors(self._paths[name]):
+                    fh.close()
+            except OutputError as exc:
+                first = first or exc
+                with contextlib.suppress(OSError, ValueError):
+                    fh.close()  # the buffer is dropped on the second try
+        if first is not None and not quiet:
+            raise first
 
 
 class GalleryWriter:
@@ -206,6 +421,9 @@ def _json_default(o: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(o)}")
 
 
+# --------------------------------------------------------------------------- reading
+
+
 @dataclass(frozen=True)
 class RunResults:
     """The result files of a run, read back as arrays (columns of trajectory.csv by name)."""
@@ -237,38 +455,98 @@ class RunResults:
         return np.column_stack([self.trajectory["dr_x_m"], self.trajectory["dr_y_m"]])
 
 
-def _read_table(path: Path, text_columns: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+# Columns that must hold finite numbers (the others may be nan, e.g. altitude_sigma_m of a skipped frame).
+_FINITE = {
+    "trajectory.csv": ("t_s", "x_m", "y_m", "var_x_m2", "cov_xy_m2", "var_y_m2", "dr_x_m", "dr_y_m"),
+    "observations.csv": ("t_s", "frame", "landmark_id"),
+    "landmarks.csv": ("id", "x_m", "y_m", "var_x_m2", "cov_xy_m2", "var_y_m2"),
+}
+
+
+def _read_table(
+    path: Path, required: tuple[str, ...], text_columns: tuple[str, ...] = ()
+) -> tuple[dict[str, np.ndarray], list[int]]:
+    """A results CSV as columns: required ones validated (numbers, finite where needed), others lenient.
+
+    Returns the columns and the line number of each row.
+    """
     if not path.is_file():
-        raise SequenceFormatError(f"{path}: missing. Is this the --out folder of a `rovslam run`?")
-    with path.open(newline="", encoding="utf-8") as fh:
-        reader = csv.reader(fh)
-        header = next(reader, None)
-        if header is None:
-            raise SequenceFormatError(f"{path}: empty file.")
-        rows = [r for r in reader if len(r) == len(header)]  # a torn last line is dropped
+        raise ResultsFormatError(f"{path}: missing. Is this the --out folder of a `rovslam run`?")
+    header, rows = read_csv_table(path, required, ResultsFormatError, drop_torn_last_line=True)
+    finite = _FINITE.get(path.name, ())
     out: dict[str, np.ndarray] = {}
-    for j, name in enumerate(header):
-        col = [r[j] for r in rows]
+    for name in header:
         if name in text_columns:
-            out[name] = np.asarray(col, dtype=object)
-            continue
-        try:
-            out[name] = np.asarray([float(v) if v != "" else np.nan for v in col], dtype=np.float64)
-        except ValueError:
-            out[name] = np.asarray(col, dtype=object)
-    return out
+            out[name] = np.asarray([row[name] for _, row in rows], dtype=object)
+        elif name in required:
+            out[name] = np.asarray(
+                [
+                    math.nan if v is None else v
+                    for v in (
+                        float_cell(row, name, f"{path}, line {line}", optional=name not in finite,
+                                   allow_nan=name not in finite, error=ResultsFormatError)
+                        for line, row in rows
+                    )
+                ],
+                dtype=np.float64,
+            )
+        else:  # a column added by a newer rovslam: numbers if they all are, else text
+            col = [row[name] for _, row in rows]
+            try:
+                out[name] = np.asarray([float(v) if v.strip() != "" else math.nan for v in col], dtype=np.float64)
+            except ValueError:
+                out[name] = np.asarray(col, dtype=object)
+    return out, [line for line, _ in rows]
+
+
+def _check_time(path: Path, table: dict[str, np.ndarray], lines: list[int], strict: bool) -> None:
+    t = table["t_s"]
+    step = np.diff(t)
+    bad = np.flatnonzero(step <= 0 if strict else step < 0)
+    if len(bad):
+        k = int(bad[0]) + 1
+        raise ResultsFormatError(
+            f"{path}, line {lines[k]}: t_s={t[k]} is not after the row before it (t_s={t[k - 1]}); "
+            "the file was edited or two runs were mixed."
+        )
+
+
+def read_summary(path: Path) -> dict[str, Any]:
+    """``summary.json`` as a dict ({} when absent), or ResultsFormatError naming the problem."""
+    if not path.is_file():
+        return {}
+    try:
+        summary = json.loads(read_text(path, ResultsFormatError))
+    except json.JSONDecodeError as exc:
+        raise ResultsFormatError(
+            f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg}); "
+            "it was cut short or edited. Run again with --overwrite to rewrite it."
+        ) from None
+    if not isinstance(summary, dict):
+        raise ResultsFormatError(f"{path}: must hold a JSON object, got {type(summary).__name__}.")
+    return summary
 
 
 def read_results(out_dir: str | Path) -> RunResults:
-    """Read the files of a ``rovslam run --out`` folder (complete or interrupted)."""
+    """Read the files of a ``rovslam run --out`` folder (complete or interrupted), validated.
+
+    Raises :class:`ResultsFormatError` naming the file, line and column of a missing file,
+    missing column, text where a number belongs, time going backwards or an empty trajectory.
+    """
     out = Path(out_dir)
     if not out.is_dir():
-        raise SequenceFormatError(f"{out}: not a folder. Give the --out folder of a `rovslam run`.")
-    traj = _read_table(out / "trajectory.csv", ("altitude_source",))
+        raise ResultsFormatError(f"{out}: not a folder. Give the --out folder of a `rovslam run`.")
+    traj_path = out / "trajectory.csv"
+    traj, lines = _read_table(traj_path, TRAJECTORY_COLUMNS, ("altitude_source",))
+    if len(traj["t_s"]) == 0:
+        raise ResultsFormatError(f"{traj_path}: no rows (only a header): the run wrote no frame.")
+    _check_time(traj_path, traj, lines, strict=True)
+    obs: dict[str, np.ndarray] = {}
     obs_path = out / "observations.csv"
-    obs = _read_table(obs_path, ("kind",)) if obs_path.is_file() else {}
+    if obs_path.is_file():
+        obs, lines = _read_table(obs_path, OBSERVATION_COLUMNS, ("kind",))
+        _check_time(obs_path, obs, lines, strict=False)
     lm_path = out / "landmarks.csv"
-    lms = _read_table(lm_path) if lm_path.is_file() else {}
-    summ_path = out / "summary.json"
-    summary = json.loads(summ_path.read_text(encoding="utf-8")) if summ_path.is_file() else {}
+    lms = _read_table(lm_path, LANDMARK_COLUMNS)[0] if lm_path.is_file() else {}
+    summary = read_summary(out / "summary.json")
     return RunResults(out, traj, obs, lms, summary)

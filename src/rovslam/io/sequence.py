@@ -4,21 +4,29 @@ A sequence is a folder::
 
     SEQ/sequence.toml    camera, laser rig, metadata
     SEQ/frames.csv       t_s,image,heading_rad,sonar_altitude_m[,roll_rad,pitch_rad]
-    SEQ/images/...       PNG or JPEG, 8-bit RGB or grey
+    SEQ/images/...       PNG, JPEG or TIFF, 8- or 16-bit, RGB or grey
     SEQ/groundtruth.csv  optional: t_s,x_m,y_m,altitude_m,heading_rad
 
-Reading validates everything that can be checked without decoding images (keys, columns,
-numbers, monotonic time, image files present) and raises a
-:class:`~rovslam.errors.SequenceFormatError` naming the file, row or key. Images are
-decoded lazily, one at a time, by :meth:`Sequence.frames`: a file that cannot be decoded
-gives a :class:`Frame` whose ``image`` is ``None`` and whose ``error`` says why, so a run
-can log and skip it.
+Reading validates everything that can be checked without decoding images (encoding, keys,
+columns, numbers, monotonic time, image files present and inside the folder) and raises a
+:class:`~rovslam.errors.SequenceFormatError` naming the file, row or key. Text files are
+UTF-8 (a byte-order mark is accepted). Nothing outside the sequence folder is ever opened:
+an image path that is absolute, climbs out with ``..`` or resolves outside through a
+symbolic link is refused with its row named, and so is a ``frames.csv``, ``sequence.toml``
+or ``groundtruth.csv`` that is a link to a file elsewhere. Images are decoded lazily, one at
+a time, by :meth:`Sequence.frames`: a file that cannot be decoded gives a :class:`Frame`
+whose ``image`` is ``None`` and whose ``error`` says why, so a run can log and skip it.
+16-bit images are scaled to 8 bits by ``255 / (2**bit_depth - 1)`` (``[camera] bit_depth``,
+default 16; 12 for a 12-bit sensor stored in 16-bit files), values above the range saturate.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import math
+import os
+import struct
 import tomllib
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -29,14 +37,14 @@ from typing import Any
 import numpy as np
 
 from rovslam.camera import Camera, LaserPointer
-from rovslam.errors import ImageReadError, SequenceFormatError
+from rovslam.errors import ImageReadError, RovslamError, SequenceFormatError
 
 FORMAT_V1 = "rovslam-sequence/1"
 FRAMES_COLUMNS = ("t_s", "image", "heading_rad", "sonar_altitude_m")
 ATTITUDE_COLUMNS = ("roll_rad", "pitch_rad")
 GROUNDTRUTH_COLUMNS = ("t_s", "x_m", "y_m", "altitude_m", "heading_rad")
 _CAMERA_REQUIRED = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
-_CAMERA_OPTIONAL = ("distortion", "yaw_offset_rad")
+_CAMERA_OPTIONAL = ("distortion", "yaw_offset_rad", "bit_depth")
 _LASER_KEYS = ("origin_m", "direction")
 _TOP_KEYS = ("format", "name", "camera", "laser", "vehicle", "metadata")
 
@@ -50,6 +58,7 @@ class SequenceInfo:
     lasers: tuple[LaserPointer, ...] = ()
     fixed_altitude_m: float | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
+    bit_depth: int | None = None  # [camera] bit_depth: significant bits of 16-bit image files (None: 16)
 
 
 @dataclass(frozen=True)
@@ -106,6 +115,9 @@ class GroundTruth:
 
 # --------------------------------------------------------------------------- reading
 
+MAX_TEXT_BYTES = 512 * 2**20  # a frames.csv of a million frames is ~80 MB
+MAX_ATTITUDE_RAD = math.pi / 2  # roll or pitch beyond 90 degrees: the camera no longer looks down
+
 
 def _number(value: Any, where: str, *, positive: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -124,15 +136,43 @@ def _triple(value: Any, where: str) -> tuple[float, float, float]:
     return tuple(_number(v, f"{where}[{i}]") for i, v in enumerate(value))  # type: ignore[return-value]
 
 
-def parse_sequence_toml(path: Path) -> SequenceInfo:
-    """Read and validate ``sequence.toml``."""
+def read_text(path: Path, error: type[RovslamError] = SequenceFormatError) -> str:
+    """The text of a UTF-8 file (a UTF-8 byte-order mark is accepted), or ``error`` naming the line.
+
+    A file that is not UTF-8 (Latin-1, UTF-16 from a spreadsheet, binary) is refused with the
+    line and byte offset of the first bad byte: guessing an encoding could misread numbers.
+    """
+    try:
+        size = path.stat().st_size
+        if size > MAX_TEXT_BYTES:
+            raise error(f"{path}: {size} bytes, more than the {MAX_TEXT_BYTES // 2**20} MiB a text file of rovslam may hold.")
+        data = path.read_bytes()
+    except OSError as exc:
+        raise error(f"{path}: cannot be read ({exc.strerror or exc}).") from None
+    bom = 3 if data.startswith(b"\xef\xbb\xbf") else 0
+    try:
+        return data[bom:].decode("utf-8")
+    except UnicodeDecodeError as exc:
+        if data[:2] in (b"\xff\xfe", b"\xfe\xff"):
+            raise error(f"{path}: UTF-16 text; rovslam reads UTF-8. Save the file as UTF-8 (CSV UTF-8).") from None
+        at = bom + exc.start
+        line = data.count(b"\n", 0, at) + 1
+        raise error(
+            f"{path}, line {line}: not UTF-8 text (byte 0x{data[at]:02x} at offset {at}). Save the file as UTF-8."
+        ) from None
+
+
+def parse_sequence_toml(path: Path, root: Path | None = None) -> SequenceInfo:
+    """Read and validate ``sequence.toml`` (``root``: the folder it must resolve inside, if any)."""
     if not path.is_file():
         raise SequenceFormatError(
             f"{path}: missing. A sequence folder needs sequence.toml (see the README, 'Sequence format')."
         )
+    if root is not None:
+        _inside(root, path.name, f"{path}")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        data = tomllib.loads(read_text(path))
+    except tomllib.TOMLDecodeError as exc:
         raise SequenceFormatError(f"{path}: not valid TOML: {exc}") from None
     fmt = data.get("format")
     if fmt != FORMAT_V1:
@@ -165,16 +205,27 @@ def parse_sequence_toml(path: Path) -> SequenceInfo:
         raise SequenceFormatError(
             f"{path}: camera.distortion must list 4, 5 or 8 OpenCV coefficients (k1 k2 p1 p2 k3), got {dist!r}"
         )
-    camera = Camera(
-        width_px=int(width),
-        height_px=int(height),
-        fx_px=_number(cam["fx_px"], f"{path}: camera.fx_px", positive=True),
-        fy_px=_number(cam["fy_px"], f"{path}: camera.fy_px", positive=True),
-        cx_px=_number(cam["cx_px"], f"{path}: camera.cx_px"),
-        cy_px=_number(cam["cy_px"], f"{path}: camera.cy_px"),
-        distortion=tuple(_number(v, f"{path}: camera.distortion[{i}]") for i, v in enumerate(dist)),
-        yaw_offset_rad=_number(cam.get("yaw_offset_rad", 0.0), f"{path}: camera.yaw_offset_rad"),
-    )
+    bit_depth = cam.get("bit_depth")
+    if bit_depth is not None and (isinstance(bit_depth, bool) or not isinstance(bit_depth, int) or not 8 <= bit_depth <= 16):
+        raise SequenceFormatError(
+            f"{path}: camera.bit_depth must be a whole number of bits from 8 to 16 (12 for a 12-bit sensor "
+            f"in 16-bit files), got {bit_depth!r}"
+        )
+    try:
+        camera = Camera(
+            width_px=int(width),
+            height_px=int(height),
+            fx_px=_number(cam["fx_px"], f"{path}: camera.fx_px", positive=True),
+            fy_px=_number(cam["fy_px"], f"{path}: camera.fy_px", positive=True),
+            cx_px=_number(cam["cx_px"], f"{path}: camera.cx_px"),
+            cy_px=_number(cam["cy_px"], f"{path}: camera.cy_px"),
+            distortion=tuple(_number(v, f"{path}: camera.distortion[{i}]") for i, v in enumerate(dist)),
+            yaw_offset_rad=_number(cam.get("yaw_offset_rad", 0.0), f"{path}: camera.yaw_offset_rad"),
+        )
+    except SequenceFormatError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise SequenceFormatError(f"{path}: [camera]: {exc}") from None
     lasers_raw = data.get("laser", [])
     if not isinstance(lasers_raw, list):
         raise SequenceFormatError(f"{path}: 'laser' must be an array of tables ([[laser]]).")
@@ -211,51 +262,105 @@ def parse_sequence_toml(path: Path) -> SequenceInfo:
         lasers=tuple(lasers),
         fixed_altitude_m=fixed_alt,
         metadata=metadata,
+        bit_depth=bit_depth,
     )
 
 
-def _csv_rows(path: Path, required: tuple[str, ...]) -> tuple[list[str], Iterator[tuple[int, dict[str, str]]]]:
-    """Open a CSV, check its header holds ``required``; yield (line number, row dict)."""
+def read_csv_table(
+    path: Path, required: tuple[str, ...], error: type[RovslamError] = SequenceFormatError, *, drop_torn_last_line: bool = False
+) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
+    """Read a UTF-8 CSV whose header holds ``required``: (header, [(line number, row dict)]).
+
+    Every row must have as many fields as the header; blank lines are ignored. With
+    ``drop_torn_last_line`` a last line without its newline (a write cut short) is dropped.
+    Raises ``error`` naming the file and line.
+    """
     if not path.is_file():
-        raise SequenceFormatError(f"{path}: missing.")
-    fh = path.open(newline="", encoding="utf-8")
-    reader = csv.DictReader(fh)
-    header = [h.strip() for h in (reader.fieldnames or [])]
-    reader.fieldnames = header
-    missing = [c for c in required if c not in header]
-    if missing:
-        fh.close()
-        raise SequenceFormatError(
-            f"{path}: header is missing column(s) {', '.join(missing)}. "
-            f"The header must start with: {','.join(required)}."
-        )
+        raise error(f"{path}: missing.")
+    text = read_text(path, error)
+    if drop_torn_last_line and text and not text.endswith("\n") and "\n" in text:
+        text = text[: text.rindex("\n") + 1]
+    reader = csv.reader(io.StringIO(text, newline=""))
+    try:
+        header = [h.strip() for h in next(reader, [])]
+        if not any(header):
+            raise error(f"{path}: empty file; the first line must be the header {','.join(required)}.")
+        dup = sorted({h for h in header if header.count(h) > 1})
+        if dup:
+            raise error(f"{path}: header names column(s) {', '.join(dup)} more than once.")
+        missing = [c for c in required if c not in header]
+        if missing:
+            raise error(
+                f"{path}: header is missing column(s) {', '.join(missing)}. "
+                f"The header must start with: {','.join(required)}."
+            )
+        rows = []
+        for fields in reader:
+            if not fields or (len(fields) == 1 and not fields[0].strip()):
+                continue
+            if len(fields) != len(header):
+                raise error(
+                    f"{path}, line {reader.line_num}: {len(fields)} fields, the header has {len(header)}; "
+                    "every row needs one value per column (empty for a missing optional value)."
+                )
+            rows.append((reader.line_num, dict(zip(header, fields, strict=True))))
+    except csv.Error as exc:
+        raise error(f"{path}, line {reader.line_num}: not a readable CSV line ({exc}).") from None
+    return header, rows
 
-    def rows() -> Iterator[tuple[int, dict[str, str]]]:
-        with fh:
-            for row in reader:
-                yield reader.line_num, row
 
-    return header, rows()
-
-
-def _float_cell(row: dict[str, str], key: str, where: str, *, optional: bool = False) -> float | None:
+def float_cell(
+    row: dict[str, str], key: str, where: str, *, optional: bool = False, allow_nan: bool = False,
+    error: type[RovslamError] = SequenceFormatError,
+) -> float | None:
+    """The number in column ``key`` of a CSV row; empty gives None when ``optional``, NaN only when ``allow_nan``."""
     text = (row.get(key) or "").strip()
     if text == "":
         if optional:
             return None
-        raise SequenceFormatError(f"{where}: column '{key}' is empty; it needs a number.")
+        raise error(f"{where}: column '{key}' is empty; it needs a number.")
     try:
         v = float(text)
     except ValueError:
-        raise SequenceFormatError(f"{where}: column '{key}' is not a number: {text!r}.") from None
+        raise error(f"{where}: column '{key}' is not a number: {text!r}.") from None
+    if math.isnan(v) and allow_nan:
+        return v
     if not math.isfinite(v):
-        raise SequenceFormatError(f"{where}: column '{key}' is not finite: {text!r}.")
+        raise error(f"{where}: column '{key}' is not finite: {text!r}.")
     return v
 
 
+def _inside(root: Path, relative: str, where: str) -> Path:
+    """``root / relative`` with every link resolved, or SequenceFormatError when it is not inside ``root``.
+
+    ``root`` must already be resolved (``os.path.realpath``). Absolute paths, ``..`` that climbs
+    out and symbolic links to elsewhere are all refused; nothing is opened.
+    """
+    if "\x00" in relative:
+        raise SequenceFormatError(f"{where}: path {relative!r} holds a NUL character.")
+    if os.path.isabs(relative) or relative.startswith(("/", "\\")) or (len(relative) > 1 and relative[1] == ":"):
+        raise SequenceFormatError(
+            f"{where}: path '{relative}' is absolute; image paths must be relative to the sequence folder "
+            f"({root}) and stay inside it."
+        )
+    resolved = Path(os.path.realpath(root / relative))
+    if not resolved.is_relative_to(root):
+        raise SequenceFormatError(
+            f"{where}: path '{relative}' leads outside the sequence folder {root} (to {resolved}); "
+            "keep every file of a sequence inside its folder (copy it in rather than linking it)."
+        )
+    return resolved
+
+
 def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list[FrameRow]:
-    """Read and validate ``frames.csv``: numbers, strictly increasing time, images present."""
-    header, rows = _csv_rows(path, FRAMES_COLUMNS)
+    """Read and validate ``frames.csv``: numbers, strictly increasing time, images present inside ``folder``.
+
+    ``heading_rad`` may be ``nan`` (no compass); ``sonar_altitude_m`` may be empty or ``nan``
+    (no reading); ``roll_rad``/``pitch_rad`` must be within +-90 degrees.
+    """
+    root = Path(os.path.realpath(folder))
+    _inside(root, path.name, str(path))
+    header, rows = read_csv_table(path, FRAMES_COLUMNS)
     has_att = all(c in header for c in ATTITUDE_COLUMNS)
     if any(c in header for c in ATTITUDE_COLUMNS) and not has_att:
         raise SequenceFormatError(f"{path}: give both roll_rad and pitch_rad columns, or neither.")
@@ -263,7 +368,7 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
     last_t = -math.inf
     for line, row in rows:
         where = f"{path}, line {line}"
-        t = float(_float_cell(row, "t_s", where))  # type: ignore[arg-type]
+        t = float(float_cell(row, "t_s", where))  # type: ignore[arg-type]
         if t <= last_t:
             raise SequenceFormatError(
                 f"{where}: t_s={t} is not after the previous row's t_s={last_t}; rows must be in strictly increasing time."
@@ -272,12 +377,26 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
         image = (row.get("image") or "").strip()
         if not image:
             raise SequenceFormatError(f"{where}: column 'image' is empty.")
-        if check_images and not (folder / image).is_file():
+        resolved = _inside(root, image, f"{where}: column 'image'")
+        if check_images and not resolved.is_file():
             raise SequenceFormatError(f"{where}: image file '{image}' not found in {folder}.")
-        heading = _float_cell(row, "heading_rad", where)
-        sonar = _float_cell(row, "sonar_altitude_m", where, optional=True)
-        roll = _float_cell(row, "roll_rad", where, optional=True) if has_att else None
-        pitch = _float_cell(row, "pitch_rad", where, optional=True) if has_att else None
+        text = (row.get("heading_rad") or "").strip()
+        if text == "":
+            raise SequenceFormatError(f"{where}: column 'heading_rad' is empty; write nan when there is no compass.")
+        heading = float_cell(row, "heading_rad", where, allow_nan=True)
+        sonar = float_cell(row, "sonar_altitude_m", where, optional=True, allow_nan=True)
+        if sonar is not None and math.isnan(sonar):
+            sonar = None  # nan = no reading, like an empty cell
+        roll = pitch = None
+        if has_att:
+            roll = float_cell(row, "roll_rad", where, optional=True)
+            pitch = float_cell(row, "pitch_rad", where, optional=True)
+            for key, v in (("roll_rad", roll), ("pitch_rad", pitch)):
+                if v is not None and abs(v) >= MAX_ATTITUDE_RAD:
+                    raise SequenceFormatError(
+                        f"{where}: column '{key}' is {v} rad, beyond +-pi/2: a camera tilted that far does not "
+                        "see the seabed. Attitudes are in radians."
+                    )
         out.append(FrameRow(len(out), t, image, heading, sonar, roll, pitch))  # type: ignore[arg-type]
     if not out:
         raise SequenceFormatError(f"{path}: no frames (only a header).")
@@ -287,13 +406,13 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
 def read_groundtruth(path: str | Path) -> GroundTruth:
     """Read ``groundtruth.csv`` (t_s,x_m,y_m,altitude_m,heading_rad), validated."""
     p = Path(path)
-    _, rows = _csv_rows(p, GROUNDTRUTH_COLUMNS)
+    _, rows = read_csv_table(p, GROUNDTRUTH_COLUMNS)
     cols: dict[str, list[float]] = {c: [] for c in GROUNDTRUTH_COLUMNS}
     last_t = -math.inf
     for line, row in rows:
         where = f"{p}, line {line}"
         for c in GROUNDTRUTH_COLUMNS:
-            cols[c].append(_float_cell(row, c, where))  # type: ignore[arg-type]
+            cols[c].append(float_cell(row, c, where))  # type: ignore[arg-type]
         if cols["t_s"][-1] <= last_t:
             raise SequenceFormatError(f"{where}: t_s is not after the previous row's; rows must be in time order.")
         last_t = cols["t_s"][-1]
@@ -302,26 +421,60 @@ def read_groundtruth(path: str | Path) -> GroundTruth:
     return GroundTruth(**{c: np.asarray(v, dtype=np.float64) for c, v in cols.items()})
 
 
-def read_image(path: Path, camera: Camera | None = None) -> np.ndarray:
-    """Decode an 8-bit image file to ``(H, W, 3) uint8`` RGB (grey is replicated)."""
+def _png_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a PNG header, read before decoding (a huge declared size is refused unread)."""
+    if len(data) >= 24 and data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
+        w, h = struct.unpack(">II", data[16:24])
+        return int(w), int(h)
+    return None
+
+
+def to_uint8(img: np.ndarray, bit_depth: int | None = None, where: str = "image") -> np.ndarray:
+    """8-bit pixels of an 8- or 16-bit image: 16-bit values are scaled by ``255 / (2**bit_depth - 1)``.
+
+    ``bit_depth`` (default 16) is the number of significant bits of the 16-bit values (12 for a
+    12-bit sensor); values above ``2**bit_depth - 1`` saturate at 255. The same scale applies to
+    every frame, so brightness is comparable along the dive (no per-frame stretch).
+    """
     import cv2
 
-    data = np.fromfile(path, dtype=np.uint8) if path.is_file() else None
-    if data is None:
-        raise ImageReadError(f"{path}: image file not found.")
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    if img.dtype == np.uint8:
+        return img
+    if img.dtype == np.uint16:
+        depth = 16 if bit_depth is None else int(bit_depth)
+        return cv2.convertScaleAbs(img, alpha=255.0 / (2**depth - 1))
+    raise ImageReadError(f"{where}: {img.dtype} pixels; rovslam reads 8- or 16-bit unsigned images.")
+
+
+def read_image(path: Path, camera: Camera | None = None, bit_depth: int | None = None) -> np.ndarray:
+    """Decode an 8- or 16-bit image file to ``(H, W, 3) uint8`` RGB (grey is replicated; see :func:`to_uint8`)."""
+    import cv2
+
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except FileNotFoundError:
+        raise ImageReadError(f"{path}: image file not found.") from None
+    except OSError as exc:
+        raise ImageReadError(f"{path}: cannot be read ({exc.strerror or exc}).") from None
+    declared = _png_size(data)
+    if camera is not None and declared is not None and declared != (camera.width_px, camera.height_px):
+        raise ImageReadError(
+            f"{path}: image is {declared[0]}x{declared[1]} px but sequence.toml says "
+            f"{camera.width_px}x{camera.height_px}."
+        )
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
     if img is None:
-        raise ImageReadError(f"{path}: not a readable PNG/JPEG image (corrupt or truncated?).")
-    if img.dtype != np.uint8:
-        raise ImageReadError(f"{path}: {img.dtype} pixels; rovslam reads 8-bit images only.")
+        raise ImageReadError(f"{path}: not a readable PNG/JPEG/TIFF image (corrupt or truncated?).")
+    img = to_uint8(img, bit_depth, str(path))
     if img.ndim == 2:
         img = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
-    elif img.shape[2] == 3:
+    elif img.ndim == 3 and img.shape[2] == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    elif img.shape[2] == 4:
+    elif img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
     else:
-        raise ImageReadError(f"{path}: {img.shape[2]} channels; expected grey, RGB or RGBA.")
+        raise ImageReadError(f"{path}: pixel layout {img.shape}; expected grey, RGB or RGBA.")
     if camera is not None and img.shape[:2] != camera.shape:
         raise ImageReadError(
             f"{path}: image is {img.shape[1]}x{img.shape[0]} px but sequence.toml says "
@@ -339,6 +492,7 @@ class Sequence:
         self.rows = rows
         self.groundtruth_path = groundtruth_path
         self.has_attitude = any(r.roll_rad is not None for r in rows)
+        self._root = Path(os.path.realpath(folder))
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -350,8 +504,10 @@ class Sequence:
     def _load(self, row: FrameRow) -> Frame:
         path = self.folder / row.image
         try:
-            image, error = read_image(path, self.info.camera), None
-        except ImageReadError as exc:
+            # Checked again at the moment of reading: the folder may have changed since it was opened.
+            resolved = _inside(self._root, row.image, f"{self.folder / 'frames.csv'}, frame {row.index}")
+            image, error = read_image(resolved, self.info.camera, self.info.bit_depth), None
+        except (ImageReadError, SequenceFormatError) as exc:
             image, error = None, str(exc)
         return Frame(
             index=row.index,
@@ -376,26 +532,33 @@ class Sequence:
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="rovslam-read") as pool:
             pending: list[Future[Frame]] = []
             it = iter(rows)
-            for row in it:
-                pending.append(pool.submit(self._load, row))
-                if len(pending) > prefetch:
-                    break
-            while pending:
-                frame = pending.pop(0).result()
-                nxt = next(it, None)
-                if nxt is not None:
-                    pending.append(pool.submit(self._load, nxt))
-                yield frame
+            try:
+                for row in it:
+                    pending.append(pool.submit(self._load, row))
+                    if len(pending) > prefetch:
+                        break
+                while pending:
+                    frame = pending.pop(0).result()
+                    nxt = next(it, None)
+                    if nxt is not None:
+                        pending.append(pool.submit(self._load, nxt))
+                    yield frame
+            finally:
+                for fut in pending:  # a stream closed early: do not decode what nobody will read
+                    fut.cancel()
 
 
 def open_sequence(folder: str | Path, check_images: bool = True) -> Sequence:
-    """Open and validate a sequence folder (format v1)."""
+    """Open and validate a sequence folder (format v1); nothing outside it is opened."""
     f = Path(folder)
     if not f.is_dir():
         raise SequenceFormatError(f"{f}: not a folder. Give the sequence folder (with sequence.toml and frames.csv).")
-    info = parse_sequence_toml(f / "sequence.toml")
+    root = Path(os.path.realpath(f))
+    info = parse_sequence_toml(f / "sequence.toml", root)
     rows = read_frames_csv(f / "frames.csv", f, check_images=check_images)
     gt = f / "groundtruth.csv"
+    if gt.is_file() or gt.is_symlink():
+        _inside(root, gt.name, str(gt))
     return Sequence(f, info, rows, gt if gt.is_file() else None)
 
 
@@ -422,6 +585,8 @@ def info_to_toml(info: SequenceInfo) -> dict[str, Any]:
             "yaw_offset_rad": float(cam.yaw_offset_rad),
         },
     }
+    if info.bit_depth is not None:
+        data["camera"]["bit_depth"] = int(info.bit_depth)
     if info.lasers:
         data["laser"] = [
             {"origin_m": [float(v) for v in las.origin_m], "direction": [float(v) for v in las.direction]}

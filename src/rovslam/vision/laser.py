@@ -17,8 +17,9 @@ Altitude = vertical distance from the camera down to the seabed (plane) below it
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import cv2
@@ -52,6 +53,8 @@ class AltitudeEstimate:
     slope_rad: seabed slope ``(along forward, along starboard)`` from the plane fit of three
         or more spots (positive = the seabed gets deeper forward / to starboard), else None.
     laser_altitude_m: the laser-only altitude before the sonar fusion (NaN when none).
+    sonar_rejected: why the frame's sonar reading was not used (outside the plausible range),
+        None when it was used or there was none.
     """
 
     altitude_m: float
@@ -61,6 +64,28 @@ class AltitudeEstimate:
     n_spots: int
     slope_rad: tuple[float, float] | None = None
     laser_altitude_m: float = float("nan")
+    sonar_rejected: str | None = None
+
+
+def sonar_reading_problem(sonar_altitude_m: float | None, config: LaserConfig) -> str | None:
+    """Why a sonar altitude reading cannot be used, or None (usable, or no reading: None / NaN).
+
+    A reading outside ``[config.min_altitude_m, config.max_altitude_m]`` (the range the laser
+    triangulation also accepts) or infinite is physically implausible for this vehicle: it is
+    dropped for that frame, which then uses the lasers or the fixed altitude.
+    """
+    if sonar_altitude_m is None:
+        return None
+    v = float(sonar_altitude_m)
+    if math.isnan(v):
+        return None
+    lo, hi = float(config.min_altitude_m), float(config.max_altitude_m)
+    if not (math.isfinite(v) and lo <= v <= hi):
+        return (
+            f"sonar altitude {v:g} m outside the plausible range [{lo:g}, {hi:g}] m "
+            "(laser.min_altitude_m, laser.max_altitude_m): not used"
+        )
+    return None
 
 
 def _laser_arrays(lasers: Sequence[LaserPointer], roll_rad: float, pitch_rad: float) -> tuple[np.ndarray, np.ndarray]:
@@ -522,11 +547,16 @@ class LaserAltimeter:
         ----------
         image_rgb: ``(H, W, 3) uint8`` RGB frame (a grey frame has no laser channel: only the
             sonar or the fallback can be used).
-        sonar_altitude_m: the frame's sonar altitude, None/NaN when empty.
+        sonar_altitude_m: the frame's sonar altitude, None/NaN when empty; a reading outside the
+            plausible range is not used (:func:`sonar_reading_problem`, the reason is in
+            ``sonar_rejected`` of the estimate).
         roll_rad, pitch_rad: body attitude (frames.csv), 0 for a level camera.
         """
         cfg = self.config
         img = np.asarray(image_rgb)
+        sonar_rejected = sonar_reading_problem(sonar_altitude_m, cfg)
+        if sonar_rejected is not None:
+            sonar_altitude_m = None
         if img.ndim == 2 or not self.lasers:
             n = len(self.lasers)
             est = fuse_altitude(np.full(n, np.nan), np.full(n, np.nan), sonar_altitude_m,
@@ -537,7 +567,7 @@ class LaserAltimeter:
                 est = self._search_altitudes(img, est, sonar_altitude_m, roll_rad, pitch_rad)
         if est.source != SOURCE_FIXED:
             self._last_altitude_m = est.altitude_m
-        return est
+        return est if sonar_rejected is None else replace(est, sonar_rejected=sonar_rejected)
 
     def _measure_at(self, img: np.ndarray, predict_altitude_m: float, sonar_altitude_m: float | None,
                     roll_rad: float, pitch_rad: float) -> AltitudeEstimate:

@@ -66,24 +66,38 @@ class RerunViewer:
         self.rr = rr
         self.rec = rr.RecordingStream(application_id)
         self.save_path = Path(save_path) if save_path is not None else None
-        if spawn:
-            self.rec.spawn(connect=self.save_path is None)
-        if self.save_path is not None:
-            self.save_path.parent.mkdir(parents=True, exist_ok=True)
-            if spawn:
-                self.rec.set_sinks(rr.GrpcSink(), rr.FileSink(str(self.save_path)))
-            else:
-                self.rec.save(str(self.save_path))
+        self.spawn = spawn
         self.ellipse_scale = float(ellipse_scale)
         self.map_every = max(1, int(map_every))
         self.jpeg_quality = int(jpeg_quality)
         self._path: list[tuple[float, float]] = []
         self._n = 0
+        self._started = False
+
+    @property
+    def started(self) -> bool:
+        """Whether a frame was logged (and so the sinks opened)."""
+        return self._started
+
+    def _start(self) -> None:
+        """Open the sinks at the first frame (the results folder is ready by then, the .rrd goes into it)."""
+        rr = self.rr
+        if self.spawn:
+            self.rec.spawn(connect=self.save_path is None)
+        if self.save_path is not None:
+            self.save_path.parent.mkdir(parents=True, exist_ok=True)
+            if self.spawn:
+                self.rec.set_sinks(rr.GrpcSink(), rr.FileSink(str(self.save_path)))
+            else:
+                self.rec.save(str(self.save_path))
         self.rec.log("map/legend", rr.TextDocument(
             f"Map: east right, north up, metres. Ellipses: 2 sigma, magnified {self.ellipse_scale:g} times."
         ), static=True)
+        self._started = True
 
     def __call__(self, frame, res, landmark_rows: Callable[[], list[dict]] | None = None) -> None:
+        if not self._started:
+            self._start()
         rr, rec = self.rr, self.rec
         rec.set_time("frame", sequence=int(res.index))
         rec.set_time("time", duration=float(res.t_s))
@@ -149,7 +163,9 @@ class RerunViewer:
         rec.log("map/landmark_ellipses", rr.LineStrips2D(strips, colors=(220, 30, 30)))
 
     def close(self) -> None:
-        """Flush and close the recording (the .rrd is complete after this)."""
+        """Flush and close the recording (the .rrd is complete after this; none is written without a frame)."""
+        if not self._started:
+            return
         self.rec.flush()
         self.rec.disconnect()
 
