@@ -10,6 +10,9 @@
   ``uint8`` RGB; :func:`draw_laser_spots` paints saturated red anti-aliased speckled discs.
 * :func:`paper_camera` / :func:`paper_lasers`: the paper's rig (360x272, f = 1075 px, four
   pointers parallel to the optical axis at (+-0.05, +-0.05, 0) m).
+* :func:`survey_measurements`: no images, the per-frame measurement records the SLAM back
+  ends consume, from a true track (:func:`lawnmower_track`, :func:`crosshatch_track`) over
+  a landmark field (:func:`landmark_field`), with seeded noise (:class:`SurveyNoise`).
 """
 
 from __future__ import annotations

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -207,4 +205,4 @@ def test_bad_files_name_the_file_line_and_column(tmp_path, survey):
 def test_the_writer_rejects_what_is_not_a_record(tmp_path):
     with MeasurementWriter(tmp_path) as writer, pytest.raises(InvalidMeasurementError):
         writer.write({"index": 0})
-    assert math.isclose(len(read_measurements(tmp_path)), 0)
+    assert read_measurements(tmp_path) == []  # the headers alone: a run stopped before its first frame

@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 from rovslam.camera import rot2
 from rovslam.cli import app
 from rovslam.config import SlamConfig
-from rovslam.errors import ConfigError, InvalidMeasurementError
+from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError
 from rovslam.io.measurements import write_measurements
 from rovslam.slam import EkfSlam, observation_noise_px2, observe_mn
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
@@ -335,6 +335,15 @@ def test_bad_frame_sequences_are_rejected_and_leave_the_graph_unchanged():
         Isam2Smoother().smoothed()
     with pytest.raises(InvalidMeasurementError, match="no landmark 7"):
         sm.landmark_cov_m2(7)
+
+
+def test_an_ill_posed_graph_is_a_typed_one_line_error():
+    # A compass of 100 rad noise says nothing and nothing else knows the absolute heading.
+    sm = Isam2Smoother(SmootherConfig(bias_block_s=2.0))
+    with pytest.raises(FilterInconsistencyError, match="SMOOTHER FAILED in the iSAM2 update of frame") as err:
+        for f in straight_frames(51, compass_sigma=100.0):
+            sm.add_frame(f)
+    assert "\n" not in str(err.value)
 
 
 def test_rejected_observations_can_be_left_out():

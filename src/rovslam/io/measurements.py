@@ -189,7 +189,7 @@ class _Table:
                 "the file is damaged: re-run the sequence to write it again"
             )
 
-    def float(self, line: int, cells: list[str], column: str) -> float:
+    def number(self, line: int, cells: list[str], column: str) -> float:
         cell = cells[self.col[column]].strip()
         if cell == "":
             return math.nan
@@ -198,7 +198,7 @@ class _Table:
         except ValueError:
             raise ResultsFormatError(f"{self.where(line, column)}: {cell!r} is not a number") from None
 
-    def int(self, line: int, cells: list[str], column: str) -> int:
+    def integer(self, line: int, cells: list[str], column: str) -> int:
         cell = cells[self.col[column]].strip()
         try:
             v = int(cell)
@@ -208,7 +208,7 @@ class _Table:
             raise ResultsFormatError(f"{self.where(line, column)}: {v} must be >= 0")
         return v
 
-    def bool(self, line: int, cells: list[str], column: str) -> bool:
+    def flag(self, line: int, cells: list[str], column: str) -> bool:
         cell = cells[self.col[column]].strip()
         if cell not in ("0", "1"):
             raise ResultsFormatError(f"{self.where(line, column)}: {cell!r} must be 0 or 1")
@@ -223,18 +223,18 @@ def _read_observations(table: _Table) -> dict[int, list[tuple[int, LandmarkMeasu
     last = -1
     for line, cells in table.rows:
         table.check_width(line, cells)
-        frame = table.int(line, cells, "frame")
+        frame = table.integer(line, cells, "frame")
         if frame < last:
             raise ResultsFormatError(f"{table.where(line, 'frame')}: frame {frame} after frame {last}; rows must be in frame order")
         last = frame
-        f = {c: table.float(line, cells, c) for c in ("m_px", "n_px", "var_m_px2", "cov_mn_px2", "var_n_px2")}
+        f = {c: table.number(line, cells, c) for c in ("m_px", "n_px", "var_m_px2", "cov_mn_px2", "var_n_px2")}
         try:
             ob = LandmarkMeasurement(
-                landmark_id=table.int(line, cells, "landmark_id"),
+                landmark_id=table.integer(line, cells, "landmark_id"),
                 kind=table.text(line, cells, "kind"),
                 mn_px=np.array([f["m_px"], f["n_px"]]),
                 noise_px2=np.array([[f["var_m_px2"], f["cov_mn_px2"]], [f["cov_mn_px2"], f["var_n_px2"]]]),
-                accepted_by_online=table.bool(line, cells, "accepted_by_online"),
+                accepted_by_online=table.flag(line, cells, "accepted_by_online"),
             )
         except InvalidMeasurementError as exc:
             raise ResultsFormatError(f"{table.where(line)}: {exc}") from None
@@ -243,13 +243,13 @@ def _read_observations(table: _Table) -> dict[int, list[tuple[int, LandmarkMeasu
 
 
 def _frame_from_row(table: _Table, line: int, cells: list[str], obs: tuple[LandmarkMeasurement, ...]) -> FrameMeasurements:
-    v = {c: table.float(line, cells, c) for c in MEASUREMENT_COLUMNS if c not in ("frame", "speed_ok", "observations")}
+    v = {c: table.number(line, cells, c) for c in MEASUREMENT_COLUMNS if c not in ("frame", "speed_ok", "observations")}
     q = np.array([[v["var_surge_mps2"], v["cov_surge_sway_mps2"]], [v["cov_surge_sway_mps2"], v["var_sway_mps2"]]])
     try:
         return FrameMeasurements(
-            index=table.int(line, cells, "frame"), t_s=v["t_s"], dt_s=v["dt_s"],
+            index=table.integer(line, cells, "frame"), t_s=v["t_s"], dt_s=v["dt_s"],
             speed_mps=np.array([v["surge_mps"], v["sway_mps"]]), speed_cov_mps2=q,
-            speed_ok=table.bool(line, cells, "speed_ok"), heading_rad=v["heading_rad"],
+            speed_ok=table.flag(line, cells, "speed_ok"), heading_rad=v["heading_rad"],
             heading_sigma_rad=v["heading_sigma_rad"], compass_rad=v["compass_rad"],
             compass_sigma_rad=v["compass_sigma_rad"], heading_step_rad=v["heading_step_rad"],
             heading_step_sigma_rad=v["heading_step_sigma_rad"], altitude_m=v["altitude_m"],
@@ -278,14 +278,14 @@ def read_measurements(out_dir: str | Path) -> list[FrameMeasurements]:
     previous = -1
     for line, cells in frames_table.rows:
         frames_table.check_width(line, cells)
-        index = frames_table.int(line, cells, "frame")
+        index = frames_table.integer(line, cells, "frame")
         if index <= previous:
             raise ResultsFormatError(
                 f"{frames_table.where(line, 'frame')}: frame {index} after frame {previous}; "
                 "frames must be in increasing order"
             )
         previous = index
-        expected = frames_table.int(line, cells, "observations")
+        expected = frames_table.integer(line, cells, "observations")
         found = by_frame.pop(index, [])
         if len(found) != expected:
             if index >= last_obs_frame and len(found) < expected:

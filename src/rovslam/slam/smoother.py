@@ -63,7 +63,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rovslam.camera import rot2, wrap_angle
-from rovslam.errors import ConfigError, InvalidMeasurementError
+from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError
 from rovslam.slam.measurements import FrameMeasurements
 
 __all__ = ["SmootherConfig", "Isam2Smoother", "OnlineEstimate", "SmoothedResult", "ROBUST_LOSSES"]
@@ -343,7 +343,10 @@ class Isam2Smoother:
             tail_position = self._add_compass(graph, values, removed, k, meas)
         self._add_landmarks(graph, values, k, guess, meas)
 
-        result = self._isam.update(graph, values, removed)
+        try:
+            result = self._isam.update(graph, values, removed)
+        except RuntimeError as exc:  # GTSAM: an indeterminate (ill-posed) linear system
+            raise _solver_error(f"the iSAM2 update of frame {meas.index}", exc) from None
         if tail_position is not None:
             self._tail_prior_slot = int(result.getNewFactorsIndices()[tail_position])
         self._index.append(meas.index)
@@ -467,15 +470,18 @@ class Isam2Smoother:
                 graph.add(factors.at(i))
         estimate = self._isam.calculateEstimate()
         iterations = 0
-        if self.config.final_max_iterations > 0:
-            params = g.LevenbergMarquardtParams()
-            params.setMaxIterations(self.config.final_max_iterations)
-            params.setRelativeErrorTol(1e-6)
-            params.setAbsoluteErrorTol(1e-9)
-            opt = g.LevenbergMarquardtOptimizer(graph, estimate, params)
-            estimate = opt.optimize()
-            iterations = int(opt.iterations())
-        marginals = g.Marginals(graph, estimate)
+        try:
+            if self.config.final_max_iterations > 0:
+                params = g.LevenbergMarquardtParams()
+                params.setMaxIterations(self.config.final_max_iterations)
+                params.setRelativeErrorTol(1e-6)
+                params.setAbsoluteErrorTol(1e-9)
+                opt = g.LevenbergMarquardtOptimizer(graph, estimate, params)
+                estimate = opt.optimize()
+                iterations = int(opt.iterations())
+            marginals = g.Marginals(graph, estimate)
+        except RuntimeError as exc:
+            raise _solver_error("the final smoothing", exc) from None
         xy = np.empty((n, 2))
         psi = np.empty(n)
         cov = np.empty((n, 2, 2))
@@ -521,3 +527,13 @@ class Isam2Smoother:
 
     def __repr__(self) -> str:
         return f"Isam2Smoother(poses={self.n_poses}, landmarks={self.n_landmarks}, robust={self.config.robust!r})"
+
+
+def _solver_error(what: str, exc: RuntimeError) -> FilterInconsistencyError:
+    """GTSAM's error (several lines) as one line naming what failed and the usual cause."""
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    detail = " ".join(lines[:2]) if lines else type(exc).__name__
+    return FilterInconsistencyError(
+        f"SMOOTHER FAILED in {what}: {detail} A variable is not constrained by any measurement, or "
+        "a noise figure is zero or far out of scale; check the measurement records."
+    )
