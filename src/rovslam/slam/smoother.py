@@ -286,12 +286,14 @@ class Isam2Smoother:
         return self._l(landmark_id)
 
     def landmark_xy_m(self, landmark_id: int) -> np.ndarray:
-        """(2,) current (online) estimate of a landmark."""
-        return np.asarray(self._isam.calculateEstimatePoint2(self._known(landmark_id)), dtype=np.float64)
+        """(2,) current (online) estimate of a landmark (read from its marginal, see :meth:`_marginal`)."""
+        key = self._known(landmark_id)
+        delta, _ = self._marginal(key)
+        return np.asarray(self._isam.getLinearizationPoint().atPoint2(key), dtype=np.float64) + delta
 
     def landmark_cov_m2(self, landmark_id: int) -> np.ndarray:
         """(2, 2) current marginal covariance of a landmark."""
-        return np.asarray(self._isam.marginalCovariance(self._known(landmark_id)), dtype=np.float64)
+        return self._marginal(self._known(landmark_id))[1]
 
     # ------------------------------------------------------------------ one frame
     def add_frame(self, meas: FrameMeasurements) -> OnlineEstimate:
@@ -360,27 +362,30 @@ class Isam2Smoother:
             heading_rad=float(self._pose.theta()), cov_xy_m2=r @ cov[:2, :2] @ r.T,
         )
 
-    def _recent_pose(self, key: int):
-        """Estimate (gtsam.Pose2) and (3, 3) tangent covariance of a pose near the top of the tree.
+    def _marginal(self, key: int) -> tuple[np.ndarray, np.ndarray]:
+        """A variable's update from its linearisation point and its tangent-space marginal covariance.
 
         ``calculateEstimate`` would first back-substitute the whole tree: every clique holding a
         landmark re-eliminated in this update in its separator, i.e. O(poses) per frame on a
         survey that keeps seeing the same landmarks. The marginal of one variable is read from
-        the top of the tree alone; its mean is the variable's update from its linearisation point.
+        the path between its clique and the root alone (the newest pose, the current drift
+        block and the landmarks just seen sit at the top); its mean is the variable's update.
         """
-        g = self._g
         marginal = self._isam.marginalFactor(key)
-        delta = marginal.solve(g.VectorValues()).at(key)
-        r = np.asarray(marginal.R(), dtype=np.float64)
-        r_inv = np.linalg.inv(r)
-        pose = self._isam.getLinearizationPoint().atPose2(key).retract(delta)
-        return pose, r_inv @ r_inv.T
+        delta = np.asarray(marginal.solve(self._g.VectorValues()).at(key), dtype=np.float64)
+        r_inv = np.linalg.inv(np.asarray(marginal.R(), dtype=np.float64))
+        return delta, r_inv @ r_inv.T
+
+    def _recent_pose(self, key: int):
+        """Estimate (gtsam.Pose2) and (3, 3) tangent covariance of a pose (see :meth:`_marginal`)."""
+        delta, cov = self._marginal(key)
+        return self._isam.getLinearizationPoint().atPose2(key).retract(delta), cov
 
     def heading_bias_rad(self) -> float:
         """Current estimate of the slow compass error b (compass = heading + b); 0 without the model."""
         if not self._use_bias or self._block < 0:
             return 0.0
-        return -float(self._isam.calculateEstimatePose2(self._m(self._block)).theta())
+        return -float(self._recent_pose(self._m(self._block))[0].theta())
 
     def _odometry(self, prev: FrameMeasurements, meas: FrameMeasurements):
         """(1) as a relative pose in the frame of the previous pose, with its 3x3 covariance."""
