@@ -10,13 +10,18 @@
   ``uint8`` RGB; :func:`draw_laser_spots` paints saturated red anti-aliased speckled discs.
 * :func:`paper_camera` / :func:`paper_lasers`: the paper's rig (360x272, f = 1075 px, four
   pointers parallel to the optical axis at (+-0.05, +-0.05, 0) m).
+* :func:`survey_measurements`: no images, the per-frame measurement records the SLAM back
+  ends consume, from a true track (:func:`lawnmower_track`, :func:`crosshatch_track`) over
+  a landmark field (:func:`landmark_field`), with seeded noise (:class:`SurveyNoise`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from rovslam.camera import Camera, LaserPointer, ground_to_pixels
+from rovslam.camera import Camera, LaserPointer, ground_to_pixels, rot2
 
 DEFAULT_NOISE_SIGMA = 3.0  # 8-bit grey levels, per channel
 
@@ -156,3 +161,155 @@ def seabed_frame(
     """Convenience: rendered, tinted, noisy ``(272, 360, 3) uint8`` frame without lasers."""
     return colourise(render_grey(spectrum, offset_uv_px), seed=seed, noise_sigma=noise_sigma,
                      vignetting=vignetting)
+
+
+# ---------------------------------------------------------------------------------------------
+# Synthetic measurement streams for the SLAM back ends (no images): a true track over a field
+# of point landmarks, turned into the per-frame records both back ends consume.
+
+
+@dataclass(frozen=True)
+class SurveyNoise:
+    """Noise of a synthetic measurement stream (what the back ends are told, and the truth's)."""
+
+    speed_sigma_mps: float = 2e-3
+    compass_sigma_rad: float = 0.0087  # white
+    drift_sigma_rad: float = 0.0087  # slow compass error, Ornstein-Uhlenbeck
+    drift_tau_s: float = 120.0
+    step_sigma_rad: float = 0.002  # turn measured by the tokens
+    pixel_sigma_px: float = 0.5
+    altitude_m: float = 1.31
+    focal_px: float = 1075.0
+    image_wh_px: tuple[int, int] = (360, 272)
+    template_px: int = 32  # observed only when the whole template is inside the image
+
+
+@dataclass(frozen=True)
+class Survey:
+    """A true track, its landmarks and the measurement records of every frame."""
+
+    xy_m: np.ndarray  # (K, 2) true positions, frame 0 at the origin
+    heading_rad: np.ndarray  # (K,) true headings
+    landmarks_xy_m: np.ndarray  # (M, 2) true position of landmark id i (in order of creation)
+    frames: list  # K FrameMeasurements
+
+
+def lawnmower_track(n_legs=5, leg_steps=70, cross_steps=15, psi0=0.4, speed_mps=0.1, dt_s=0.2):
+    """(K, 2) positions and (K,) headings of a turning grid survey (tests/test_ekf.py's): legs of
+    1.4 m, lanes 0.3 m apart, the heading turning with each leg; moves by (1) with R(psi_{k-1})."""
+    heads = [psi0]
+    for leg in range(n_legs):
+        heads += [psi0 + (np.pi if leg % 2 else 0.0)] * leg_steps
+        if leg < n_legs - 1:
+            heads += [psi0 + np.pi / 2] * cross_steps
+    return _integrate(np.array(heads), np.tile([speed_mps, 0.0], (len(heads) - 1, 1)), dt_s)
+
+
+def crosshatch_track(n_frames, side_m=0.7, lane_m=0.175, speed_mps=0.1, heading_rad=0.0, dt_s=0.2):
+    """(K, 2) positions and (K,) headings of the paper's constant-heading survey: a square grid
+    flown north-south then east-west (lanes ``lane_m`` apart), over and over, crabbing."""
+    corners = []
+    n_lanes = int(round(side_m / lane_m)) + 1
+    for i in range(n_lanes):  # north-south lanes, stepping east
+        y = i * lane_m
+        corners += [(0.0, y), (side_m, y)] if i % 2 == 0 else [(side_m, y), (0.0, y)]
+    for i in range(n_lanes):  # east-west lanes, stepping north back to the start
+        x = side_m - i * lane_m
+        corners += [(x, side_m), (x, 0.0)] if i % 2 == 0 else [(x, 0.0), (x, side_m)]
+    corners = np.array(corners)
+    xy = [np.zeros(2)]
+    target = 0
+    step = speed_mps * dt_s
+    while len(xy) < n_frames:
+        d = corners[target] - xy[-1]
+        dist = float(np.hypot(*d))
+        if dist < 1e-9:
+            target = (target + 1) % len(corners)
+            continue
+        xy.append(xy[-1] + d * min(1.0, step / dist))
+    xy = np.array(xy)
+    heads = np.full(n_frames, heading_rad)
+    v_body = (np.diff(xy, axis=0) / dt_s) @ rot2(heading_rad)  # R^T v
+    return _integrate(heads, v_body, dt_s)
+
+
+def _integrate(heading_rad, v_body_mps, dt_s):
+    xy = np.zeros((len(heading_rad), 2))
+    for k in range(1, len(heading_rad)):
+        xy[k] = xy[k - 1] + rot2(heading_rad[k - 1]) @ v_body_mps[k - 1] * dt_s
+    return xy, np.asarray(heading_rad, dtype=np.float64)
+
+
+def survey_measurements(
+    seed, xy_m, heading_rad, landmarks_xy_m, noise=SurveyNoise(), dt_s=0.2, spacing_m=0.15, max_observations=8,
+):
+    """Noisy per-frame records of a true track over a landmark field (seeded).
+
+    Policy, independent of any back end: every mapped landmark whose template is inside the
+    image is observed (at most ``max_observations``, nearest the centre first); when none is,
+    and no mapped landmark lies within ``spacing_m`` of the vehicle, the unmapped one nearest
+    the image centre is initialised. Speed, compass (white + Ornstein-Uhlenbeck drift), token
+    turn and pixels get the noise of ``noise``; ``heading_rad`` of a record is the pipeline's
+    heading input (heading.HeadingFilter of the compass and the turns).
+    """
+    from rovslam.heading import HeadingFilter
+    from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
+    from rovslam.slam.observation import observation_noise_px2, observe_mn
+
+    rng = np.random.default_rng(seed)
+    k_frames = len(xy_m)
+    z, f = noise.altitude_m, noise.focal_px
+    a = np.exp(-dt_s / noise.drift_tau_s)
+    bias = np.empty(k_frames)
+    bias[0] = rng.normal(0.0, noise.drift_sigma_rad)
+    for k in range(1, k_frames):
+        bias[k] = a * bias[k - 1] + rng.normal(0.0, noise.drift_sigma_rad * np.sqrt(1.0 - a * a))
+    compass = heading_rad + bias + rng.normal(0.0, noise.compass_sigma_rad, k_frames)
+    steps = np.diff(heading_rad) + rng.normal(0.0, noise.step_sigma_rad, k_frames - 1)
+    q = np.eye(2) * noise.speed_sigma_mps**2
+    lim = np.array([noise.image_wh_px[1] / 2 - noise.template_px / 2, noise.image_wh_px[0] / 2 - noise.template_px / 2])
+    heading_filter = HeadingFilter(noise.compass_sigma_rad)
+    id_of: dict[int, int] = {}  # index in landmarks_xy_m -> landmark id
+    order: list[int] = []
+    frames = []
+    for k in range(k_frames):
+        if k == 0:
+            speed, dt, step, step_sigma = np.zeros(2), 0.0, np.nan, np.nan
+            psi = heading_filter.update(compass[0])
+        else:
+            true_v = rot2(heading_rad[k - 1]).T @ (xy_m[k] - xy_m[k - 1]) / dt_s
+            speed, dt = true_v + rng.normal(0.0, noise.speed_sigma_mps, 2), dt_s
+            step, step_sigma = float(steps[k - 1]), noise.step_sigma_rad
+            psi = heading_filter.update(compass[k], step, step_sigma)
+        mn_all = observe_mn(landmarks_xy_m, xy_m[k], heading_rad[k], z, f)
+        inside = np.flatnonzero(np.all(np.abs(mn_all) < lim, axis=1))
+        inside = inside[np.argsort(np.sum(mn_all[inside] ** 2, axis=1))]
+        obs = []
+        tracked = [t for t in inside if t in id_of][:max_observations]
+        for t in tracked:
+            mn = mn_all[t] + rng.normal(0.0, noise.pixel_sigma_px, 2)
+            obs.append(LandmarkMeasurement(id_of[t], "track", mn, observation_noise_px2(mn, noise.pixel_sigma_px, z)))
+        if not tracked:
+            mapped = landmarks_xy_m[order] if order else np.zeros((0, 2))
+            far = not len(mapped) or np.min(np.hypot(*(mapped - xy_m[k]).T)) >= spacing_m
+            fresh = [t for t in inside if t not in id_of]
+            if far and fresh:
+                t = fresh[0]
+                id_of[t] = len(order)
+                order.append(t)
+                mn = mn_all[t] + rng.normal(0.0, noise.pixel_sigma_px, 2)
+                obs.append(LandmarkMeasurement(id_of[t], "init", mn, observation_noise_px2(mn, noise.pixel_sigma_px, z)))
+        frames.append(FrameMeasurements(
+            index=k, t_s=k * dt_s, dt_s=dt, speed_mps=speed, speed_cov_mps2=q, speed_ok=k > 0,
+            heading_rad=psi, heading_sigma_rad=heading_filter.sigma_rad, compass_rad=float(compass[k]),
+            compass_sigma_rad=noise.compass_sigma_rad, heading_step_rad=step, heading_step_sigma_rad=step_sigma,
+            altitude_m=z, altitude_sigma_m=0.0, focal_px=f, landmarks=tuple(obs),
+        ))
+    return Survey(np.asarray(xy_m), np.asarray(heading_rad), landmarks_xy_m[order].reshape(-1, 2), frames)
+
+
+def landmark_field(seed, xy_m, density_per_m2=30.0, margin_m=0.4):
+    """(M, 2) landmarks at random (seeded) over the bounding box of a track plus ``margin_m``."""
+    rng = np.random.default_rng(seed)
+    lo, hi = xy_m.min(0) - margin_m, xy_m.max(0) + margin_m
+    return rng.uniform(lo, hi, (int(density_per_m2 * np.prod(hi - lo)), 2))

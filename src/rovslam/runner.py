@@ -379,3 +379,84 @@ def _reason_kind(reason: str) -> str:
     """A skip reason without the file it names ("/x/images/1.png: not a readable ..." -> "not a readable ...")."""
     head, sep, rest = reason.partition(": ")
     return rest if sep and ("/" in head or "\\" in head or "#" in head) else reason
+
+
+@dataclass(frozen=True)
+class SmoothSummary:
+    """What :func:`smooth_run` did."""
+
+    frames: int
+    landmarks: int
+    observations: int
+    downweighted: int  # observations the robust loss down-weighted at the final estimate
+    online_s: float  # the incremental (iSAM2) pass over every frame
+    final_s: float  # the final polish and the marginal covariances
+    out_dir: Path
+
+
+def smoother_config_for_run(out_dir: str | Path):
+    """The smoother's drift model taken from the run's ``config.toml`` (defaults when absent).
+
+    The compass drift the run was told of (``[odometry] compass_drift_sigma_rad``, with the
+    correlation time ``[slam] heading_bias_tau_s``) is the one the graph models.
+    """
+    from rovslam.config import load_config
+    from rovslam.slam.smoother import SmootherConfig
+
+    path = Path(out_dir) / "config.toml"
+    if not path.is_file():
+        return SmootherConfig()
+    cfg = load_config(path)
+    return SmootherConfig(
+        heading_bias_sigma_rad=cfg.odometry.compass_drift_sigma_rad, heading_bias_tau_s=cfg.slam.heading_bias_tau_s
+    )
+
+
+def smooth_run(
+    out_dir: str | Path,
+    config=None,
+    on_start: Callable[[int], None] | None = None,
+    on_frame: Callable[[int], None] | None = None,
+) -> SmoothSummary:
+    """Rebuild the factor graph of a run from its measurement files, smooth it, write the results.
+
+    Reads ``OUT/measurements.csv`` and ``OUT/landmark_measurements.csv``, feeds every frame to
+    :class:`rovslam.slam.smoother.Isam2Smoother` and writes ``OUT/trajectory_smoothed.tum``,
+    ``OUT/trajectory_smoothed.csv`` and ``OUT/landmarks_smoothed.csv``. ``config`` (a
+    :class:`~rovslam.slam.smoother.SmootherConfig`) defaults to :func:`smoother_config_for_run`.
+    ``on_start`` gets the frame count, ``on_frame`` the number of frames done.
+
+    Raises:
+        ResultsFormatError: no measurement files (a run by an older rovslam) or bad content.
+    """
+    from rovslam.errors import ResultsFormatError
+    from rovslam.io.measurements import read_measurements
+    from rovslam.io.results import write_smoothed
+    from rovslam.slam.smoother import Isam2Smoother
+
+    out = Path(out_dir)
+    frames = read_measurements(out)
+    if not frames:
+        raise ResultsFormatError(f"{out}: the measurement files hold no frame; nothing to smooth.")
+    smoother = Isam2Smoother(config if config is not None else smoother_config_for_run(out))
+    if on_start is not None:
+        on_start(len(frames))
+    t0 = time.perf_counter()
+    for n, meas in enumerate(frames, 1):
+        smoother.add_frame(meas)
+        if on_frame is not None:
+            on_frame(n)
+    t1 = time.perf_counter()
+    res = smoother.smoothed()
+    t2 = time.perf_counter()
+    rows = [
+        {"id": int(i), "x_m": float(xy[0]), "y_m": float(xy[1]), "var_x_m2": float(c[0, 0]), "cov_xy_m2": float(c[0, 1]),
+         "var_y_m2": float(c[1, 1]), "first_t_s": float(t), "observations": int(n), "downweighted": int(d)}
+        for i, xy, c, t, n, d in zip(res.landmark_ids, res.landmarks_xy_m, res.landmarks_cov_m2,
+                                      res.landmark_first_t_s, res.landmark_observations, res.landmark_downweighted)
+    ]
+    write_smoothed(out, res.t_s, res.xy_m, res.cov_xy_m2, res.heading_rad, res.altitude_m, rows)
+    return SmoothSummary(
+        frames=len(frames), landmarks=len(rows), observations=int(res.landmark_observations.sum()),
+        downweighted=int(res.landmark_downweighted.sum()), online_s=t1 - t0, final_s=t2 - t1, out_dir=out,
+    )

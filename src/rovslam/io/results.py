@@ -169,7 +169,9 @@ def _finite_or_null(o: Any) -> Any:
 # it may delete. Other writers of the folder add their names here.
 RESULT_FILES = frozenset(
     {"trajectory.csv", "trajectory.tum", "observations.csv", "landmarks.csv", "summary.json", "config.toml",
-     "eval.json", "tokens.csv", "run.rrd", "mosaic.png", "mosaic.pgw", "mosaic_truth.png", "mosaic_truth.pgw"}
+     "eval.json", "tokens.csv", "run.rrd", "mosaic.png", "mosaic.pgw", "mosaic_truth.png", "mosaic_truth.pgw",
+     "measurements.csv", "landmark_measurements.csv", "trajectory_smoothed.tum", "trajectory_smoothed.csv",
+     "landmarks_smoothed.csv"}
 )
 # Folders rovslam writes, with the pattern of their files' paths relative to the folder.
 RESULT_DIRS = {
@@ -550,3 +552,44 @@ def read_results(out_dir: str | Path) -> RunResults:
     lms = _read_table(lm_path, LANDMARK_COLUMNS)[0] if lm_path.is_file() else {}
     summary = read_summary(out / "summary.json")
     return RunResults(out, traj, obs, lms, summary)
+
+
+# ---------------------------------------------------------------------------------------------
+# Smoothed results (``rovslam smooth``, the smoothing back end): the best estimate of the whole
+# dive given all of it, beside the online (causal) trajectory.
+
+SMOOTHED_TRAJECTORY_COLUMNS = ("t_s", "x_m", "y_m", "var_x_m2", "cov_xy_m2", "var_y_m2", "heading_rad")
+SMOOTHED_LANDMARK_COLUMNS = LANDMARK_COLUMNS[:-1] + ("downweighted",)
+
+
+def write_smoothed(
+    out_dir: str | Path,
+    t_s: np.ndarray,
+    xy_m: np.ndarray,
+    cov_xy_m2: np.ndarray,
+    heading_rad: np.ndarray,
+    altitude_m: np.ndarray,
+    landmark_rows: list[dict[str, Any]],
+) -> None:
+    """Write ``trajectory_smoothed.tum``, ``trajectory_smoothed.csv`` and ``landmarks_smoothed.csv``.
+
+    Args:
+        t_s, heading_rad, altitude_m: (N,) per pose; xy_m: (N, 2); cov_xy_m2: (N, 2, 2).
+        landmark_rows: dicts with the ``SMOOTHED_LANDMARK_COLUMNS`` keys.
+
+    Each file is written whole and then renamed over the old one: an interruption leaves the
+    previous version, never half a file.
+    """
+    out = Path(out_dir)
+    rows = ["# t x y z qx qy qz qw  (rovslam smoothed: z = altitude, heading about z)"]
+    csv_rows = [",".join(SMOOTHED_TRAJECTORY_COLUMNS)]
+    for t, (x, y), c, psi, z in zip(t_s, xy_m, cov_xy_m2, heading_rad, altitude_m):
+        rows.append(" ".join(_f(v) for v in (t, x, y, z, *heading_quaternion(float(psi)))))
+        csv_rows.append(",".join(_f(v) for v in (t, x, y, c[0, 0], c[0, 1], c[1, 1], psi)))
+    atomic_write_text(out / "trajectory_smoothed.tum", "\n".join(rows) + "\n")
+    atomic_write_text(out / "trajectory_smoothed.csv", "\n".join(csv_rows) + "\n")
+    lm = [",".join(SMOOTHED_LANDMARK_COLUMNS)]
+    for row in landmark_rows:
+        lm.append(",".join(str(row[c]) if isinstance(row[c], (int, np.integer)) else _f(row[c])
+                           for c in SMOOTHED_LANDMARK_COLUMNS))
+    atomic_write_text(out / "landmarks_smoothed.csv", "\n".join(lm) + "\n")
