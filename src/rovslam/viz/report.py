@@ -41,29 +41,29 @@ def write_report(results_dir: str | Path, groundtruth: str | Path | None = None)
         f"{' (interrupted run)' if res.summary.get('interrupted') else ''}.</p>",
     ]
     if figures is not None:
-        s, d, c = figures["slam"], figures["dead_reckoning"], figures["consistency"]
+        s, d, c = figures.slam, figures.dead_reckoning, figures.consistency
         rows = [
-            ("ATE RMSE [cm]", s["ate_rmse_m"] * 100, d["ate_rmse_m"] * 100),
-            ("ATE max [cm]", s["ate_max_m"] * 100, d["ate_max_m"] * 100),
-            ("final error [cm]", s["final_error_m"] * 100, d["final_error_m"] * 100),
-            ("final error / distance [%]", s["final_error_pct"], d["final_error_pct"]),
+            ("ATE RMSE [cm]", s.ate_rmse_m * 100, d.ate_rmse_m * 100),
+            ("ATE max [cm]", s.ate_max_m * 100, d.ate_max_m * 100),
+            ("final error [cm]", s.final_error_m * 100, d.final_error_m * 100),
+            ("final error / distance [%]", s.final_error_pct, d.final_error_pct),
         ]
         parts.append("<h2>Accuracy</h2><table><tr><th></th><th>SLAM</th><th>dead reckoning</th></tr>")
-        parts += [f"<tr><td>{n}</td><td>{a:.3f}</td><td>{b:.3f}</td></tr>" for n, a, b in rows]
+        parts += [f"<tr><td>{n}</td><td>{_num(a)}</td><td>{_num(b)}</td></tr>" for n, a, b in rows]
         parts.append(
-            f"</table><p>Distance travelled {s['distance_m']:.2f} m; truth inside the 2-sigma ellipse in "
-            f"{100 * c['coverage_2sigma']:.1f} % of frames; mean NEES {c['nees_mean']:.2f} (2 dof).</p>"
+            f"</table><p>Distance travelled {s.distance_m:.2f} m; truth inside the 2-sigma ellipse in "
+            f"{100 * c.coverage_2sigma:.1f} % of frames; mean NEES {c.nees_mean:.2f} (2 dof).</p>"
         )
-        if figures["table1_landmark0"]:
+        if figures.table1_landmark0:
             parts.append("<h2>Table 1: position while tracking landmark 0</h2><table><tr><th>time [s]</th>"
                          "<th>x&#770; [m]</th><th>y&#770; [m]</th><th>x<sub>GT</sub></th><th>y<sub>GT</sub></th></tr>")
-            for r in figures["table1_landmark0"]:
+            for r in figures.table1_landmark0:
                 parts.append(
-                    f"<tr><td>{r['t_s']:.1f}</td><td>{r['x_est_m']:.3f}</td><td>{r['y_est_m']:.3f}</td>"
-                    f"<td>{r['x_gt_m']:.3f}</td><td>{r['y_gt_m']:.3f}</td></tr>"
+                    f"<tr><td>{r.t_s:.1f}</td><td>{r.x_est_m:.3f}</td><td>{r.y_est_m:.3f}</td>"
+                    f"<td>{r.x_gt_m:.3f}</td><td>{r.y_gt_m:.3f}</td></tr>"
                 )
             parts.append("</table>")
-        (out / "eval.json").write_text(json.dumps(figures, indent=2), encoding="utf-8")
+        (out / "eval.json").write_text(json.dumps(figures.to_dict(), indent=2), encoding="utf-8")
     parts.append("<h2>Figures</h2>")
     parts += [f"<p><img src='{p.name}'></p>" for p in imgs]
     lm_dir = Path(results_dir) / "landmarks"
@@ -79,3 +79,7 @@ def write_report(results_dir: str | Path, groundtruth: str | Path | None = None)
     path = out / "index.html"
     path.write_text("\n".join(parts), encoding="utf-8")
     return path
+
+
+def _num(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3f}"
