@@ -50,20 +50,23 @@ def _stand_in(name: str):
     if "hd" in name:
         s = 1920 / 360
         cam = Camera(1920, 1080, base.camera.fx_px * s, base.camera.fy_px * s, 959.5, 539.5)
-        return replace(base, name=f"stand-in-{name}", camera=cam, frame_rate_hz=25.0), "portofino at 1920x1080, 25 Hz"
+        return replace(base, name="stand-in-hd", camera=cam, frame_rate_hz=25.0), "stand-in: portofino at 1920x1080, 25 Hz"
     if "still" in name:
-        return replace(base, name=f"stand-in-{name}", frame_rate_hz=1.5), "portofino at 1.5 Hz"
-    return replace(base, name=f"stand-in-{name}"), "portofino (360x272, 5 Hz)"
+        return replace(base, name="stand-in-still", frame_rate_hz=1.5), "stand-in: portofino at 1.5 Hz"
+    return base, "stand-in: portofino (360x272, 5 Hz)"
 
 
-def _cell_cpu_s(scenario: str, frames: int, repeats: int) -> tuple[dict[str, float], float]:
+def _cell_cpu_s(scenario: str, frames: int, repeats: int, image_format: str) -> tuple[dict[str, float], float]:
     """Median CPU seconds per stage of a cell, and the median decode-only CPU seconds of its images."""
     cv2.setNumThreads(1)
+    with tempfile.TemporaryDirectory() as tmp:  # warm-up: imports and the renderer's tables, once per worker
+        run_cell(CellSpec("w", "w", scenario=scenario, seed=99, frames=2, image_format=image_format), tmp)
     per_stage: dict[str, list[float]] = {s: [] for s in STAGES}
     decode = []
     for r in range(repeats):
         with tempfile.TemporaryDirectory() as tmp:
-            row = run_cell(CellSpec("c", "c", scenario=scenario, seed=r, frames=frames), tmp, keep_sequence=True)
+            spec = CellSpec("c", "c", scenario=scenario, seed=r, frames=frames, image_format=image_format)
+            row = run_cell(spec, tmp, keep_sequence=True)
             if row["status"] != "ok":
                 raise SystemExit(f"{scenario}: the cell failed: {row['error']}")
             for s in STAGES:
@@ -110,19 +113,23 @@ def main() -> None:
     cell_costs = []
     for group in matrix.groups:
         cells = [c for c in matrix.cells if c.group == group]
-        sc, note = stand_ins.get(cells[0].scenario, (SCENARIOS[cells[0].scenario], ""))
-        if sc.name not in measured:
-            short, _ = _cell_cpu_s(sc.name, n_short, args.repeats)
-            long, dec = _cell_cpu_s(sc.name, n_long, args.repeats)
+        if cells[0].scenario is None:
+            print(f"{group:<18} a recorded sequence: not estimated")
+            continue
+        sc, note = stand_ins[cells[0].scenario]
+        key = (sc.name, cells[0].image_format)
+        if key not in measured:
+            short, _ = _cell_cpu_s(key[0], n_short, args.repeats, key[1])
+            long, dec = _cell_cpu_s(key[0], n_long, args.repeats, key[1])
             per = {s: max(0.0, (long[s] - short[s]) / (n_long - n_short)) for s in STAGES}
             fixed = sum(long[s] - per[s] * n_long for s in STAGES)
-            measured[sc.name] = (fixed, sum(per.values()), per, dec / n_long)
-        fixed, per_frame, per, dec = measured[sc.name]
+            measured[key] = (fixed, sum(per.values()), per, dec / n_long)
+        fixed, per_frame, per, dec = measured[key]
         frames = cells[0].frames or sc.n_frames
         cost = fixed + per_frame * frames
         cell_costs += [cost] * len(cells)
         print(f"{group:<18}{frames:>7}{fixed:>9.1f}{1e3 * per['simulate']:>10.1f}{1e3 * per['run']:>10.1f}"
-              f"{1e3 * per['eval']:>10.1f}{1e3 * dec:>12.1f}{cost:>8.0f}  {note or 'itself'}")
+              f"{1e3 * per['eval']:>10.1f}{1e3 * dec:>12.1f}{cost:>8.0f}  {note or 'itself'}, {cells[0].image_format}")
     total = sum(cell_costs)
     wall = _project(cell_costs, args.cores)
     print(f"total {total / 3600:.2f} CPU hours; projected wall time on {args.cores} cores: {wall / 3600:.2f} h "

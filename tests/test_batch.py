@@ -33,6 +33,7 @@ frames = 120
 [[scenario]]
 name = "rough-turns-short"
 duration_s = 30.0
+format = "jpg"
 seeds = [7]
 config = "fast.toml"
 label = "rough-fast"
@@ -49,6 +50,7 @@ frames = 50
     assert m.cells[0].frames == 120 and m.cells[0].config.tracker.min_correlation == 0.89
     rough = m.cells[3]
     assert rough.scenario == "rough-turns-short" and rough.frames == 150  # 30 s at 5 Hz
+    assert rough.image_format == "jpg" and m.cells[0].image_format == "png"
     assert rough.config.tracker.min_correlation == 0.8 and rough.config_path == str(tmp_path / "fast.toml")
     seq = m.cells[4]
     assert not seq.simulated and seq.frames == 50
@@ -62,6 +64,7 @@ frames = 50
         ('[[scenario]]\nname = "atlantis"\n', "unknown scenario 'atlantis'; known: portofino, portofino-short"),
         ('[[scenario]]\nname = "portofino-short"\nframe = 10\n', "[[scenario]] #1: unknown key 'frame'"),
         ('[[scenario]]\nname = "portofino-short"\nframes = 0\n', "frames: must be a whole number >= 1"),
+        ('[[scenario]]\nname = "portofino-short"\nformat = "tiff"\n', 'format must be "png" or "jpg"'),
         ('[[scenario]]\nname = "portofino-short"\nframes = 5\nduration_s = 3\n', "frames or duration_s, not both"),
         ('seeds = [1, 1]\n[[scenario]]\nname = "portofino-short"\n', "a seed appears twice"),
         ('seeds = [-1]\n[[scenario]]\nname = "portofino-short"\n', "list of whole numbers >= 0"),
@@ -94,6 +97,12 @@ def test_shipped_matrices_load():
 
     smoke = load_matrix(Path(__file__).parents[1] / "matrices" / "smoke.toml")
     assert len(smoke.cells) == 4 and {c.frames for c in smoke.cells} == {250}
+    # The default matrix names the hard presets; every one of them at 10 seeds, 3 to 10 minutes.
+    import tomllib
+
+    default = tomllib.loads((Path(__file__).parents[1] / "matrices" / "default.toml").read_text())
+    assert default["seeds"] == 10 and len(default["scenario"]) >= 6
+    assert all(180 <= s["duration_s"] <= 600 for s in default["scenario"])
 
 
 # --------------------------------------------------------------------------- the tables
@@ -174,3 +183,20 @@ def test_local_workers_keep_glibcs_adaptive_malloc():
     env = worker_environ()
     assert "MALLOC_TRIM_THRESHOLD_" not in env  # 2-3x the CPU of a cell when set (see worker_environ)
     assert env.get("OMP_NUM_THREADS") in (1, "1")  # Dask's one-thread settings are kept
+
+
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["--scheduler", "nonsense"], "--scheduler nonsense: no Dask scheduler answered"),
+        (["--workers", "0"], "--workers must be at least 1"),
+        (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "with --scheduler the cluster is yours to size"),
+    ],
+)
+def test_cli_cluster_mistakes_are_one_line_exit_2(tmp_path, args, needle):
+    p = _matrix(tmp_path, '[[scenario]]\nname = "portofino-short"\nframes = 5\n')
+    res = CliRunner().invoke(app, ["batch", str(p), "--out", str(tmp_path / "o"), *args])
+    assert res.exit_code == 2
+    lines = [line for line in res.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and needle in lines[0]
+    assert not (tmp_path / "o").exists()

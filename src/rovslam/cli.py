@@ -136,17 +136,19 @@ def batch(
 ) -> None:
     """Run a robustness matrix on Dask: simulate, run, eval and baselines per cell; resumes; one table."""
     from rovslam.batch import default_workers, load_matrix, run_matrix
-    from rovslam.errors import InvalidArgumentError
+    from rovslam.errors import ClusterError
 
     if scheduler is not None and workers is not None:
-        raise InvalidArgumentError("--workers sizes the local cluster; with --scheduler the cluster is yours to size")
+        raise ClusterError("--workers sizes the local cluster; with --scheduler the cluster is yours to size")
     if workers is not None and workers < 1:
-        raise InvalidArgumentError(f"--workers must be at least 1, got {workers}")
+        raise ClusterError(f"--workers must be at least 1, got {workers}")
     m = load_matrix(matrix)
     where = scheduler or f"a local cluster of {workers or default_workers()} workers"
     with _cell_progress(quiet) as progress:
         report = run_matrix(m, out, scheduler, workers, keep_sequences, on_start=progress.start, on_cell=progress.cell)
-    if report.reused:
+    if report.reused and not report.computed and not report.interrupted:
+        typer.echo(f"all {len(report.reused)} cells were finished already (delete DIR/cells/<cell> to run one again)")
+    elif report.reused:
         typer.echo(f"kept {len(report.reused)} finished cells; ran {len(report.computed)} on {where}")
     _print_matrix(report.rows, m.groups)
     typer.echo(f"wrote {out / 'matrix.csv'} and {out / 'matrix.md'}")
@@ -428,13 +430,14 @@ def _print_matrix(rows: list, groups) -> None:
     from rovslam.batch import SUMMARY_FIGURES, summarise
     from rovslam.batch.table import format_figure
 
-    keep = ("ate_rmse_m", "final_error_pct", "coverage_2sigma", "max_error_jump_sigma", "dr_ate_rmse_m", "pc_ate_rmse_m")
-    figures = [f for f in SUMMARY_FIGURES if f.key in keep]
+    short = {"ate_rmse_m": "ATE cm", "final_error_pct": "final % dist", "coverage_2sigma": "in 2-sigma %",
+             "max_error_jump_sigma": "jump sigma", "dr_ate_rmse_m": "DR ATE cm", "pc_ate_rmse_m": "PC ATE cm"}
+    figures = [f for f in SUMMARY_FIGURES if f.key in short]
     t = Table(title="median / worst over seeds (all figures in matrix.md)")
-    t.add_column("scenario")
+    t.add_column("scenario", no_wrap=True)
     t.add_column("ok", justify="right")
     for f in figures:
-        t.add_column(f.label, justify="right")
+        t.add_column(short[f.key], justify="right")
     for s in summarise(rows, groups):
         t.add_row(s.group, f"{s.ok}/{s.cells}",
                   *(f"{format_figure(s.median[f.key], f)} / {format_figure(s.worst[f.key], f)}" for f in figures))

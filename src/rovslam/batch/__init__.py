@@ -29,11 +29,11 @@ __all__ = [
     "Matrix",
     "SUMMARY_FIGURES",
     "default_workers",
-    "worker_environ",
     "load_matrix",
     "run_cell",
     "run_matrix",
     "summarise",
+    "worker_environ",
     "write_tables",
 ]
 
@@ -68,6 +68,7 @@ def worker_environ() -> dict:
     2 to 3 times the CPU (measured: 8.7 s instead of 3.2 s for a 60-frame portofino dive).
     """
     import dask
+    import distributed  # noqa: F401  (registers its configuration defaults)
 
     env = dict(dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {})
     env.pop("MALLOC_TRIM_THRESHOLD_", None)
@@ -94,7 +95,6 @@ def run_matrix(
     """
     out = Path(out_dir)
     cells_dir = out / "cells"
-    cells_dir.mkdir(parents=True, exist_ok=True)
     rows: dict[str, dict[str, Any]] = {}
     report = BatchReport(rows=[])
     for spec in matrix.cells:
@@ -103,64 +103,84 @@ def run_matrix(
             rows[spec.cell_id] = row
             report.reused.append(spec.cell_id)
     todo = [c for c in matrix.cells if c.cell_id not in rows]
-    if on_start is not None:
-        on_start(len(rows), len(matrix.cells))
 
     def ordered() -> list[dict[str, Any]]:
         return [rows[c.cell_id] for c in matrix.cells if c.cell_id in rows]
 
-    write_tables(out, matrix.name, ordered(), matrix.groups)
-    if todo:
-        try:
-            _run_on_dask(todo, cells_dir, scheduler, workers, keep_sequences, rows, report, on_cell,
-                         lambda: write_tables(out, matrix.name, ordered(), matrix.groups))
-        except KeyboardInterrupt:
-            report.interrupted = True
+    def save() -> None:
+        write_tables(out, matrix.name, ordered(), matrix.groups)
+
+    client = cluster = None
+    try:
+        if todo:  # first, so that a wrong --scheduler fails alone, before anything is written
+            client, cluster = _connect(scheduler, workers)
+        cells_dir.mkdir(parents=True, exist_ok=True)
+        if on_start is not None:
+            on_start(len(rows), len(matrix.cells))
+        save()
+        if todo:
+            _run_cells(client, todo, cells_dir, keep_sequences, rows, report, on_cell, save)
+    except KeyboardInterrupt:
+        report.interrupted = True
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
     report.rows = ordered()
-    write_tables(out, matrix.name, report.rows, matrix.groups)
+    if out.is_dir():
+        save()
     return report
 
 
-def _run_on_dask(todo, cells_dir, scheduler, workers, keep_sequences, rows, report, on_cell, save) -> None:
+def _connect(scheduler: str | None, workers: int | None):
+    """A Dask client of the scheduler at ``scheduler``, or of a new local cluster: ``(client, cluster or None)``."""
     import logging
-    import uuid
 
     import dask
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import Client, LocalCluster
+
+    from rovslam.errors import ClusterError
+
+    if scheduler is not None:
+        try:
+            return Client(scheduler, timeout="20s"), None
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise ClusterError(
+                f"--scheduler {scheduler}: no Dask scheduler answered ({type(exc).__name__}: {exc}); "
+                "give the address `dask scheduler` prints, e.g. tcp://10.0.0.5:8786"
+            ) from None
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environ()}):
+        cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
+    return Client(cluster), cluster
+
+
+def _run_cells(client, todo, cells_dir, keep_sequences, rows, report, on_cell, save) -> None:
+    import uuid
+
+    from dask.distributed import as_completed
 
     from rovslam.batch.cell import ERROR_FILE, failed_row
 
-    if scheduler is not None:
-        client, cluster = Client(scheduler), None
-    else:
-        n = workers or default_workers()
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environ()}):
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                                   silence_logs=logging.ERROR)
-        client = Client(cluster)
-    try:
-        futures = {}
-        batch_id = uuid.uuid4().hex[:8]  # two batches on one scheduler never share a task
-        for spec in todo:
-            # Longest cells first, so the last ones to finish are short; pure=False: a re-run recomputes.
-            fut = client.submit(run_cell, spec, str(cells_dir), keep_sequences, key=f"rovslam-cell-{spec.cell_id}-{batch_id}",
-                                pure=False, priority=spec.frames or 0)
-            futures[fut] = spec
-        for fut in as_completed(futures):
-            spec = futures[fut]
-            try:
-                row = fut.result()
-            except Exception as exc:  # the worker died (out of memory, killed): a failed cell, not a failed batch
-                row = failed_row(spec, exc)
-                log = cells_dir / spec.cell_id / ERROR_FILE
-                log.parent.mkdir(parents=True, exist_ok=True)
-                log.write_text(f"the Dask task of this cell failed: {exc!r}\n", encoding="utf-8")
-            rows[spec.cell_id] = row
-            report.computed.append(spec.cell_id)
-            save()
-            if on_cell is not None:
-                on_cell(row)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+    futures = {}
+    batch_id = uuid.uuid4().hex[:8]  # two batches on one scheduler never share a task
+    for spec in todo:
+        # Longest cells first, so the last ones to finish are short; pure=False: a re-run recomputes.
+        fut = client.submit(run_cell, spec, str(cells_dir), keep_sequences, key=f"rovslam-cell-{spec.cell_id}-{batch_id}",
+                            pure=False, priority=spec.frames or 0)
+        futures[fut] = spec
+    for fut in as_completed(futures):
+        spec = futures[fut]
+        try:
+            row = fut.result()
+        except Exception as exc:  # the worker died (out of memory, killed): a failed cell, not a failed batch
+            row = failed_row(spec, exc)
+            log = cells_dir / spec.cell_id / ERROR_FILE
+            log.parent.mkdir(parents=True, exist_ok=True)
+            log.write_text(f"the Dask task of this cell failed: {exc!r}\n", encoding="utf-8")
+        rows[spec.cell_id] = row
+        report.computed.append(spec.cell_id)
+        save()
+        if on_cell is not None:
+            on_cell(row)

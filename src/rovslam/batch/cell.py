@@ -84,7 +84,7 @@ def _run(spec: CellSpec, cell_dir: Path, keep_sequence: bool) -> dict[str, Any]:
         from rovslam.sim import simulate
 
         seq = cell_dir / "sequence"
-        simulate(spec.scenario, seq, frames=spec.frames, seed=spec.seed)
+        simulate(spec.scenario, seq, frames=spec.frames, seed=spec.seed, image_format=spec.image_format)
         groundtruth = seq / "groundtruth.csv"
         max_frames = None
     else:
@@ -108,7 +108,8 @@ def _run(spec: CellSpec, cell_dir: Path, keep_sequence: bool) -> dict[str, Any]:
         "status": "ok",
         "error": "",
         **cell_figures(ev),
-        "frames_per_s": summary.fps,
+        "frames_per_s": summary.fps,  # wall clock, as `rovslam run` reports it: depends on the machine's load
+        "frames_per_cpu_s": summary.frames / (c2 - c1) if c2 > c1 else None,  # per second of one core
         "simulate_s": t1 - t0,
         "run_s": t2 - t1,
         "eval_s": t3 - t2,

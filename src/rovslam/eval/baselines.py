@@ -1,9 +1,10 @@
 """Baselines a SLAM result is compared with: the simplest seabed odometry a user could write.
 
-Frame-to-frame phase correlation (``cv2.phaseCorrelate`` on Hann-windowed, high-passed grey
-images) gives the image shift of the seabed between consecutive frames; scaled to metres by
-the altitude and turned into the world by the compass heading, it integrates into a path.
-No tokens, no landmarks, no filter.
+Frame-to-frame phase correlation (``cv2.phaseCorrelate`` on Hann-windowed grey images) gives
+the image shift of the seabed between consecutive frames; scaled to metres by the altitude and
+turned into the world by the compass heading, it integrates into a path. No tokens, no
+landmarks, no filter, no tilt compensation. (An optional high pass exists; on the simulated
+dives it changed nothing in clear water and made turbid dives worse, so it is off.)
 
 Convention (DESIGN.md): the seabed moves opposite to the vehicle. ``cv2.phaseCorrelate(a, b)``
 returns the shift ``(du, dv)`` in pixels of the content of ``b`` relative to ``a`` (u right,
@@ -25,10 +26,10 @@ from rovslam.errors import InvalidArgumentError, ResultsFormatError
 def grey_for_correlation(image: np.ndarray, highpass_sigma_px: float = 0.0, max_width_px: int = 640) -> np.ndarray:
     """``(H, W, 3) uint8`` RGB (or ``(H, W)``) -> ``(h, w) float32`` grey, high-passed, at most ``max_width_px`` wide.
 
-    The high pass (image minus its Gaussian blur of ``highpass_sigma_px``, 0 for none)
-    removes the vignetting and the lamp's falloff, which stay put in the image and would
-    pull the correlation peak towards zero shift. Wide images (HD) are shrunk by an integer
-    factor so one correlation stays cheap; :func:`frame_shifts_px` scales the shift back.
+    The optional high pass (image minus its Gaussian blur of ``highpass_sigma_px``; 0, the
+    default, for none) removes vignetting and lamp falloff, which stay put in the image. Wide
+    images (HD) are shrunk by an integer factor so one correlation stays cheap;
+    :func:`frame_shifts_px` scales the shift back.
     """
     import cv2
 
