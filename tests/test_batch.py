@@ -200,3 +200,32 @@ def test_cli_cluster_mistakes_are_one_line_exit_2(tmp_path, args, needle):
     lines = [line for line in res.output.splitlines() if line.strip()]
     assert len(lines) == 1 and needle in lines[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_an_interrupted_batch_keeps_tables_with_the_cells_not_run_as_pending(tmp_path, monkeypatch):
+    import rovslam.batch as batch
+
+    class Closable:
+        closed = False
+
+        def close(self):
+            self.closed = True
+
+    client, cluster = Closable(), Closable()
+    monkeypatch.setattr(batch, "_connect", lambda scheduler, workers: (client, cluster))
+
+    def interrupted(client, todo, cells_dir, keep, rows, report, on_cell, save):
+        rows[todo[0].cell_id] = {**batch.pending_row(todo[0]), "status": "ok", "ate_rmse_m": 0.01}
+        report.computed.append(todo[0].cell_id)
+        save()
+        raise KeyboardInterrupt  # Ctrl-C while the second cell runs
+
+    monkeypatch.setattr(batch, "_run_cells", interrupted)
+    p = _matrix(tmp_path, 'seeds = [0, 1]\n[[scenario]]\nname = "portofino-short"\nframes = 5\n')
+    report = run_matrix(load_matrix(p), tmp_path / "o")
+    assert report.interrupted and report.computed == ["portofino-short_s0"] and report.failed == []
+    assert [r["status"] for r in report.rows] == ["ok", "pending"]
+    assert client.closed and cluster.closed
+    md = (tmp_path / "o" / "matrix.md").read_text()
+    assert "| portofino-short | 1/2 | 1.00 / 1.00 |" in md
+    assert "Not run yet (the batch was interrupted): portofino-short_s1." in md

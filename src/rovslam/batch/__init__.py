@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from rovslam.batch.cell import read_result, run_cell
+from rovslam.batch.cell import pending_row, read_result, run_cell
 from rovslam.batch.matrix import CellSpec, Matrix, load_matrix
 from rovslam.batch.table import MATRIX_COLUMNS, SUMMARY_FIGURES, GroupSummary, summarise, write_tables
 
@@ -40,7 +40,10 @@ __all__ = [
 
 @dataclass
 class BatchReport:
-    """What :func:`run_matrix` did: every cell's row in matrix order, which cells ran now and which were kept."""
+    """What :func:`run_matrix` did: every cell's row in matrix order, which cells ran now and which were kept.
+
+    A row's ``status`` is ``ok``, ``failed`` or, for a cell an interrupted batch did not finish, ``pending``.
+    """
 
     rows: list[dict[str, Any]]
     computed: list[str] = field(default_factory=list)
@@ -49,7 +52,7 @@ class BatchReport:
 
     @property
     def failed(self) -> list[dict[str, Any]]:
-        return [r for r in self.rows if r.get("status") != "ok"]
+        return [r for r in self.rows if r.get("status") == "failed"]
 
 
 def default_workers() -> int:
@@ -104,8 +107,8 @@ def run_matrix(
             report.reused.append(spec.cell_id)
     todo = [c for c in matrix.cells if c.cell_id not in rows]
 
-    def ordered() -> list[dict[str, Any]]:
-        return [rows[c.cell_id] for c in matrix.cells if c.cell_id in rows]
+    def ordered() -> list[dict[str, Any]]:  # every cell, those not run (yet) as "pending"
+        return [rows[c.cell_id] if c.cell_id in rows else pending_row(c) for c in matrix.cells]
 
     def save() -> None:
         write_tables(out, matrix.name, ordered(), matrix.groups)

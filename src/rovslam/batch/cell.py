@@ -70,6 +70,11 @@ def failed_row(spec: CellSpec, exc: BaseException, wall_s: float = float("nan"))
     return {**_spec_columns(spec), "status": "failed", "error": f"{type(exc).__name__}: {message}", "wall_s": wall_s}
 
 
+def pending_row(spec: CellSpec) -> dict[str, Any]:
+    """The matrix row of a cell not run yet (an interrupted batch)."""
+    return {**_spec_columns(spec), "status": "pending", "error": ""}
+
+
 def _spec_columns(spec: CellSpec) -> dict[str, Any]:
     return {"cell": spec.cell_id, "group": spec.group, "scenario": spec.scenario or "", "seed": spec.seed,
             "config": spec.config_path or ""}

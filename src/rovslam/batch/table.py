@@ -75,7 +75,10 @@ def _number(value: Any) -> float | None:
 
 
 def summarise(rows: Sequence[dict[str, Any]], groups: Sequence[str] | None = None) -> list[GroupSummary]:
-    """One :class:`GroupSummary` per group (in ``groups`` order, default first appearance); failed cells are counted, not averaged."""
+    """One :class:`GroupSummary` per group (in ``groups`` order, default first appearance).
+
+    Failed and pending cells are counted in ``cells``, not in the figures.
+    """
     import numpy as np
 
     order = list(groups) if groups is not None else list(dict.fromkeys(r["group"] for r in rows))
@@ -117,10 +120,13 @@ def matrix_markdown(title: str, rows: Sequence[dict[str, Any]], groups: Sequence
         cols += [f"{format_figure(s.median[f.key], f)} / {format_figure(s.worst[f.key], f)}" for f in SUMMARY_FIGURES]
         cols.append(s.worst_cell or "")
         lines.append("| " + " | ".join(cols) + " |")
-    failed = [r for r in rows if r.get("status") != "ok"]
+    failed = [r for r in rows if r.get("status") == "failed"]
     if failed:
         lines += ["", "## Failed cells", "", "| cell | error |", "| --- | --- |"]
         lines += [f"| {r['cell']} | {str(r.get('error', '')).replace('|', '/')} |" for r in failed]
+    pending = [r["cell"] for r in rows if r.get("status") == "pending"]
+    if pending:
+        lines += ["", f"Not run yet (the batch was interrupted): {', '.join(pending)}."]
     lines += [
         "",
         "ATE: RMS of the position error over the frames; final error / distance: the last frame's error",
