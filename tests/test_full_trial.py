@@ -20,7 +20,7 @@ def test_full_portofino_trial(tmp_path):
     summary = run_sequence(tmp_path / "seq", tmp_path / "out")
     assert summary.frames == 13275 and not summary.skipped
     f = evaluate(read_results(tmp_path / "out"), read_groundtruth(tmp_path / "seq" / "groundtruth.csv"))
-    assert f["slam"]["ate_rmse_m"] < 0.01
-    assert f["dead_reckoning"]["ate_rmse_m"] >= 10.0 * f["slam"]["ate_rmse_m"]
-    assert f["consistency"]["coverage_2sigma"] >= 0.90
-    assert len(f["table1_landmark0"]) >= 10
+    assert f.slam.ate_rmse_m < 0.01
+    assert f.dead_reckoning.ate_rmse_m >= 10.0 * f.slam.ate_rmse_m
+    assert f.consistency.coverage_2sigma >= 0.90
+    assert len(f.table1_landmark0) >= 10

@@ -40,21 +40,21 @@ def _figures(root):
 
 def test_portofino_short_meets_the_papers_accuracy(short_dive):
     f = _figures(short_dive)
-    print(json.dumps({k: f[k] for k in ("slam", "dead_reckoning", "consistency", "landmarks")}, indent=1))
-    assert f["frames"] == 600
-    assert f["slam"]["ate_rmse_m"] < 0.01
-    assert f["dead_reckoning"]["ate_rmse_m"] >= 3.0 * f["slam"]["ate_rmse_m"]
-    assert f["consistency"]["coverage_2sigma"] >= 0.90
-    assert f["landmarks"] >= 2
+    print(json.dumps({k: f.to_dict()[k] for k in ("slam", "dead_reckoning", "consistency", "landmarks")}, indent=1))
+    assert f.frames == 600
+    assert f.slam.ate_rmse_m < 0.01
+    assert f.dead_reckoning.ate_rmse_m >= 3.0 * f.slam.ate_rmse_m
+    assert f.consistency.coverage_2sigma >= 0.90
+    assert f.landmarks >= 2
     # Landmark 0 is seen again on a later passage (the paper's Table 1 has rows after the first).
-    assert len(f["table1_landmark0"]) >= 2
+    assert len(f.table1_landmark0) >= 2
 
 
 def test_rough_preset_with_turns_swings_and_tilt(rough_dive):
     f = _figures(rough_dive)
-    print(json.dumps({k: f[k] for k in ("slam", "dead_reckoning", "consistency", "landmarks")}, indent=1))
-    assert f["slam"]["ate_rmse_m"] < 0.02
-    assert f["consistency"]["coverage_2sigma"] >= 0.90
+    print(json.dumps({k: f.to_dict()[k] for k in ("slam", "dead_reckoning", "consistency", "landmarks")}, indent=1))
+    assert f.slam.ate_rmse_m < 0.02
+    assert f.consistency.coverage_2sigma >= 0.90
 
 
 def test_result_files_are_complete_and_tum_is_evo_readable(short_dive):
@@ -104,5 +104,5 @@ def test_corrupt_and_black_frames_are_skipped_and_reported(short_dive, tmp_path)
     assert [s[0] for s in summary.skipped] == [50, 80]
     assert "not a readable" in summary.skipped[0][2] and "no texture" in summary.skipped[1][2]
     f = evaluate(read_results(tmp_path / "out"), read_groundtruth(seq / "groundtruth.csv"))
-    assert f["skipped_frames"] == 2
-    assert f["slam"]["ate_rmse_m"] < 0.02
+    assert f.skipped_frames == 2
+    assert f.slam.ate_rmse_m < 0.02

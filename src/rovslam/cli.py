@@ -210,13 +210,54 @@ def eval_cmd(
     results: Path = typer.Argument(..., help="The --out folder of `rovslam run`."),
     groundtruth: Path = typer.Option(..., "--groundtruth", "-g", help="groundtruth.csv of the sequence."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Where to write the figures (default OUT/eval.json)."),
+    sequence: Optional[Path] = typer.Option(
+        None, "--sequence", "-s", help="The sequence that was run: adds the frame-to-frame phase-correlation baseline."
+    ),
 ) -> None:
-    """Compare a run with the ground truth: ATE, drift, dead reckoning, 2-sigma coverage, NEES, Table 1."""
+    """Compare a run with the ground truth: ATE, drift, dead reckoning, 2-sigma coverage, NEES, error jumps, Table 1."""
     if json_out is not None:
         _check_output_file(json_out, "--json")
     path = json_out or (results / "eval.json")
-    _evaluate(results, groundtruth, path)
+    _evaluate(results, groundtruth, path, sequence)
     typer.echo(f"wrote {path}")
+
+
+@app.command()
+@_guard
+def batch(
+    matrix: Path = typer.Argument(..., help="Matrix file (TOML): scenarios x seeds and/or sequences with ground truth."),
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for the cells and the tables (matrix.csv, matrix.md)."),
+    scheduler: Optional[str] = typer.Option(
+        None, "--scheduler", help="Address of an existing Dask scheduler (default: a local cluster)."
+    ),
+    workers: Optional[int] = typer.Option(None, "--workers", "-w", help="Local cluster size (default: one per core)."),
+    keep_sequences: bool = typer.Option(False, "--keep-sequences", help="Keep each cell's simulated images."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display."),
+) -> None:
+    """Run a robustness matrix on Dask: simulate, run, eval and baselines per cell; resumes; one table."""
+    from rovslam.batch import default_workers, load_matrix, run_matrix
+    from rovslam.errors import ClusterError
+
+    if scheduler is not None and workers is not None:
+        raise ClusterError("--workers sizes the local cluster; with --scheduler the cluster is yours to size")
+    if workers is not None and workers < 1:
+        raise ClusterError(f"--workers must be at least 1, got {workers}")
+    m = load_matrix(matrix)
+    where = scheduler or f"a local cluster of {workers or default_workers()} workers"
+    with _cell_progress(quiet) as progress:
+        report = run_matrix(m, out, scheduler, workers, keep_sequences, on_start=progress.start, on_cell=progress.cell)
+    if report.reused and not report.computed and not report.interrupted:
+        typer.echo(f"all {len(report.reused)} cells were finished already (delete DIR/cells/<cell> to run one again)")
+    elif report.reused:
+        typer.echo(f"kept {len(report.reused)} finished cells; ran {len(report.computed)} on {where}")
+    _print_matrix(report.rows, m.groups)
+    typer.echo(f"wrote {out / 'matrix.csv'} and {out / 'matrix.md'}")
+    if report.interrupted:
+        typer.echo("interrupted: the finished cells are kept; run the same command again to resume", err=True)
+        raise typer.Exit(130)
+    if report.failed:
+        typer.echo(f"{len(report.failed)} of {len(report.rows)} cells failed (see {out / 'cells'}/<cell>/error.log)", err=True)
+        raise typer.Exit(1)
 
 
 @app.command()
@@ -253,7 +294,7 @@ def demo(
         late.ignore_after = summary.interrupted
     if summary.interrupted:
         _fail(f"stopped by {summary.signal}; partial results are in {res}", summary.exit_code)
-    _evaluate(res, seq / "groundtruth.csv", res / "eval.json")
+    _evaluate(res, seq / "groundtruth.csv", res / "eval.json", seq)
     report = write_report(res, seq / "groundtruth.csv")
     typer.echo(f"{summary.frames} frames at {summary.fps:.0f} frames/s; results in {res}")
     typer.echo(f"report: {report}")
@@ -416,14 +457,13 @@ def _slam_callbacks(bar) -> dict:
     }
 
 
-def _evaluate(results: Path, groundtruth: Path, json_path: Path) -> None:
+def _evaluate(results: Path, groundtruth: Path, json_path: Path, sequence: Optional[Path] = None) -> None:
     """Evaluate a run against the truth, write the figures as JSON and print them as tables."""
-    from rovslam.eval import evaluate
-    from rovslam.io.results import atomic_write_text, json_text, read_results
-    from rovslam.io.sequence import read_groundtruth
+    from rovslam.eval import evaluate_run
+    from rovslam.io.results import atomic_write_text, json_text
 
-    figures = evaluate(read_results(results), read_groundtruth(groundtruth))
-    atomic_write_text(json_path, json_text(figures) + "\n")  # strict JSON: a figure that cannot be computed is null
+    figures = evaluate_run(results, groundtruth, sequence)
+    atomic_write_text(json_path, json_text(figures.to_dict()) + "\n")  # strict JSON: a figure that cannot be computed is null
     _print_eval(figures)
 
 
@@ -514,38 +554,48 @@ class _progress:
                 pass
 
 
-def _print_eval(f: dict) -> None:
+def _print_eval(f) -> None:
+    """Print an :class:`rovslam.eval.Evaluation` as tables; an undefined figure says n/a, and why below."""
     from rich.console import Console
     from rich.table import Table
 
     console = Console()
-    t = Table(title=f"rovslam eval: {f['frames']} frames, {f['duration_s']:.0f} s, {f['landmarks']} landmarks")
+    t = Table(title=f"rovslam eval: {f.frames} frames, {f.duration_s:.0f} s, {f.landmarks} landmarks")
     t.add_column("figure")
-    t.add_column("SLAM", justify="right")
-    t.add_column("dead reckoning", justify="right")
-    s, d = f["slam"], f["dead_reckoning"]
+    runs = [("SLAM", f.slam), ("dead reckoning", f.dead_reckoning)]
+    if f.phase_correlation is not None:
+        runs.append(("phase correlation", f.phase_correlation))
+    for name, _ in runs:
+        t.add_column(name, justify="right")
     for key, label, scale, unit in [
         ("ate_rmse_m", "ATE RMSE", 100, "cm"),
         ("ate_median_m", "ATE median", 100, "cm"),
         ("ate_max_m", "ATE max", 100, "cm"),
         ("final_error_m", "final error", 100, "cm"),
-        ("relative_error_m_per_m", f"drift per {s['segment_m']:.0f} m", 100, "cm/m"),
+        ("relative_error_m_per_m", f"drift per {f.slam.segment_m:g} m", 100, "cm/m"),
         ("final_error_pct", "final error / distance", 1, "%"),
     ]:
-        t.add_row(label, f"{s[key] * scale:.3f} {unit}", f"{d[key] * scale:.3f} {unit}")
-    t.add_row("distance travelled", f"{s['distance_m']:.2f} m", "")
-    c = f["consistency"]
-    t.add_row("inside 2-sigma ellipse", f"{100 * c['coverage_2sigma']:.1f} %", "")
-    t.add_row("NEES mean (2 dof)", f"{c['nees_mean']:.2f}", "")
-    t.add_row("skipped frames", str(f["skipped_frames"]), "")
+        t.add_row(label, *(_fig(getattr(e, key), scale, unit, 3) for _, e in runs))
+    pad = [""] * (len(runs) - 1)
+    t.add_row("distance travelled", f"{f.slam.distance_m:.2f} m", *pad)
+    c = f.consistency
+    t.add_row("inside 2-sigma ellipse", f"{100 * c.coverage_2sigma:.1f} %", *pad)
+    t.add_row("NEES mean (2 dof)", f"{c.nees_mean:.2f}", *pad)
+    jump = _fig(c.max_error_jump_sigma, 1, "sigma", 2)
+    if c.max_error_jump_t_s is not None:
+        jump += f" at {c.max_error_jump_t_s:.1f} s"
+    t.add_row("largest error jump", jump, *pad)
+    t.add_row("skipped frames", str(f.skipped_frames), *pad)
     console.print(t)
-    if f["table1_landmark0"]:
+    for note in f.notes:
+        console.print(f"n/a: {note}", markup=False, highlight=False)
+    if f.table1_landmark0:
         t1 = Table(title="Table 1: vehicle position while tracking landmark 0 (displacement since its initialisation)")
         for col in ("time [s]", "x est [m]", "y est [m]", "x true [m]", "y true [m]"):
             t1.add_column(col, justify="right")
-        rows = f["table1_landmark0"]
+        rows = f.table1_landmark0
         for r in rows[:12]:
-            t1.add_row(f"{r['t_s']:.1f}", f"{r['x_est_m']:.3f}", f"{r['y_est_m']:.3f}", f"{r['x_gt_m']:.3f}", f"{r['y_gt_m']:.3f}")
+            t1.add_row(f"{r.t_s:.1f}", f"{r.x_est_m:.3f}", f"{r.y_est_m:.3f}", f"{r.x_gt_m:.3f}", f"{r.y_gt_m:.3f}")
         console.print(t1)
         if len(rows) > 12:
             console.print(f"({len(rows) - 12} more passages over landmark 0 in eval.json)")
@@ -583,6 +633,70 @@ def smooth(
         f"({summary.downweighted} down-weighted); incremental pass {summary.online_s:.1f} s, "
         f"final smoothing {summary.final_s:.1f} s -> {results}/trajectory_smoothed.csv"
     )
+
+
+def _fig(value: Optional[float], scale: float, unit: str, digits: int) -> str:
+    """A figure for the tables: ``n/a`` when undefined (too short a run)."""
+    return "n/a" if value is None else f"{value * scale:.{digits}f} {unit}"
+
+
+class _cell_progress:
+    """Progress of a batch: a bar of cells and one line per finished cell (failures with their error)."""
+
+    def __init__(self, quiet: bool):
+        self.quiet = quiet
+        self._p = None
+
+    def __enter__(self) -> "_cell_progress":
+        return self
+
+    def start(self, done: int, total: int) -> None:
+        if self.quiet:
+            return
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self._p = Progress(TextColumn("[bold]cells"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                           console=Console(stderr=True))
+        self._p.start()
+        self._task = self._p.add_task("cells", total=total, completed=done)
+
+    def cell(self, row: dict) -> None:
+        if self._p is None:
+            return
+        if row.get("status") == "ok":
+            line = (f"ok      {row['cell']}: ATE {100 * row['ate_rmse_m']:.2f} cm, {row['frames']} frames, "
+                    f"{row['wall_s']:.0f} s")
+        else:
+            line = f"FAILED  {row['cell']}: {row.get('error', '')}"
+        self._p.console.print(line, markup=False, highlight=False)
+        self._p.advance(self._task)
+
+    def __exit__(self, *exc) -> None:
+        if self._p is not None:
+            self._p.stop()
+
+
+def _print_matrix(rows: list, groups) -> None:
+    """The per-scenario summary of a batch (median / worst over seeds), as in matrix.md."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from rovslam.batch import SUMMARY_FIGURES, summarise
+    from rovslam.batch.table import format_figure
+
+    short = {"ate_rmse_m": "ATE cm", "final_error_pct": "final % dist", "coverage_2sigma": "in 2-sigma %",
+             "max_error_jump_sigma": "jump sigma", "dr_ate_rmse_m": "DR ATE cm", "pc_ate_rmse_m": "PC ATE cm"}
+    figures = [f for f in SUMMARY_FIGURES if f.key in short]
+    t = Table(title="median / worst over seeds (all figures in matrix.md)")
+    t.add_column("scenario", no_wrap=True)
+    t.add_column("ok", justify="right")
+    for f in figures:
+        t.add_column(short[f.key], justify="right")
+    for s in summarise(rows, groups):
+        t.add_row(s.group, f"{s.ok}/{s.cells}",
+                  *(f"{format_figure(s.median[f.key], f)} / {format_figure(s.worst[f.key], f)}" for f in figures))
+    Console().print(t)
 
 
 def main() -> None:

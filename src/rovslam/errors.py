@@ -48,6 +48,10 @@ class FilterInconsistencyError(RovslamError):
     """The filter covariance lost symmetry or positive semi-definiteness beyond repair."""
 
 
+class ClusterError(RovslamError):
+    """A Dask cluster for ``rovslam batch`` cannot be reached, or is asked for in a way that cannot be."""
+
+
 class SimulationError(RovslamError):
     """A simulation request is invalid (unknown scenario, bad frame count, bad texture)."""
 

@@ -1,18 +1,24 @@
 """Trajectory errors, filter consistency and the revisit table (the paper's Table 1).
 
 Pure functions on arrays. Trajectories are metric and start at the origin, so they are
-compared as they are: no alignment.
+compared as they are: no alignment. :func:`evaluate` returns an :class:`Evaluation`, frozen
+dataclasses all the way down; ``Evaluation.to_dict()`` is what ``eval.json`` holds.
+
+A figure a run is too short for (the error jump of a one-frame run, the error per distance
+of a run that did not move) is ``None``, never NaN, and ``Evaluation.notes`` says why.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
 
-from rovslam.errors import SequenceFormatError
+from rovslam.errors import InvalidArgumentError, ResultsFormatError, SequenceFormatError
 from rovslam.io.results import RunResults
 from rovslam.io.sequence import GroundTruth
 
@@ -29,9 +35,9 @@ class TrajectoryErrors:
     ate_max_m: float
     final_error_m: float
     distance_m: float
-    final_error_pct: float  # final error as a percentage of the distance travelled
-    relative_error_m_per_m: float  # RMS drift per metre over segments of `segment_m`
-    relative_error_pct: float
+    final_error_pct: float | None  # final error as a percentage of the distance travelled; None: did not move
+    relative_error_m_per_m: float | None  # RMS drift per metre over segments of `segment_m`; None: path shorter
+    relative_error_pct: float | None
     segment_m: float
 
 
@@ -58,7 +64,9 @@ def path_length_m(xy_m: np.ndarray) -> np.ndarray:
 
 
 def trajectory_errors(est_xy_m: np.ndarray, gt_xy_m: np.ndarray, segment_m: float = 1.0) -> TrajectoryErrors:
-    """ATE statistics and relative drift of ``est_xy_m`` (N, 2) against ``gt_xy_m`` (N, 2)."""
+    """ATE statistics and relative drift of ``est_xy_m`` (N, 2) against ``gt_xy_m`` (N, 2), N >= 1."""
+    if est_xy_m.shape != gt_xy_m.shape or est_xy_m.ndim != 2 or est_xy_m.shape[1] != 2 or len(est_xy_m) == 0:
+        raise InvalidArgumentError(f"need two (N, 2) paths, N >= 1, got {est_xy_m.shape} and {gt_xy_m.shape}")
     err = np.linalg.norm(est_xy_m - gt_xy_m, axis=1)
     dist = path_length_m(gt_xy_m)
     total = float(dist[-1]) if len(dist) else 0.0
@@ -73,8 +81,8 @@ def trajectory_errors(est_xy_m: np.ndarray, gt_xy_m: np.ndarray, segment_m: floa
         d_gt = gt_xy_m[ends] - gt_xy_m[starts]
         seg_len = dist[ends] - dist[starts]
         rel = np.linalg.norm(d_est - d_gt, axis=1) / seg_len
-    rel_rms = float(np.sqrt(np.mean(np.square(rel)))) if len(rel) else math.nan
-    final = float(err[-1]) if len(err) else math.nan
+    rel_rms = float(np.sqrt(np.mean(np.square(rel)))) if len(rel) else None
+    final = float(err[-1])
     return TrajectoryErrors(
         ate_rmse_m=float(np.sqrt(np.mean(err**2))),
         ate_mean_m=float(np.mean(err)),
@@ -82,9 +90,9 @@ def trajectory_errors(est_xy_m: np.ndarray, gt_xy_m: np.ndarray, segment_m: floa
         ate_max_m=float(np.max(err)),
         final_error_m=final,
         distance_m=total,
-        final_error_pct=100.0 * final / total if total > 0 else math.nan,
+        final_error_pct=100.0 * final / total if total > 0 else None,
         relative_error_m_per_m=rel_rms,
-        relative_error_pct=100.0 * rel_rms,
+        relative_error_pct=None if rel_rms is None else 100.0 * rel_rms,
         segment_m=segment_m,
     )
 
@@ -95,31 +103,72 @@ def nees(err_m: np.ndarray, cov_m2: np.ndarray) -> np.ndarray:
     return np.einsum("ni,nij,nj->n", err_m, np.linalg.inv(P), err_m)
 
 
+def error_jump_sigma(err_m: np.ndarray, cov_m2: np.ndarray) -> np.ndarray:
+    """Frame-to-frame jump of the error in sigmas of the reported ellipse. (N, 2), (N, 2, 2) -> (N-1,).
+
+    ``j_k = sqrt(de_k^T P_k^-1 de_k)`` with ``de_k = e_k - e_(k-1)`` the change of the position
+    error from frame k-1 to frame k and ``P_k`` the position covariance reported at frame k.
+    A filter whose error drifts smoothly has jumps far below 1; a landmark that pulls the
+    estimate to a wrong place in one update shows as a jump of several sigmas.
+    """
+    de = np.diff(err_m, axis=0)
+    P = cov_m2[1:] + _COV_FLOOR_M2 * np.eye(2)
+    return np.sqrt(np.einsum("ni,nij,nj->n", de, np.linalg.inv(P), de))
+
+
 @dataclass(frozen=True)
 class Consistency:
+    """How well the reported 2x2 position covariance describes the actual error (2 dof)."""
+
     coverage_2sigma: float  # fraction of frames whose truth is inside the 2-sigma ellipse
-    nees_mean: float
+    nees_mean: float  # mean of e^T P^-1 e over the frames (2 for a consistent filter)
     nees_median: float
     nees_in_95_interval: float  # fraction of frames with NEES inside the 2-dof 95 % interval
     nees_95_interval: tuple[float, float]
+    max_error_jump_sigma: float | None = None  # largest :func:`error_jump_sigma`; None: one frame
+    max_error_jump_t_s: float | None = None  # when it happened (time of the later frame)
 
 
-def consistency(err_m: np.ndarray, cov_m2: np.ndarray) -> Consistency:
-    """2-sigma coverage (Mahalanobis distance <= 2) and NEES statistics (2 dof)."""
+def consistency(err_m: np.ndarray, cov_m2: np.ndarray, t_s: np.ndarray | None = None) -> Consistency:
+    """2-sigma coverage (Mahalanobis distance <= 2), NEES statistics (2 dof) and the largest error jump.
+
+    ``err_m`` (N, 2) estimate minus truth, ``cov_m2`` (N, 2, 2), ``t_s`` (N,) the frame times.
+    """
     e = nees(err_m, cov_m2)
     lo, hi = float(chi2.ppf(0.025, 2)), float(chi2.ppf(0.975, 2))
+    jump = jump_t = None
+    if len(err_m) >= 2:
+        j = error_jump_sigma(err_m, cov_m2)
+        k = int(np.argmax(j))
+        jump = float(j[k])
+        jump_t = float(t_s[k + 1]) if t_s is not None else None
     return Consistency(
         coverage_2sigma=float(np.mean(e <= 4.0)),
         nees_mean=float(np.mean(e)),
         nees_median=float(np.median(e)),
         nees_in_95_interval=float(np.mean((e >= lo) & (e <= hi))),
         nees_95_interval=(lo, hi),
+        max_error_jump_sigma=jump,
+        max_error_jump_t_s=jump_t,
     )
+
+
+@dataclass(frozen=True)
+class RevisitRow:
+    """One row of the paper's Table 1: displacements since the landmark's initialisation (metres)."""
+
+    t_s: float
+    x_est_m: float
+    y_est_m: float
+    x_gt_m: float
+    y_gt_m: float
+    sigma_x_m: float
+    sigma_y_m: float
 
 
 def revisit_table(
     results: RunResults, gt_xy_m: np.ndarray, landmark_id: int = 0, gap_s: float = 2.0
-) -> list[dict[str, float]]:
+) -> tuple[RevisitRow, ...]:
     """The paper's Table 1 for one landmark: its initialisation and each later passage.
 
     A passage is a run of accepted observations with gaps shorter than ``gap_s``; its first
@@ -129,11 +178,11 @@ def revisit_table(
     """
     obs = results.observations
     if not obs or len(obs.get("landmark_id", [])) == 0:
-        return []
+        return ()
     sel = (obs["landmark_id"] == landmark_id) & (obs["accepted"] > 0)
     times = obs["t_s"][sel]
     if len(times) == 0:
-        return []
+        return ()
     starts = [times[0]] + [t for t0, t in zip(times[:-1], times[1:]) if t - t0 > gap_s]
     t_traj = results.t_s
     est = results.xy_m
@@ -142,37 +191,139 @@ def revisit_table(
     for t in starts:
         k = int(np.argmin(np.abs(t_traj - t)))
         rows.append(
-            {
-                "t_s": float(t),
-                "x_est_m": float(est[k, 0] - est[k0, 0]),
-                "y_est_m": float(est[k, 1] - est[k0, 1]),
-                "x_gt_m": float(gt_xy_m[k, 0] - gt_xy_m[k0, 0]),
-                "y_gt_m": float(gt_xy_m[k, 1] - gt_xy_m[k0, 1]),
-                "sigma_x_m": float(math.sqrt(max(results.trajectory["var_x_m2"][k], 0.0))),
-                "sigma_y_m": float(math.sqrt(max(results.trajectory["var_y_m2"][k], 0.0))),
-            }
+            RevisitRow(
+                t_s=float(t),
+                x_est_m=float(est[k, 0] - est[k0, 0]),
+                y_est_m=float(est[k, 1] - est[k0, 1]),
+                x_gt_m=float(gt_xy_m[k, 0] - gt_xy_m[k0, 0]),
+                y_gt_m=float(gt_xy_m[k, 1] - gt_xy_m[k0, 1]),
+                sigma_x_m=float(math.sqrt(max(results.trajectory["var_x_m2"][k], 0.0))),
+                sigma_y_m=float(math.sqrt(max(results.trajectory["var_y_m2"][k], 0.0))),
+            )
         )
-    return rows
+    return tuple(rows)
 
 
-def evaluate(results: RunResults, gt: GroundTruth, segment_m: float = 1.0) -> dict:
-    """All figures of ``rovslam eval``: SLAM and dead reckoning, consistency, Table 1."""
+@dataclass(frozen=True)
+class Evaluation:
+    """Everything ``rovslam eval`` reports on one run against its ground truth."""
+
+    frames: int
+    duration_s: float
+    skipped_frames: int
+    landmarks: int
+    slam: TrajectoryErrors
+    dead_reckoning: TrajectoryErrors  # rovslam's own speed integrated with the heading, no landmarks
+    consistency: Consistency
+    table1_landmark0: tuple[RevisitRow, ...]
+    phase_correlation: TrajectoryErrors | None = None  # frame-to-frame cv2.phaseCorrelate baseline, if computed
+    notes: tuple[str, ...] = ()  # why a figure is None
+
+    @property
+    def dead_reckoning_over_slam_rmse(self) -> float | None:
+        """ATE RMSE of dead reckoning / SLAM (None when SLAM's is 0)."""
+        return _ratio(self.dead_reckoning.ate_rmse_m, self.slam.ate_rmse_m)
+
+    @property
+    def phase_correlation_over_slam_rmse(self) -> float | None:
+        """ATE RMSE of the phase-correlation baseline / SLAM (None when not computed or SLAM's is 0)."""
+        pc = self.phase_correlation
+        return None if pc is None else _ratio(pc.ate_rmse_m, self.slam.ate_rmse_m)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (the keys of eval.json; None where a figure is undefined, never NaN)."""
+        d = asdict(self)
+        d["dead_reckoning_over_slam_rmse"] = self.dead_reckoning_over_slam_rmse
+        d["phase_correlation_over_slam_rmse"] = self.phase_correlation_over_slam_rmse
+        d["consistency"]["nees_95_interval"] = list(self.consistency.nees_95_interval)
+        d["table1_landmark0"] = [asdict(r) for r in self.table1_landmark0]
+        d["notes"] = list(self.notes)
+        return finite_or_none(d)
+
+
+def _ratio(a: float, b: float) -> float | None:
+    return a / b if b > 0 and math.isfinite(a) else None
+
+
+def finite_or_none(o: Any) -> Any:
+    """``o`` (nested dicts, lists, numbers) with every NaN or infinite float replaced by None (JSON null)."""
+    if isinstance(o, dict):
+        return {k: finite_or_none(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [finite_or_none(v) for v in o]
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
+def _notes(frames: int, slam: TrajectoryErrors) -> tuple[str, ...]:
+    notes = []
+    if frames < 2:
+        notes.append("one frame only: no frame-to-frame error jump")
+    if slam.final_error_pct is None:
+        notes.append("the vehicle did not move: no error as a percentage of the distance")
+    if slam.relative_error_m_per_m is None:
+        notes.append(
+            f"the path ({slam.distance_m:.2f} m) is shorter than one {slam.segment_m:g} m segment: no drift per metre"
+        )
+    return tuple(notes)
+
+
+def evaluate(
+    results: RunResults,
+    gt: GroundTruth,
+    segment_m: float = 1.0,
+    phase_correlation_xy_m: np.ndarray | None = None,
+) -> Evaluation:
+    """All figures of ``rovslam eval``: SLAM, dead reckoning, consistency, Table 1.
+
+    ``phase_correlation_xy_m`` (N, 2), one row per trajectory row (see
+    :func:`rovslam.eval.baselines.phase_correlation_path`), adds that baseline's errors.
+    """
+    est = results.xy_m
+    if len(est) == 0:
+        raise ResultsFormatError(f"{results.folder}: trajectory.csv has no rows; the run processed no frame.")
     idx = align_by_time(results.t_s, gt.t_s)
     gt_xy = gt.xy_m[idx]
-    est = results.xy_m
     slam = trajectory_errors(est, gt_xy, segment_m)
-    dr = trajectory_errors(results.dr_xy_m, gt_xy, segment_m)
-    cons = consistency(est - gt_xy, results.cov_m2)
+    pc = None
+    if phase_correlation_xy_m is not None:
+        if np.shape(phase_correlation_xy_m) != est.shape:
+            raise InvalidArgumentError(
+                f"phase_correlation_xy_m must be {est.shape} (one row per trajectory row), got {np.shape(phase_correlation_xy_m)}"
+            )
+        pc = trajectory_errors(np.asarray(phase_correlation_xy_m, dtype=np.float64), gt_xy, segment_m)
     skipped = results.trajectory.get("skipped")
-    lm = results.landmarks
-    return {
-        "frames": int(len(est)),
-        "duration_s": float(results.t_s[-1] - results.t_s[0]) if len(est) else 0.0,
-        "skipped_frames": int(np.nansum(skipped)) if skipped is not None else 0,
-        "landmarks": int(len(lm.get("id", []))),
-        "slam": asdict(slam),
-        "dead_reckoning": asdict(dr),
-        "dead_reckoning_over_slam_rmse": dr.ate_rmse_m / slam.ate_rmse_m if slam.ate_rmse_m > 0 else math.inf,
-        "consistency": asdict(cons),
-        "table1_landmark0": revisit_table(results, gt_xy, 0),
-    }
+    return Evaluation(
+        frames=int(len(est)),
+        duration_s=float(results.t_s[-1] - results.t_s[0]),
+        skipped_frames=int(np.nansum(skipped)) if skipped is not None else 0,
+        landmarks=int(len(results.landmarks.get("id", []))),
+        slam=slam,
+        dead_reckoning=trajectory_errors(results.dr_xy_m, gt_xy, segment_m),
+        consistency=consistency(est - gt_xy, results.cov_m2, results.t_s),
+        table1_landmark0=revisit_table(results, gt_xy, 0),
+        phase_correlation=pc,
+        notes=_notes(len(est), slam),
+    )
+
+
+def evaluate_run(
+    results_dir: str | Path, groundtruth: str | Path, sequence_dir: str | Path | None = None, segment_m: float = 1.0
+) -> Evaluation:
+    """Read a ``rovslam run`` folder and a ``groundtruth.csv`` and :func:`evaluate` them.
+
+    With ``sequence_dir`` (the sequence that was run) the phase-correlation baseline is
+    computed on its images, scaled by the altitude the run measured.
+    """
+    from rovslam.io.results import read_results
+    from rovslam.io.sequence import open_sequence, read_groundtruth
+
+    results = read_results(results_dir)
+    pc = None
+    if sequence_dir is not None:
+        from rovslam.eval.baselines import phase_correlation_path
+
+        seq = open_sequence(sequence_dir)
+        pc = phase_correlation_path(seq, results.trajectory.get("altitude_m"), results.t_s)
+    return evaluate(results, read_groundtruth(groundtruth), segment_m, pc)
