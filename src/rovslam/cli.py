@@ -562,7 +562,10 @@ def _print_eval(f) -> None:
     console = Console()
     t = Table(title=f"rovslam eval: {f.frames} frames, {f.duration_s:.0f} s, {f.landmarks} landmarks")
     t.add_column("figure")
-    runs = [("SLAM", f.slam), ("dead reckoning", f.dead_reckoning)]
+    runs = [("SLAM", f.slam)]
+    if f.smoothed is not None:
+        runs.append(("SLAM smoothed", f.smoothed))
+    runs.append(("dead reckoning", f.dead_reckoning))
     if f.phase_correlation is not None:
         runs.append(("phase correlation", f.phase_correlation))
     for name, _ in runs:
@@ -576,16 +579,18 @@ def _print_eval(f) -> None:
         ("final_error_pct", "final error / distance", 1, "%"),
     ]:
         t.add_row(label, *(_fig(getattr(e, key), scale, unit, 3) for _, e in runs))
-    pad = [""] * (len(runs) - 1)
-    t.add_row("distance travelled", f"{f.slam.distance_m:.2f} m", *pad)
-    c = f.consistency
-    t.add_row("inside 2-sigma ellipse", f"{100 * c.coverage_2sigma:.1f} %", *pad)
-    t.add_row("NEES mean (2 dof)", f"{c.nees_mean:.2f}", *pad)
-    jump = _fig(c.max_error_jump_sigma, 1, "sigma", 2)
-    if c.max_error_jump_t_s is not None:
-        jump += f" at {c.max_error_jump_t_s:.1f} s"
-    t.add_row("largest error jump", jump, *pad)
-    t.add_row("skipped frames", str(f.skipped_frames), *pad)
+    cons = [f.consistency] + ([f.smoothed_consistency] if f.smoothed is not None else [])
+    pad = [""] * (len(runs) - len(cons))
+
+    def jump(c) -> str:
+        text = _fig(c.max_error_jump_sigma, 1, "sigma", 2)
+        return text + (f" at {c.max_error_jump_t_s:.1f} s" if c.max_error_jump_t_s is not None else "")
+
+    t.add_row("distance travelled", f"{f.slam.distance_m:.2f} m", *[""] * (len(runs) - 1))
+    t.add_row("inside 2-sigma ellipse", *(f"{100 * c.coverage_2sigma:.1f} %" for c in cons), *pad)
+    t.add_row("NEES mean (2 dof)", *(f"{c.nees_mean:.2f}" for c in cons), *pad)
+    t.add_row("largest error jump", *(jump(c) for c in cons), *pad)
+    t.add_row("skipped frames", str(f.skipped_frames), *[""] * (len(runs) - 1))
     console.print(t)
     for note in f.notes:
         console.print(f"n/a: {note}", markup=False, highlight=False)

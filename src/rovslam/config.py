@@ -31,6 +31,7 @@ Channel = Literal["grey", "green", "blue"]
 Subpixel = Literal["parabolic", "gaussian", "none"]
 Augmentation = Literal["full", "paper"]
 GateCovariance = Literal["relative", "paper"]
+Backend = Literal["ekf", "isam2"]
 
 
 def _num(default: float | int, *, gt: float | None = None, ge: float | None = None, le: float | None = None):
@@ -209,6 +210,57 @@ class SlamConfig(_Checked):
     gate_covariance: GateCovariance = "relative"  # (5), (6): "relative" (P_Xi + P_x - C - C^T) | "paper" (P_Xi + P_x)
     heading_bias_sigma_rad: float = _num(0.0087, ge=0)  # > 0: estimate the slow compass error in the state (0: paper)
     heading_bias_tau_s: float = _num(120.0, gt=0)  # its correlation time (Ornstein-Uhlenbeck)
+    backend: Backend = "ekf"  # the online estimate: "ekf" (the paper's) or "isam2" (GTSAM, [smoother])
+
+
+RobustLoss = Literal["huber", "cauchy", "none"]
+ROBUST_LOSSES = typing.get_args(RobustLoss)
+
+
+@dataclass(frozen=True)
+class SmootherConfig(_Checked):
+    """The smoothing back end (GTSAM iSAM2, :mod:`rovslam.slam.smoother`): noise model and solver.
+
+    Attributes:
+        robust: loss on the landmark factors: "huber", "cauchy" or "none" (least squares).
+        robust_k: its threshold, in whitened sigmas of the observation noise.
+        use_rejected: also use the observations the online filter rejected (under the
+            robust loss); False drops them.
+        relinearize_threshold: iSAM2 relinearises a variable whose update exceeds this
+            (metres, radians).
+        relinearize_skip: iSAM2 checks for relinearisation every this many updates.
+        wildfire_threshold: iSAM2 stops propagating an update down the tree where the
+            change falls below this (metres, radians): the older poses' online estimates may
+            lag by that much until the final smoothing.
+        partial_relinearization_check: check for relinearisation only the part of the tree
+            an update touched (instead of every variable at every check).
+        initial_position_sigma_m: prior on the first position (0: known, taken as 1e-6 m).
+        initial_heading_sigma_rad: prior on the first heading without a compass (0: the map
+            frame is the first heading, taken as 1e-6 rad).
+        loose_turn_sigma_rad: sigma of a step's turn when the tokens did not measure it.
+        heading_bias_sigma_rad: stationary sigma of the slow compass error (0: no drift model;
+            the default is the EKF's ``[slam] heading_bias_sigma_rad``).
+        heading_bias_tau_s: its correlation time (Ornstein-Uhlenbeck, as the EKF's).
+        bias_block_s: duration over which the drift is held constant (one variable per block).
+        final_max_iterations: Levenberg-Marquardt iterations of the final smoothing
+            (0: the iSAM2 estimate as it is).
+    """
+
+    TABLE: ClassVar[str] = "smoother"
+    robust: RobustLoss = "huber"
+    robust_k: float = _num(3.0, gt=0)
+    use_rejected: bool = True
+    relinearize_threshold: float = _num(0.01, gt=0)
+    relinearize_skip: int = _num(10, ge=1)
+    wildfire_threshold: float = _num(0.001, gt=0)
+    partial_relinearization_check: bool = False
+    initial_position_sigma_m: float = _num(0.0, ge=0)
+    initial_heading_sigma_rad: float = _num(0.0, ge=0)
+    loose_turn_sigma_rad: float = _num(0.2, gt=0)
+    heading_bias_sigma_rad: float = _num(0.0087, ge=0)
+    heading_bias_tau_s: float = _num(120.0, gt=0)
+    bias_block_s: float = _num(5.0, gt=0)
+    final_max_iterations: int = _num(10, ge=0)
 
 
 @dataclass(frozen=True)
@@ -231,6 +283,7 @@ class RunConfig:
     laser: LaserConfig = field(default_factory=LaserConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     slam: SlamConfig = field(default_factory=SlamConfig)
+    smoother: SmootherConfig = field(default_factory=SmootherConfig)
     run: RunLimitsConfig = field(default_factory=RunLimitsConfig)
 
 

@@ -34,8 +34,9 @@ from rovslam.io.sequence import Frame, SequenceInfo
 from rovslam.landmarks import LandmarkRecord, oriented_patch
 from rovslam.odometry import SpeedEstimator, SpeedMeasurement
 from rovslam.slam import EkfSlam
+from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 from rovslam.slam.motion import motion_step_m
-from rovslam.slam.observation import pixels_to_mn
+from rovslam.slam.observation import observation_noise_px2, pixels_to_mn
 from rovslam.vision.filters import bandpass, local_variance, remove_specks, template_channel
 from rovslam.vision.laser import AltitudeEstimate, LaserAltimeter
 from rovslam.vision.templates import Template, extract_templates, inhibit_boxes, inhibition_mask
@@ -106,6 +107,7 @@ class FrameResult:
     dr_y_m: float
     skipped_reason: str | None = None
     token_uv_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (K, 2) tracked tokens
+    measurements: FrameMeasurements | None = None  # what this frame measured, as both back ends consume it
 
 
 class SlamPipeline:
@@ -121,6 +123,11 @@ class SlamPipeline:
         self.speed = SpeedEstimator(config.odometry)
         self.heading = HeadingTracker(config.odometry, config.slam)
         self.ekf = EkfSlam(config.slam)
+        self.smoother = None  # the iSAM2 back end ([slam] backend = "isam2"): the EKF then only associates
+        if config.slam.backend == "isam2":
+            from rovslam.slam.smoother import Isam2Smoother
+
+            self.smoother = Isam2Smoother(config.smoother)
         self.landmarks: list[LandmarkRecord] = []
         self.skipped: list[tuple[int, float, str]] = []
         self._prev_t_s: float | None = None
@@ -170,7 +177,7 @@ class SlamPipeline:
         self._prev_t_s, self._prev_altitude_m, self._prev_attitude = frame.t_s, alt.altitude_m, att
         self._n += 1
         return self._result(
-            frame, dt_s, heading.heading_rad, alt.altitude_m, speed,
+            frame, dt_s, heading, alt.altitude_m, speed,
             altitude=alt, tracks=tracks, visible=len(visible), observations=tuple(observations), new_id=new_id,
         )
 
@@ -387,25 +394,29 @@ class SlamPipeline:
             speed = self.speed.hold(dt_s)
             self._predict(speed, prior.previous_rad, dt_s, None)
         self.tokens.reset()
-        heading_rad = self.heading.skip(frame.heading_rad)
+        heading = HeadingEstimate(self.heading.skip(frame.heading_rad), None, None)
         # The next usable frame measures its speed against this frame's time: no tokens span it.
         self._prev_t_s = frame.t_s
         if self._prev_altitude_m is None:
             self._prev_altitude_m = self.altimeter_fallback
-        return self._result(frame, dt_s, heading_rad, self._prev_altitude_m, speed, skipped_reason=reason)
+        return self._result(frame, dt_s, heading, self._prev_altitude_m, speed, skipped_reason=reason)
 
     # ------------------------------------------------------------------ records
     def _result(
-        self, frame: Frame, dt_s: float, heading_rad: float, altitude_m: float, speed: SpeedMeasurement | None, *,
-        altitude: AltitudeEstimate | None = None, tracks: TokenTracks | None = None, visible: int = 0,
+        self, frame: Frame, dt_s: float, heading: HeadingEstimate, altitude_m: float, speed: SpeedMeasurement | None,
+        *, altitude: AltitudeEstimate | None = None, tracks: TokenTracks | None = None, visible: int = 0,
         observations: tuple[Observation, ...] = (), new_id: int | None = None, skipped_reason: str | None = None,
     ) -> FrameResult:
         """The one place a :class:`FrameResult` is built (processed and skipped frames alike)."""
-        xy = self.ekf.vehicle_xy_m
+        meas = self._measurements(frame, dt_s, heading, altitude_m, altitude, speed, observations)
+        xy, cov, heading_map = self.ekf.vehicle_xy_m, self.ekf.vehicle_cov_m2, self.ekf.map_heading_rad(heading.heading_rad)
+        if self.smoother is not None:
+            est = self.smoother.add_frame(meas)
+            xy, cov, heading_map = est.xy_m, est.cov_xy_m2, est.heading_rad
         return FrameResult(
             index=frame.index, t_s=frame.t_s, dt_s=dt_s, x_m=float(xy[0]), y_m=float(xy[1]),
-            cov_xy_m2=self._reported_cov(altitude_m, frame.has_attitude),
-            heading_rad=self.ekf.map_heading_rad(heading_rad), altitude_m=altitude_m,
+            cov_xy_m2=self._reported_cov(cov, xy, altitude_m, frame.has_attitude),
+            heading_rad=heading_map, altitude_m=altitude_m,
             altitude_sigma_m=altitude.sigma_m if altitude else math.nan,
             altitude_source=altitude.source if altitude else "none",
             laser_spots_uv_px=altitude.spots_uv_px if altitude else _NO_POINTS,
@@ -417,10 +428,34 @@ class SlamPipeline:
             landmarks_visible=visible, landmarks_tracked=sum(o.accepted for o in observations if o.kind == "track"),
             n_landmarks=self.ekf.n_landmarks, observations=observations, new_landmark_id=new_id,
             dr_x_m=float(self._dr[0]), dr_y_m=float(self._dr[1]), skipped_reason=skipped_reason,
-            token_uv_px=tracks.uv_curr_px if tracks else _NO_POINTS,
+            token_uv_px=tracks.uv_curr_px if tracks else _NO_POINTS, measurements=meas,
         )
 
-    def _reported_cov(self, altitude_m: float, has_attitude: bool) -> np.ndarray:
+    def _measurements(
+        self, frame: Frame, dt_s: float, heading: HeadingEstimate, altitude_m: float,
+        altitude: AltitudeEstimate | None, speed: SpeedMeasurement | None, observations: tuple[Observation, ...],
+    ) -> FrameMeasurements:
+        """This frame's measurements in plain numbers (:mod:`rovslam.slam.measurements`), for either back end."""
+        slam = self.config.slam
+        sigma_z = altitude.sigma_m if altitude else math.nan
+        turn = speed is not None and speed.ok and math.isfinite(speed.dpsi_sigma_rad) and speed.dpsi_sigma_rad > 0
+        landmarks = tuple(
+            LandmarkMeasurement(o.landmark_id, o.kind, o.mn_px,
+                                observation_noise_px2(o.mn_px, slam.pixel_sigma_px, altitude_m, sigma_z), o.accepted)
+            for o in observations
+        )
+        return FrameMeasurements(
+            index=frame.index, t_s=frame.t_s, dt_s=dt_s,
+            speed_mps=speed.speed_mps if speed else np.zeros(2), speed_cov_mps2=speed.cov_mps2 if speed else _NO_COV,
+            speed_ok=bool(speed.ok) if speed else False, heading_rad=heading.heading_rad,
+            heading_sigma_rad=heading.sigma_rad if heading.sigma_rad is not None else slam.heading_sigma_rad,
+            compass_rad=frame.heading_rad, compass_sigma_rad=self.config.odometry.compass_sigma_rad,
+            heading_step_rad=speed.dpsi_rad if turn else math.nan,
+            heading_step_sigma_rad=speed.dpsi_sigma_rad if turn else math.nan,
+            altitude_m=altitude_m, altitude_sigma_m=sigma_z, focal_px=self.focal_px, landmarks=landmarks,
+        )
+
+    def _reported_cov(self, cov_m2: np.ndarray, xy_m: np.ndarray, altitude_m: float, has_attitude: bool) -> np.ndarray:
         """(2, 2) covariance of the true position: the filter's, plus the apparent-frame errors.
 
         A tilt error b (AHRS) shifts every seabed point seen, so the odometry and the landmarks
@@ -429,12 +464,12 @@ class SlamPipeline:
         the apparent frame about the origin: the position is off by delta J x, J = [[0, -1], [1, 0]]
         (only when the filter does not hold that error in its state: slam.heading_bias_sigma_rad = 0).
         """
-        cov = self.ekf.vehicle_cov_m2
+        cov = np.array(cov_m2, dtype=np.float64)
         odo = self.config.odometry
         if has_attitude:
             cov += np.eye(2) * (altitude_m * odo.attitude_sigma_rad) ** 2
         if odo.compass_sigma_rad > 0 and self.heading.has_compass and self.config.slam.heading_bias_sigma_rad == 0:
-            jx = np.array([[0.0, -1.0], [1.0, 0.0]]) @ self.ekf.vehicle_xy_m
+            jx = np.array([[0.0, -1.0], [1.0, 0.0]]) @ xy_m
             cov += odo.compass_drift_sigma_rad**2 * np.outer(jx, jx)
         return cov
 

@@ -231,6 +231,9 @@ class _Run:
                  config: RunConfig, stop: StopRequest, min_usable_fraction: float, max_distance_m: float) -> None:
         self.seq, self.pipe, self.writer, self.out, self.config, self.stop = seq, pipe, writer, out, config, stop
         self.gallery = gallery
+        from rovslam.io.measurements import MeasurementWriter
+
+        self.measurements = MeasurementWriter(out)  # what `rovslam smooth` rebuilds the problem from
         self.min_usable_fraction = float(min_usable_fraction)
         self.max_distance_m = float(max_distance_m)
         self.n = 0
@@ -267,6 +270,7 @@ class _Run:
                     self.status, self.reason = "unusable", f"frame {res.index} (t={res.t_s:g} s): {problem}"
                     break
                 writer.write_frame(res)
+                self.measurements.write(res.measurements)
                 self.gallery.write_frame(frame.image, res)
                 if res.new_landmark_id is not None:
                     writer.write_landmark_template(res.new_landmark_id, pipe.landmarks[res.new_landmark_id].patch)
@@ -326,6 +330,7 @@ class _Run:
         writer = self.writer
         try:
             self.gallery.close()
+            self.measurements.close()
             writer.close(quiet=error is not None)
         except OutputError as exc:
             error = error or exc
@@ -336,6 +341,12 @@ class _Run:
             if error is None:
                 error = exc
                 self.status, self.reason = "failed", str(exc)
+        if self.pipe.smoother is not None and self.n and error is None:
+            try:  # the iSAM2 back end: the best estimate of the whole dive given all of it
+                write_smoothed_result(self.out, self.pipe.smoother.smoothed())
+            except OSError as exc:
+                error = OutputError(f"{self.out}: cannot write the smoothed results: {describe_os_error(exc)}.")
+                self.status, self.reason = "failed", str(error)
         try:
             writer.write_summary(self._summary(wall))
         except OutputError as exc:
@@ -394,22 +405,25 @@ class SmoothSummary:
     out_dir: Path
 
 
-def smoother_config_for_run(out_dir: str | Path):
-    """The smoother's drift model taken from the run's ``config.toml`` (defaults when absent).
+def write_smoothed_result(out_dir: Path, res) -> None:
+    """Write a :class:`~rovslam.slam.smoother.SmoothedResult` as the smoothed trajectory and map files."""
+    from rovslam.io.results import write_smoothed
 
-    The compass drift the run was told of (``[odometry] compass_drift_sigma_rad``, with the
-    correlation time ``[slam] heading_bias_tau_s``) is the one the graph models.
-    """
-    from rovslam.config import load_config
-    from rovslam.slam.smoother import SmootherConfig
+    rows = [
+        {"id": int(i), "x_m": float(xy[0]), "y_m": float(xy[1]), "var_x_m2": float(c[0, 0]), "cov_xy_m2": float(c[0, 1]),
+         "var_y_m2": float(c[1, 1]), "first_t_s": float(t), "observations": int(n), "downweighted": int(d)}
+        for i, xy, c, t, n, d in zip(res.landmark_ids, res.landmarks_xy_m, res.landmarks_cov_m2,
+                                      res.landmark_first_t_s, res.landmark_observations, res.landmark_downweighted)
+    ]
+    write_smoothed(out_dir, res.t_s, res.xy_m, res.cov_xy_m2, res.heading_rad, res.altitude_m, rows)
+
+
+def smoother_config_for_run(out_dir: str | Path):
+    """The ``[smoother]`` table of the run's ``config.toml`` (the defaults when there is none)."""
+    from rovslam.config import SmootherConfig, load_config
 
     path = Path(out_dir) / "config.toml"
-    if not path.is_file():
-        return SmootherConfig()
-    cfg = load_config(path)
-    return SmootherConfig(
-        heading_bias_sigma_rad=cfg.odometry.compass_drift_sigma_rad, heading_bias_tau_s=cfg.slam.heading_bias_tau_s
-    )
+    return load_config(path).smoother if path.is_file() else SmootherConfig()
 
 
 def smooth_run(
@@ -431,7 +445,6 @@ def smooth_run(
     """
     from rovslam.errors import ResultsFormatError
     from rovslam.io.measurements import read_measurements
-    from rovslam.io.results import write_smoothed
     from rovslam.slam.smoother import Isam2Smoother
 
     out = Path(out_dir)
@@ -449,14 +462,8 @@ def smooth_run(
     t1 = time.perf_counter()
     res = smoother.smoothed()
     t2 = time.perf_counter()
-    rows = [
-        {"id": int(i), "x_m": float(xy[0]), "y_m": float(xy[1]), "var_x_m2": float(c[0, 0]), "cov_xy_m2": float(c[0, 1]),
-         "var_y_m2": float(c[1, 1]), "first_t_s": float(t), "observations": int(n), "downweighted": int(d)}
-        for i, xy, c, t, n, d in zip(res.landmark_ids, res.landmarks_xy_m, res.landmarks_cov_m2,
-                                      res.landmark_first_t_s, res.landmark_observations, res.landmark_downweighted)
-    ]
-    write_smoothed(out, res.t_s, res.xy_m, res.cov_xy_m2, res.heading_rad, res.altitude_m, rows)
+    write_smoothed_result(out, res)
     return SmoothSummary(
-        frames=len(frames), landmarks=len(rows), observations=int(res.landmark_observations.sum()),
+        frames=len(frames), landmarks=len(res.landmark_ids), observations=int(res.landmark_observations.sum()),
         downweighted=int(res.landmark_downweighted.sum()), online_s=t1 - t0, final_s=t2 - t1, out_dir=out,
     )

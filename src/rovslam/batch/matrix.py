@@ -42,7 +42,7 @@ from rovslam.config import RunConfig, load_config
 from rovslam.errors import ConfigError
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
-_TOP_KEYS = ("name", "seeds", "config", "scenario", "sequence")
+_TOP_KEYS = ("name", "seeds", "config", "smooth", "scenario", "sequence")
 _SCENARIO_KEYS = ("name", "frames", "duration_s", "seeds", "config", "label", "format")
 _SEQUENCE_KEYS = ("name", "path", "groundtruth", "frames", "config")
 
@@ -61,6 +61,7 @@ class CellSpec:
     config: RunConfig = RunConfig()
     config_path: str | None = None  # where ``config`` came from (None: the paper's defaults)
     image_format: str = "png"  # of the simulated images: png, or jpg (about a third of the cost in HD)
+    smooth: bool = True  # also smooth the run (GTSAM iSAM2) and evaluate the smoothed path
 
     @property
     def simulated(self) -> bool:
@@ -100,6 +101,9 @@ def load_matrix(path: str | Path, scenarios: dict[str, Any] | None = None) -> Ma
     configs: dict[str, tuple[RunConfig, str | None]] = {}
     default_cfg = _config(data.get("config"), base, f"{p}: config", configs)
     default_seeds = _seeds(data.get("seeds", [0]), f"{p}: seeds")
+    smooth = data.get("smooth", True)
+    if not isinstance(smooth, bool):
+        raise ConfigError(f"{p}: smooth must be true or false, got {smooth!r}")
     cells: list[CellSpec] = []
     for i, entry in enumerate(_tables(data, "scenario", p)):
         where = f"{p}: [[scenario]] #{i + 1}"
@@ -116,7 +120,7 @@ def load_matrix(path: str | Path, scenarios: dict[str, Any] | None = None) -> Ma
             raise ConfigError(f"{where}: format must be \"png\" or \"jpg\", got {fmt!r}")
         cells += [
             CellSpec(f"{label}_s{s}", label, scenario=name, seed=s, frames=frames, config=cfg, config_path=cfg_path,
-                     image_format=fmt)
+                     image_format=fmt, smooth=smooth)
             for s in seeds
         ]
     for i, entry in enumerate(_tables(data, "sequence", p)):
@@ -134,7 +138,7 @@ def load_matrix(path: str | Path, scenarios: dict[str, Any] | None = None) -> Ma
         cells.append(
             CellSpec(name, name, frames=frames, sequence_path=str(seq),
                      groundtruth_path=str((base / gt).resolve() if gt else seq / "groundtruth.csv"),
-                     config=cfg, config_path=cfg_path)
+                     config=cfg, config_path=cfg_path, smooth=smooth)
         )
     if not cells:
         raise ConfigError(f"{p}: no cells; add a [[scenario]] or a [[sequence]] table.")

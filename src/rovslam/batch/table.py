@@ -45,6 +45,8 @@ SUMMARY_FIGURES = (
     Figure("coverage_2sigma", "inside 2-sigma [%]", 100, 1, "min"),
     Figure("nees_mean", "mean NEES", 1, 2, "max"),
     Figure("max_error_jump_sigma", "max error jump [sigma]", 1, 1, "max"),
+    Figure("sm_ate_rmse_m", "smoothed ATE [cm]", 100, 2, "max"),
+    Figure("sm_coverage_2sigma", "smoothed inside 2-sigma [%]", 100, 1, "min"),
     Figure("landmarks", "landmarks", 1, 0, "min"),
     Figure("frames_per_cpu_s", "frames/s (1 core)", 1, 0, "min"),
     Figure("dr_ate_rmse_m", "dead reckoning ATE [cm]", 100, 2, "max"),

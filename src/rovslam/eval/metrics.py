@@ -218,6 +218,8 @@ class Evaluation:
     table1_landmark0: tuple[RevisitRow, ...]
     phase_correlation: TrajectoryErrors | None = None  # frame-to-frame cv2.phaseCorrelate baseline, if computed
     notes: tuple[str, ...] = ()  # why a figure is None
+    smoothed: TrajectoryErrors | None = None  # the smoothed path (trajectory_smoothed.csv), if the run was smoothed
+    smoothed_consistency: Consistency | None = None  # its marginal covariances against the truth
 
     @property
     def dead_reckoning_over_slam_rmse(self) -> float | None:
@@ -237,6 +239,8 @@ class Evaluation:
         d["phase_correlation_over_slam_rmse"] = self.phase_correlation_over_slam_rmse
         d["consistency"]["nees_95_interval"] = list(self.consistency.nees_95_interval)
         d["table1_landmark0"] = [asdict(r) for r in self.table1_landmark0]
+        if self.smoothed_consistency is not None:
+            d["smoothed_consistency"]["nees_95_interval"] = list(self.smoothed_consistency.nees_95_interval)
         d["notes"] = list(self.notes)
         return finite_or_none(d)
 
@@ -294,6 +298,11 @@ def evaluate(
             )
         pc = trajectory_errors(np.asarray(phase_correlation_xy_m, dtype=np.float64), gt_xy, segment_m)
     skipped = results.trajectory.get("skipped")
+    sm = sm_cons = None
+    if results.smoothed is not None:
+        sm_gt = gt.xy_m[align_by_time(results.smoothed["t_s"], gt.t_s)]
+        sm = trajectory_errors(results.smoothed_xy_m, sm_gt, segment_m)
+        sm_cons = consistency(results.smoothed_xy_m - sm_gt, results.smoothed_cov_m2, results.smoothed["t_s"])
     return Evaluation(
         frames=int(len(est)),
         duration_s=float(results.t_s[-1] - results.t_s[0]),
@@ -305,6 +314,8 @@ def evaluate(
         table1_landmark0=revisit_table(results, gt_xy, 0),
         phase_correlation=pc,
         notes=_notes(len(est), slam),
+        smoothed=sm,
+        smoothed_consistency=sm_cons,
     )
 
 

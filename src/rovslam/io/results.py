@@ -435,10 +435,22 @@ class RunResults:
     observations: dict[str, np.ndarray]
     landmarks: dict[str, np.ndarray]
     summary: dict[str, Any]
+    smoothed: dict[str, np.ndarray] | None = None  # trajectory_smoothed.csv, when the run was smoothed
 
     @property
     def t_s(self) -> np.ndarray:
         return self.trajectory["t_s"]
+
+    @property
+    def smoothed_xy_m(self) -> np.ndarray | None:
+        """(N, 2) the smoothed positions, or None."""
+        s = self.smoothed
+        return None if s is None else np.column_stack([s["x_m"], s["y_m"]])
+
+    @property
+    def smoothed_cov_m2(self) -> np.ndarray | None:
+        """(N, 2, 2) the smoothed marginal position covariances, or None."""
+        return None if self.smoothed is None else _cov_table(self.smoothed)
 
     @property
     def xy_m(self) -> np.ndarray:
@@ -447,14 +459,18 @@ class RunResults:
     @property
     def cov_m2(self) -> np.ndarray:
         """(N, 2, 2) position covariances."""
-        t = self.trajectory
-        c = np.empty((len(t["t_s"]), 2, 2))
-        c[:, 0, 0], c[:, 0, 1], c[:, 1, 0], c[:, 1, 1] = t["var_x_m2"], t["cov_xy_m2"], t["cov_xy_m2"], t["var_y_m2"]
-        return c
+        return _cov_table(self.trajectory)
 
     @property
     def dr_xy_m(self) -> np.ndarray:
         return np.column_stack([self.trajectory["dr_x_m"], self.trajectory["dr_y_m"]])
+
+
+def _cov_table(t: dict[str, np.ndarray]) -> np.ndarray:
+    """(N, 2, 2) covariances from the var_x_m2, cov_xy_m2, var_y_m2 columns of a table."""
+    c = np.empty((len(t["t_s"]), 2, 2))
+    c[:, 0, 0], c[:, 0, 1], c[:, 1, 0], c[:, 1, 1] = t["var_x_m2"], t["cov_xy_m2"], t["cov_xy_m2"], t["var_y_m2"]
+    return c
 
 
 # Columns that must hold finite numbers (the others may be nan, e.g. altitude_sigma_m of a skipped frame).
@@ -462,6 +478,7 @@ _FINITE = {
     "trajectory.csv": ("t_s", "x_m", "y_m", "var_x_m2", "cov_xy_m2", "var_y_m2", "dr_x_m", "dr_y_m"),
     "observations.csv": ("t_s", "frame", "landmark_id"),
     "landmarks.csv": ("id", "x_m", "y_m", "var_x_m2", "cov_xy_m2", "var_y_m2"),
+    "trajectory_smoothed.csv": ("t_s", "x_m", "y_m", "var_x_m2", "cov_xy_m2", "var_y_m2"),
 }
 
 
@@ -551,7 +568,12 @@ def read_results(out_dir: str | Path) -> RunResults:
     lm_path = out / "landmarks.csv"
     lms = _read_table(lm_path, LANDMARK_COLUMNS)[0] if lm_path.is_file() else {}
     summary = read_summary(out / "summary.json")
-    return RunResults(out, traj, obs, lms, summary)
+    smoothed = None
+    sm_path = out / "trajectory_smoothed.csv"
+    if sm_path.is_file():
+        smoothed, lines = _read_table(sm_path, SMOOTHED_TRAJECTORY_COLUMNS)
+        _check_time(sm_path, smoothed, lines, strict=True)
+    return RunResults(out, traj, obs, lms, summary, smoothed)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -63,12 +63,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rovslam.camera import rot2, wrap_angle
-from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError
+from rovslam.config import ROBUST_LOSSES, SmootherConfig
+from rovslam.errors import FilterInconsistencyError, InvalidMeasurementError
 from rovslam.slam.measurements import FrameMeasurements
 
 __all__ = ["SmootherConfig", "Isam2Smoother", "OnlineEstimate", "SmoothedResult", "ROBUST_LOSSES"]
-
-ROBUST_LOSSES = ("huber", "cauchy", "none")
 
 # A zero standard deviation in a prior is taken as this (information 1e12): GTSAM's Gaussian
 # models need a finite information matrix, and the marginals stay well conditioned.
@@ -77,70 +76,6 @@ _TINY_SIGMA = 1e-6
 _FREE_SIGMA = 1e4
 # Sigma of the prior holding a compass frame's translation at the origin, metres.
 _FRAME_SIGMA_M = 1.0
-
-
-@dataclass(frozen=True)
-class SmootherConfig:
-    """Noise model and solver settings of :class:`Isam2Smoother` (``[smoother]`` to be).
-
-    Attributes:
-        robust: loss on the landmark factors: "huber", "cauchy" or "none" (least squares).
-        robust_k: its threshold, in whitened sigmas of the observation noise.
-        use_rejected: also use the observations the online filter rejected (under the
-            robust loss); False drops them.
-        relinearize_threshold: iSAM2 relinearises a variable whose update exceeds this
-            (metres, radians).
-        relinearize_skip: iSAM2 checks for relinearisation every this many updates.
-        wildfire_threshold: iSAM2 stops propagating an update down the tree where the
-            change falls below this (metres, radians): the older poses' online estimates may
-            lag by that much until :meth:`Isam2Smoother.smoothed`.
-        partial_relinearization_check: check for relinearisation only the part of the tree
-            an update touched (instead of every variable at every check).
-        initial_position_sigma_m: prior on the first position (0: known, taken as 1e-6 m).
-        initial_heading_sigma_rad: prior on the first heading without a compass (0: the map
-            frame is the first heading, taken as 1e-6 rad).
-        loose_turn_sigma_rad: sigma of a step's turn when the tokens did not measure it.
-        heading_bias_sigma_rad: stationary sigma of the slow compass error (0: no drift model).
-        heading_bias_tau_s: its correlation time (Ornstein-Uhlenbeck, as the EKF's).
-        bias_block_s: duration over which the drift is held constant (one variable per block).
-        final_max_iterations: Levenberg-Marquardt iterations of :meth:`Isam2Smoother.smoothed`
-            (0: the iSAM2 estimate as it is).
-    """
-
-    robust: str = "huber"
-    robust_k: float = 3.0
-    use_rejected: bool = True
-    relinearize_threshold: float = 0.01
-    relinearize_skip: int = 10
-    wildfire_threshold: float = 0.001
-    partial_relinearization_check: bool = False
-    initial_position_sigma_m: float = 0.0
-    initial_heading_sigma_rad: float = 0.0
-    loose_turn_sigma_rad: float = 0.2
-    heading_bias_sigma_rad: float = 0.0087
-    heading_bias_tau_s: float = 120.0
-    bias_block_s: float = 5.0
-    final_max_iterations: int = 10
-
-    def __post_init__(self) -> None:
-        if self.robust not in ROBUST_LOSSES:
-            raise ConfigError(f"[smoother] robust must be 'huber', 'cauchy' or 'none', got {self.robust!r}")
-        for name in ("robust_k", "relinearize_threshold", "wildfire_threshold", "loose_turn_sigma_rad",
-                     "heading_bias_tau_s", "bias_block_s"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ConfigError(f"[smoother] {name} must be a positive number, got {v!r}")
-        for name in ("initial_position_sigma_m", "initial_heading_sigma_rad", "heading_bias_sigma_rad"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ConfigError(f"[smoother] {name} must be zero or a positive number, got {v!r}")
-        for name, low in (("relinearize_skip", 1), ("final_max_iterations", 0)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < low:
-                raise ConfigError(f"[smoother] {name} must be an integer >= {low}, got {v!r}")
-        for name in ("use_rejected", "partial_relinearization_check"):
-            if not isinstance(getattr(self, name), bool):
-                raise ConfigError(f"[smoother] {name} must be true or false, got {getattr(self, name)!r}")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,67 @@
+"""The same measurements for both back ends: a run writes them, `rovslam smooth` and the iSAM2 back end use them."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from rovslam.config import RunConfig, SlamConfig
+from rovslam.eval import evaluate_run
+from rovslam.io.measurements import read_measurements
+from rovslam.io.results import read_results
+from rovslam.runner import run_sequence, smooth_run
+from rovslam.sim import simulate
+
+FRAMES = 150
+
+
+@pytest.fixture(scope="module")
+def dive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("backends")
+    simulate("portofino-short", root / "seq", frames=FRAMES, seed=4)
+    run_sequence(root / "seq", root / "ekf")
+    isam = dataclasses.replace(RunConfig(), slam=dataclasses.replace(SlamConfig(), backend="isam2"))
+    run_sequence(root / "seq", root / "isam2", isam)
+    return root
+
+
+def test_a_run_writes_every_frames_measurements_as_the_filter_used_them(dive):
+    frames = read_measurements(dive / "ekf")
+    res = read_results(dive / "ekf")
+    assert [m.index for m in frames] == list(range(FRAMES))
+    np.testing.assert_allclose([m.t_s for m in frames], res.t_s, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose([m.speed_mps[0] for m in frames], res.trajectory["surge_mps"], rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose([m.altitude_m for m in frames], res.trajectory["altitude_m"], rtol=1e-8)
+    inits = [ob.landmark_id for m in frames for ob in m.landmarks if ob.kind == "init"]
+    assert inits == list(range(len(res.landmarks["id"])))  # every landmark created once, in order
+    tracked = sum(ob.kind == "track" for m in frames for ob in m.landmarks)
+    assert tracked == len(res.observations["kind"]) - len(inits)
+
+
+def test_smoothing_an_ekf_run_from_its_files_is_accurate_and_consistent(dive):
+    summary = smooth_run(dive / "ekf")
+    assert summary.frames == FRAMES
+    ev = evaluate_run(dive / "ekf", dive / "seq" / "groundtruth.csv")
+    assert ev.smoothed is not None and ev.smoothed_consistency is not None
+    print("online", ev.slam.ate_rmse_m, ev.consistency.coverage_2sigma,
+          "smoothed", ev.smoothed.ate_rmse_m, ev.smoothed_consistency.coverage_2sigma)
+    assert ev.smoothed.ate_rmse_m < 0.005  # 5 mm over a 30 s dive
+    assert ev.smoothed_consistency.coverage_2sigma >= 0.9
+    assert ev.smoothed.ate_rmse_m <= 2.0 * ev.slam.ate_rmse_m
+
+
+def test_the_isam2_back_end_gives_the_online_estimate_and_writes_the_smoothed_dive(dive):
+    online = evaluate_run(dive / "isam2", dive / "seq" / "groundtruth.csv")
+    ekf = evaluate_run(dive / "ekf", dive / "seq" / "groundtruth.csv")
+    print("isam2 online", online.slam.ate_rmse_m, online.consistency.coverage_2sigma, "ekf", ekf.slam.ate_rmse_m)
+    assert (dive / "isam2" / "trajectory_smoothed.csv").is_file()
+    assert online.smoothed is not None
+    assert online.slam.ate_rmse_m < 0.005
+    assert online.consistency.coverage_2sigma >= 0.9
+    # The same measurements: the two online estimates agree to well within their uncertainty.
+    a, b = read_results(dive / "isam2"), read_results(dive / "ekf")
+    gap = np.linalg.norm(a.xy_m - b.xy_m, axis=1)
+    sigma = np.sqrt(np.maximum(a.cov_m2[:, 0, 0], a.cov_m2[:, 1, 1]))
+    assert np.all(gap[1:] <= 3.0 * sigma[1:] + 1e-4)
