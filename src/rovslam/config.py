@@ -166,6 +166,7 @@ class LaserConfig(_Checked):
     min_altitude_m: float = _num(0.05, gt=0)  # altitudes (laser or sonar) outside this range are rejected
     max_altitude_m: float = _num(30.0, gt=0)
     assumed_altitude_m: float = _num(1.31, gt=0)  # no laser, no sonar, no [vehicle] altitude_m: the paper's 1.31 m
+    altitude_accel_sigma_mps2: float = _num(0.05, gt=0)  # vertical acceleration of the altitude filter (rovslam.altitude)
 
     def _check_relations(self) -> None:
         if self.max_spot_area_px < self.min_spot_area_px:
@@ -188,9 +189,11 @@ class OdometryConfig(_Checked):
     max_accel_mps2: float = _num(0.0, ge=0)  # > 0: a speed changing faster than this (+3 sigma) is a wrong consensus (0: off)
     max_speed_mps: float = _num(3.0, gt=0)  # a measured speed above this is not a vehicle's: refused
     survey_speed_mps: float = _num(0.15, gt=0)  # speed bound for the landmark search before any speed is measured
+    relief_scale_gain: float = _num(2.0, ge=0)  # relief parallax scale error: x its one-step estimate (step correlation)
     compass_sigma_rad: float = _num(0.0087, ge=0)  # compass white noise (0.5 deg); 0 uses the compass as it is (paper)
     compass_drift_sigma_rad: float = _num(0.0087, ge=0)  # slow compass error no smoothing removes (magnetic disturbance)
     attitude_sigma_rad: float = _num(0.0035, ge=0)  # AHRS roll / pitch accuracy (0.2 deg), when frames.csv has them
+    attitude_noise_sigma_rad: float = _num(0.0002, ge=0)  # AHRS reading-to-reading noise (0.01 deg): moves each frame's seabed
 
 
 @dataclass(frozen=True)

@@ -26,15 +26,19 @@ its covariance with the gap.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from rovslam.camera import Camera, pixels_to_ground, rot2, wrap_angle
+from rovslam.camera import Camera, drot2, pixels_to_ground, rot2, wrap_angle
 from rovslam.config import OdometryConfig
 from rovslam.errors import InvalidArgumentError, InvalidMeasurementError, finite_scalar
 
 __all__ = ["SpeedMeasurement", "SpeedEstimator", "speed_from_tokens"]
+
+# Time over which the relief's height spread under the tokens is averaged (it changes over metres).
+RELIEF_TAU_S = 5.0
 
 # At most this many single-token hypotheses are scored (plus the median); the pairwise
 # residual table is then at most 65 x N, whatever N.
@@ -66,8 +70,9 @@ class SpeedMeasurement:
     n_inliers: int
     inlier_mask: np.ndarray
     reason: str
-    dpsi_rad: float = 0.0  # heading change used (compass difference fused with the tokens' rotation)
+    dpsi_rad: float = 0.0  # heading change used (the tokens' turn with the compass as a weak prior)
     dpsi_sigma_rad: float = float("inf")  # its standard deviation (inf: nothing measured it)
+    relief_sample: float = float("nan")  # this frame's relief variance sample (:func:`relief_sample`)
 
     @property
     def speed_mps(self) -> np.ndarray:
@@ -137,8 +142,11 @@ def speed_from_tokens(
     attitude_curr_rad: tuple[float, float] = (0.0, 0.0),
     config: OdometryConfig = OdometryConfig(),
     dpsi_sigma_rad: float | None = None,
+    altitude_samples: int = 1,
+    relief_var: float = 0.0,
+    attitude_noise_rad: float = 0.0,
 ) -> SpeedMeasurement:
-    """Surge and sway from token displacements between two consecutive frames.
+    """Surge and sway (and the turn) from token displacements between two consecutive frames.
 
     Args:
         camera: the camera (intrinsics, distortion, yaw offset).
@@ -147,24 +155,32 @@ def speed_from_tokens(
             a NaN (a lost track) is not used and is reported as an outlier.
         altitude_prev_m, altitude_curr_m: image depth Z of each frame, > 0.
         dt_s: real time between the two frames (> 0); dropped frames make it longer.
-        dpsi_rad: heading change psi_curr - psi_prev.
+        dpsi_rad: heading change psi_curr - psi_prev from the compass (a prior).
         altitude_sigma_m: standard deviation of Z (scale error of the speed).
         attitude_prev_rad, attitude_curr_rad: (roll, pitch) of each frame; (0, 0) assumes a
             level camera, as the paper does.
         config: thresholds, token noise and floors.
-        dpsi_sigma_rad: standard deviation of ``dpsi_rad`` (from differencing a noisy compass).
-            When given, the rotation of the inlier tokens about their centroid (a 2-D
-            Procrustes fit) is fused with ``dpsi_rad``, variance-weighted: 8 tokens spread over
-            the image measure the heading change to a few 1e-4 rad, far better than a compass
-            difference, and an error in dpsi moves every off-centre token.
+        dpsi_sigma_rad: standard deviation of ``dpsi_rad`` (a compass difference: mostly
+            noise at 5 Hz and above). When given, the turn is estimated with the translation
+            from the tokens (a joint rigid fit) and ``dpsi_rad`` is only a weak prior; None uses
+            ``dpsi_rad`` as it is (the paper's constant-heading case).
+        altitude_samples: how many seabed points the altitude came from (laser spots used, 1
+            for a sonar or an assumed value): the relief under them and under the tokens differ.
+        relief_var: relative variance of the seabed heights under the tokens (``sigma_s^2``
+            of :func:`relief_sample`), as averaged over recent frames by
+            :class:`SpeedEstimator`; 0 for a flat seabed. One frame's tokens are too few to
+            estimate it alone; the measurement returns this frame's sample.
+        attitude_noise_rad: reading-to-reading noise of the roll and pitch given: an error
+            ``e`` in one frame's attitude moves all its seabed points by ``Z e``, the same for
+            every token (so their scatter cannot show it).
 
     Returns:
         A :class:`SpeedMeasurement`; ``ok=False`` (zero speed, covariance
         ``initial_speed_sigma_mps**2 I``) when there are too few tokens or no consensus.
 
     Raises:
-        InvalidMeasurementError: NaN/infinite/non-positive altitude, time step or attitude,
-            or token arrays of the wrong shape.
+        InvalidMeasurementError: NaN/infinite/non-positive altitude, time step or attitude.
+        InvalidArgumentError: token arrays of the wrong shape.
     """
     z_prev = _scalar("altitude_prev_m", altitude_prev_m, positive=True)
     z_curr = _scalar("altitude_curr_m", altitude_curr_m, positive=True)
@@ -183,137 +199,214 @@ def speed_from_tokens(
     if n_tokens == 0:
         return _failure(0, "no tokens", config)
 
-    # Each pixel onto the seabed through the (tilted) camera, then the mirrored motion
-    # d = g_prev - R(dpsi) g_curr, expressed in the level frame of the previous step (eq. 1).
-    g_prev = pixels_to_ground(camera, uv0, z_prev, roll0, pitch0)
-    g_curr = pixels_to_ground(camera, uv1, z_curr, roll1, pitch1)
-    d_m = g_prev - g_curr @ rot2(dpsi).T
-    valid = np.all(np.isfinite(d_m), axis=1)
+    # Each pixel onto the seabed through the (tilted) camera: a = g_prev, b = g_curr, and the
+    # mirrored motion a = R(dpsi) b + d, d the displacement in the level frame of the previous step (1).
+    a_all = pixels_to_ground(camera, uv0, z_prev, roll0, pitch0)
+    b_all = pixels_to_ground(camera, uv1, z_curr, roll1, pitch1)
+    valid = np.all(np.isfinite(a_all), axis=1) & np.all(np.isfinite(b_all), axis=1)
     n_valid = int(valid.sum())
     if n_valid < config.min_inliers:
         return _failure(n_tokens, "too few tokens" if n_valid else "no tokens", config)
+    a, b = a_all[valid], b_all[valid]
+    px_per_m = camera.focal_px / (0.5 * (z_prev + z_curr))
+    joint = dpsi_sigma_rad is not None and n_valid >= 2
+    prior_var = float(dpsi_sigma_rad) ** 2 if joint else 0.0
+    sigma0 = config.token_sigma_px / px_per_m  # one token's displacement noise, metres (the floor)
+    thr = config.outlier_threshold_px / px_per_m
 
-    z_mean = 0.5 * (z_prev + z_curr)
-    px_per_m = camera.focal_px / z_mean
-    thr2 = config.outlier_threshold_px**2
-    if dpsi_sigma_rad is not None and n_valid >= 3:
-        # A noisy compass difference turns every off-centre token by its error (0.007 rad moves a
-        # token 150 px from the centre by 1 px): take the heading change from token pairs first.
-        dpsi = _rotation_consensus(
-            g_prev[valid], g_curr[valid], dpsi, config.outlier_threshold_px / px_per_m, float(dpsi_sigma_rad)
-        )
-        d_m = g_prev - g_curr @ rot2(dpsi).T
-    dv_px = d_m[valid] * px_per_m  # (M, 2) displacements in pixels, for the threshold
-
-    # Consensus: the median and single-token hypotheses, scored by truncated squared residuals.
-    if n_valid > _MAX_HYPOTHESES:
-        pick = np.linspace(0, n_valid - 1, _MAX_HYPOTHESES).astype(np.intp)
-        singles = dv_px[pick]
-    else:
-        singles = dv_px
-    hyps = np.vstack([np.median(dv_px, axis=0), singles])  # (K, 2)
-    diff = dv_px[None, :, :] - hyps[:, None, :]
-    r2 = np.einsum("kmj,kmj->km", diff, diff)  # (K, M)
-    score = np.minimum(r2, thr2).sum(axis=1)
-    support = (r2 <= thr2).sum(axis=1)
-    best = int(np.argmin(score))
-    inl = r2[best] <= thr2
-    if int(inl.sum()) >= 1:
-        centre = dv_px[inl].sum(axis=0) / np.count_nonzero(inl)
-        res = dv_px - centre
-        inl = np.einsum("mj,mj->m", res, res) <= thr2  # one re-selection around the mean
+    # Consensus: rigid hypotheses scored by truncated residuals and the compass prior (MSAC, MAP).
+    theta, d, support = _best_hypothesis(a, b, dpsi, prior_var, thr, sigma0, joint)
+    inl = support
+    fit = None
+    for _ in range(3):  # refit on the inliers; the threshold follows the residuals they show
+        if int(inl.sum()) < config.min_inliers:
+            break
+        fit = _rigid_fit(a[inl], b[inl], theta, dpsi, prior_var, joint, sigma0)
+        theta, d = fit.theta_rad, fit.d_m
+        res = a - b @ rot2(theta).T - d
+        r2 = np.einsum("mj,mj->m", res, res)
+        sigma = math.sqrt(max(fit.residual_var_m2, sigma0**2))
+        gate = min(thr, max(_CHI2_2DOF_99 ** 0.5 * sigma, 3.0 * sigma0))
+        new = r2 <= gate**2
+        if np.array_equal(new, inl):
+            break
+        inl = new
     n_inl = int(inl.sum())
-    if n_inl < config.min_inliers:
+    if fit is None or n_inl < config.min_inliers:
         return _failure(n_tokens, "no consensus", config)
-    centre = dv_px[inl].sum(axis=0) / n_inl
-    # Two disjoint groups with equal support: refuse rather than pick one at random.
-    rivals = (support >= n_inl) & (np.sum((hyps - centre) ** 2, axis=1) > 4.0 * thr2)
-    if np.any(rivals):
+    # Two groups with equal support: refuse rather than pick one.
+    rival = _rival_consensus(a[~inl], b[~inl], theta, dpsi, prior_var, thr, sigma0, joint)
+    if rival is not None and rival[1] >= n_inl:
         return _failure(n_tokens, "ambiguous consensus", config)
 
-    dpsi_sigma = float("inf")
-    if dpsi_sigma_rad is not None and n_inl >= 2:
-        dpsi, dpsi_sigma = _fuse_rotation(
-            g_prev[valid][inl], g_curr[valid][inl], dpsi, float(dpsi_sigma_rad), config.token_sigma_px / px_per_m
-        )
-        d_m = g_prev - g_curr @ rot2(dpsi).T
-        res = d_m[valid] * px_per_m - centre
-        inl = np.einsum("mj,mj->m", res, res) <= thr2
-        n_inl = int(inl.sum())
-        if n_inl < config.min_inliers:
-            return _failure(n_tokens, "no consensus", config)
-    speeds = d_m[valid][inl] / dt  # (n_inl, 2) m/s, one per inlier token
-    speed = speeds.sum(axis=0) / n_inl
+    speed = d / dt
     if float(np.hypot(speed[0], speed[1])) > config.max_speed_mps:
         return _failure(n_tokens, "implausible speed", config)
-    # Q: standard error of the mean from the inlier spread, each token's variance floored
-    # at the a-priori token noise; plus the altitude scale error; plus the floor.
-    token_var = (config.token_sigma_px / px_per_m / dt) ** 2
-    dev = speeds - speed
-    spread = dev.T @ dev / (n_inl - 1) if n_inl >= 2 else np.zeros((2, 2))
-    cov = _floor_eigenvalues(spread, token_var) / n_inl
-    rel_z = sigma_z / z_mean
-    cov = cov + rel_z**2 * np.outer(speed, speed)
+    cov = fit.cov_d_m2 / dt**2
+    # Relief parallax: the tokens and the altitude see the seabed at different heights.
+    n_altitude = max(int(altitude_samples), 1)
+    cov = cov + config.relief_scale_gain**2 * max(relief_var, 0.0) * (1.0 / n_inl + 1.0 / n_altitude) * np.outer(
+        speed, speed
+    )
+    cov = cov + (sigma_z / (0.5 * (z_prev + z_curr))) ** 2 * np.outer(speed, speed)  # altitude: a scale error
+    att = _scalar("attitude_noise_rad", attitude_noise_rad, nonnegative=True)
+    cov = cov + np.eye(2) * (att**2 * (z_prev**2 + z_curr**2) / dt**2)  # each frame's tilt error shifts it all
+    if 2 * n_inl < n_valid:  # a minority consensus is not trusted like a majority
+        cov = cov * (n_valid / n_inl) ** 2
+    if rival is not None:  # another group agrees on another motion: the covariance says so
+        gap = (d - rival[0]) / dt
+        cov = cov + rival[1] / (n_inl + rival[1]) * np.outer(gap, gap)
     cov = _floor_eigenvalues(cov, config.min_speed_sigma_mps**2)
     cov.setflags(write=False)
 
     mask = np.zeros(n_tokens, dtype=bool)
     mask[np.flatnonzero(valid)[inl]] = True
     mask.setflags(write=False)
+    theta_sigma = math.sqrt(fit.theta_var_rad2) if joint else math.inf
     return SpeedMeasurement(
-        True, float(speed[0]), float(speed[1]), cov, n_tokens, n_inl, mask, "", float(dpsi), dpsi_sigma
+        True, float(speed[0]), float(speed[1]), cov, n_tokens, n_inl, mask, "",
+        float(theta if joint else dpsi), theta_sigma, relief_sample(a[inl], b[inl], theta, d),
     )
 
 
-def _rotation_consensus(
-    a_m: np.ndarray, b_m: np.ndarray, dpsi_rad: float, thr_m: float, prior_sigma_rad: float
-) -> float:
-    """The heading change best supported by the tokens: ``a ~ R(theta) b + d``, (M, 2) each.
+# chi-square quantile (2 dof, 99 %): the inlier gate is sqrt(9.21) = 3.03 residual sigmas.
+_CHI2_2DOF_99 = 9.21
 
-    Hypotheses: the prior ``dpsi_rad`` and the rotation of every token pair with a baseline
-    of at least eight thresholds; each is scored by the truncated residuals about its median
-    translation plus half a threshold squared per prior variance away from ``dpsi_rad`` (a
-    Gaussian prior, MAP-style): when a cluster of wrong tokens (a large marine-snow particle
-    under three tokens) supports another rotation as well as the seabed does, the rotation
-    nearer the compass wins. Returns the winning rotation.
+
+@dataclass(frozen=True)
+class _RigidFit:
+    """Least-squares ``a ~ R(theta) b + d`` (a Gauss-Newton solution with the compass prior)."""
+
+    theta_rad: float
+    d_m: np.ndarray  # (2,)
+    theta_var_rad2: float  # variance of the turn (0 when it was fixed)
+    cov_d_m2: np.ndarray  # (2, 2) covariance of d
+    residual_var_m2: float  # per-axis residual variance (floored later)
+
+
+def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, prior_var: float,
+               joint: bool, sigma0_m: float) -> _RigidFit:
+    """Rotation and translation from (M, 2) matched points, the rotation fixed when not ``joint``.
+
+    The turn is the least-squares rotation of the centred points (Gauss-Newton from
+    ``theta0``), then fused with the compass prior by precision (MAP). The translation's
+    covariance comes from the residuals: their 2x2 scatter (anisotropic: relief parallax lies
+    along the motion) over the degrees of freedom left, each eigenvalue floored at one token's
+    noise ``sigma0_m^2``, divided by the number of points; plus what the turn's uncertainty
+    moves ``d = mean(a) - R mean(b)`` by.
     """
-    i, j = np.triu_indices(len(a_m), 1)
-    da, db = a_m[i] - a_m[j], b_m[i] - b_m[j]
-    keep = np.einsum("kj,kj->k", db, db) > (8.0 * thr_m) ** 2
-    th = np.arctan2(da[keep, 1], da[keep, 0]) - np.arctan2(db[keep, 1], db[keep, 0])
-    hyps = np.concatenate([[dpsi_rad], dpsi_rad + wrap_angle(th - dpsi_rad)])
-    c, s = np.cos(hyps)[:, None], np.sin(hyps)[:, None]
-    t = np.stack([a_m[None, :, 0] - (c * b_m[:, 0] - s * b_m[:, 1]),
-                  a_m[None, :, 1] - (s * b_m[:, 0] + c * b_m[:, 1])], axis=-1)  # (K, M, 2)
-    res = t - np.median(t, axis=1, keepdims=True)
-    score = np.minimum(np.einsum("kmj,kmj->km", res, res), thr_m**2).sum(axis=1)
-    score += 0.5 * thr_m**2 * ((hyps - dpsi_rad) / prior_sigma_rad) ** 2
-    return float(hyps[int(np.argmin(score))])
+    m = len(a)
+    theta = float(theta0)
+    a_bar = a.mean(axis=0)
+    b_bar = b.mean(axis=0)
+    ac, bc = a - a_bar, b - b_bar
+    if joint:
+        for _ in range(3):
+            c = bc @ rot2(theta).T  # R b (centred)
+            jb = np.column_stack([-c[:, 1], c[:, 0]])  # d(R b)/d theta = J R b
+            den = float(np.sum(jb * jb))
+            if den <= 0.0:
+                break
+            step = float(np.sum(jb * (ac - c))) / den
+            theta += step
+            if abs(step) < 1e-12:
+                break
+    p = 1.5 if joint else 1.0  # parameters per axis: (d, theta) or d
+
+    def residuals(th: float) -> tuple[np.ndarray, np.ndarray, float]:
+        dd = a_bar - rot2(th) @ b_bar
+        res = a - b @ rot2(th).T - dd
+        sc = res.T @ res / max(m - p, 0.5)  # (2, 2)
+        return dd, sc, float(np.trace(sc)) / 2.0
+
+    d, scatter, resid_var = residuals(theta)
+    theta_var = 0.0
+    if joint:
+        info_theta = float(np.sum(bc * bc)) / max(resid_var, sigma0_m**2)
+        if prior_var > 0.0:
+            w = info_theta / (info_theta + 1.0 / prior_var)
+            theta = prior_rad + wrap_angle(theta - prior_rad) * w
+            d, scatter, resid_var = residuals(theta)
+            theta_var = 1.0 / (info_theta + 1.0 / prior_var)
+        else:
+            theta_var = 1.0 / info_theta if info_theta > 0 else math.inf
+    cov_d = _floor_eigenvalues(scatter, sigma0_m**2) / m
+    if joint and math.isfinite(theta_var):
+        jrb = drot2(theta) @ b_bar  # d d / d theta = -dR/dtheta mean(b)
+        cov_d = cov_d + theta_var * np.outer(jrb, jrb)
+    return _RigidFit(theta, d, theta_var, cov_d, resid_var)
 
 
-def _fuse_rotation(
-    g_prev_m: np.ndarray, g_curr_m: np.ndarray, dpsi_rad: float, dpsi_sigma_rad: float, token_sigma_m: float
-) -> tuple[float, float]:
-    """Fuse a prior heading change with the rotation of matched seabed points.
+def _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint):
+    """(theta, d, inlier mask) of the best rigid hypothesis: MSAC residuals plus the compass prior.
 
-    ``g_prev ~ R(dpsi) g_curr + d`` (both (M, 2)); the least-squares rotation of the centred
-    point sets is ``atan2(sum b x a, sum b . a)`` with variance ``2 sigma_g^2 / sum |b|^2``.
-    Returns the variance-weighted (dpsi, sigma).
+    Hypotheses: the prior turn with the median and with every single-token translation; in
+    ``joint`` mode also the rigid motion of every token pair whose baseline is long enough to
+    fix the turn (at least a quarter of the tokens' extent, and 8 thresholds). Each is scored
+    by ``sum(min(r^2, thr^2)) / sigma0^2 + (theta - prior)^2 / prior_var``.
     """
-    a = g_prev_m - g_prev_m.mean(axis=0)
-    b = g_curr_m - g_curr_m.mean(axis=0)
-    spread_m2 = float(np.sum(b * b))
-    if spread_m2 <= 0.0:
-        return dpsi_rad, dpsi_sigma_rad
-    theta = float(np.arctan2(np.sum(b[:, 0] * a[:, 1] - b[:, 1] * a[:, 0]), np.sum(b * a)))
-    var_tok = 2.0 * token_sigma_m**2 / spread_m2
-    var_prior = dpsi_sigma_rad**2
-    # Wrap the token rotation next to the prior so that the weighted mean is meaningful.
-    theta = dpsi_rad + wrap_angle(theta - dpsi_rad)
-    w = var_prior / (var_prior + var_tok) if np.isfinite(var_prior) else 1.0
-    fused = dpsi_rad + w * (theta - dpsi_rad)
-    var = var_tok * var_prior / (var_tok + var_prior) if np.isfinite(var_prior) else var_tok
-    return float(fused), float(np.sqrt(var))
+    thetas = [prior_rad]
+    ds = [np.median(a - b @ rot2(prior_rad).T, axis=0)]
+    if len(a) > _MAX_HYPOTHESES:
+        pick = np.linspace(0, len(a) - 1, _MAX_HYPOTHESES).astype(np.intp)
+    else:
+        pick = np.arange(len(a))
+    singles = a[pick] - b[pick] @ rot2(prior_rad).T
+    thetas += [prior_rad] * len(singles)
+    ds += list(singles)
+    if joint and len(a) >= 2:
+        i, j = np.triu_indices(len(a), 1)
+        da, db = a[i] - a[j], b[i] - b[j]
+        base2 = np.einsum("kj,kj->k", db, db)
+        extent2 = float(np.max(base2))
+        keep = base2 >= max((8.0 * thr) ** 2, extent2 / 16.0)
+        if np.any(keep) and len(keep) > _MAX_HYPOTHESES:
+            keep &= base2 >= np.sort(base2)[-_MAX_HYPOTHESES]
+        th = np.arctan2(da[keep, 1], da[keep, 0]) - np.arctan2(db[keep, 1], db[keep, 0])
+        th = prior_rad + wrap_angle(th - prior_rad)
+        for t, ii, jj in zip(th, i[keep], j[keep]):
+            thetas.append(float(t))
+            ds.append(0.5 * (a[ii] + a[jj]) - rot2(t) @ (0.5 * (b[ii] + b[jj])))
+    thetas_a = np.asarray(thetas)
+    ds_a = np.asarray(ds)
+    c, s = np.cos(thetas_a)[:, None], np.sin(thetas_a)[:, None]
+    rb = np.stack([c * b[None, :, 0] - s * b[None, :, 1], s * b[None, :, 0] + c * b[None, :, 1]], axis=-1)
+    r = a[None] - rb - ds_a[:, None, :]  # (K, M, 2)
+    r2 = np.einsum("kmj,kmj->km", r, r)
+    score = np.minimum(r2, thr**2).sum(axis=1) / sigma0**2
+    if joint and prior_var > 0:
+        score = score + wrap_angle(thetas_a - prior_rad) ** 2 / prior_var
+    k = int(np.argmin(score))
+    return float(thetas_a[k]), ds_a[k], r2[k] <= thr**2
+
+
+def _rival_consensus(a, b, theta, prior_rad, prior_var, thr, sigma0, joint):
+    """The best consensus among the outliers: ``(d (2,), support)`` when at least two agree, else None."""
+    if len(a) < 2:
+        return None
+    _, d, support = _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint)
+    n = int(support.sum())
+    return (d, n) if n >= 2 else None
+
+
+def relief_sample(a_m: np.ndarray, b_m: np.ndarray, theta_rad: float, d_m: np.ndarray) -> float:
+    """One frame's sample of the relative variance of the seabed heights under the tokens (NaN: none).
+
+    Over relief each token moves as its own depth says, ``d_i = d Z / Z_i``: the relief spreads
+    the tokens' displacements along the motion only, while matching noise spreads them in every
+    direction. So the along-motion residual variance less the across-motion one, over ``|d|^2``,
+    estimates ``sigma_s^2`` without bias (it may be negative for one frame; averages are not).
+    The mean depth of n tokens and the depth the altitude was measured at (m points) then
+    differ by ``sigma_s^2 (1/n + 1/m)`` in relative variance: a scale error of the speed.
+    """
+    n = len(a_m)
+    dd = float(d_m @ d_m)
+    if n < 3 or dd <= 0.0:
+        return math.nan
+    res = a_m - b_m @ rot2(theta_rad).T - d_m  # (n, 2) residuals of the fit
+    along = res @ d_m
+    across = res @ np.array([-d_m[1], d_m[0]])
+    return float(np.mean(along**2) - np.mean(across**2)) / (dd * dd) * n / (n - 1.5)
 
 
 class SpeedEstimator:
@@ -330,9 +423,24 @@ class SpeedEstimator:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the held speed (as at the start of a sequence)."""
+        """Forget the held speed and the relief seen (as at the start of a sequence)."""
         self._last: SpeedMeasurement | None = None
         self._gap_s = 0.0
+        self._relief_num = 0.0
+        self._relief_den = 0.0
+
+    @property
+    def relief_var(self) -> float:
+        """The relief's relative height variance under the tokens, averaged over the last seconds (>= 0)."""
+        return max(self._relief_num / self._relief_den, 0.0) if self._relief_den > 0 else 0.0
+
+    def _learn_relief(self, sample: float, dt_s: float) -> None:
+        """Exponential average of :func:`relief_sample` over ``RELIEF_TAU_S`` seconds (bias-corrected at the start)."""
+        if not math.isfinite(sample):
+            return
+        w = 1.0 - math.exp(-dt_s / RELIEF_TAU_S)
+        self._relief_num = (1.0 - w) * self._relief_num + w * sample
+        self._relief_den = (1.0 - w) * self._relief_den + w
 
     @property
     def last_good(self) -> SpeedMeasurement | None:
@@ -370,12 +478,17 @@ class SpeedEstimator:
         attitude_prev_rad: tuple[float, float] = (0.0, 0.0),
         attitude_curr_rad: tuple[float, float] = (0.0, 0.0),
         dpsi_sigma_rad: float | None = None,
+        altitude_samples: int = 1,
+        attitude_noise_rad: float = 0.0,
     ) -> SpeedMeasurement:
-        """Same arguments as :func:`speed_from_tokens` (without ``config``)."""
+        """Same arguments as :func:`speed_from_tokens` (without ``config`` and ``relief_var``)."""
         m = speed_from_tokens(
             camera, uv_prev_px, uv_curr_px, altitude_prev_m, altitude_curr_m, dt_s, dpsi_rad,
-            altitude_sigma_m, attitude_prev_rad, attitude_curr_rad, self.config, dpsi_sigma_rad,
+            altitude_sigma_m, attitude_prev_rad, attitude_curr_rad, self.config, dpsi_sigma_rad, altitude_samples,
+            self.relief_var, attitude_noise_rad,
         )
+        if m.ok:
+            self._learn_relief(m.relief_sample, float(dt_s))
         if m.ok and self._plausible(m, float(dt_s)):
             self._last = m
             self._gap_s = 0.0

@@ -21,12 +21,14 @@ folder, a video, a bag) and never holds more than the current and previous frame
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from rovslam.altitude import AltitudeFilter
 from rovslam.camera import ground_to_pixels, mn_to_ground, pixels_to_ground, rot2
 from rovslam.config import RunConfig
 from rovslam.heading import HeadingEstimate, HeadingPrior, HeadingTracker
@@ -119,6 +121,7 @@ class SlamPipeline:
         self.camera = info.camera
         self.focal_px = info.camera.focal_px
         self.altimeter = LaserAltimeter(info.camera, info.lasers, config.laser, self.altimeter_fallback)
+        self.altitude = AltitudeFilter(config.laser.altitude_accel_sigma_mps2)
         self.tokens = TokenTracker(config.speed_templates, config.tracker)
         self.speed = SpeedEstimator(config.odometry)
         self.heading = HeadingTracker(config.odometry, config.slam)
@@ -163,7 +166,7 @@ class SlamPipeline:
         visible, tracked = self._track_landmarks(track_img, alt, att, prior, dt_s)  # step 3
         new_template = self._choose_new_landmark(track_img, mask, tracked)
         self._inhibit_landmarks(mask, tracked, new_template)  # step 4
-        tracks, speed = self._measure_speed(track_img, mask, alt, att, prior, dt_s)  # step 5
+        tracks, speed = self._measure_speed(track_img, mask, alt, att, prior, dt_s, frame.has_attitude)  # step 5
         heading = self._fuse_heading(prior, speed)
         if self._n == 0 and frame.has_attitude:
             self._start_filter(alt.altitude_m)
@@ -195,8 +198,12 @@ class SlamPipeline:
 
     # ------------------------------------------------------------------ step 1
     def _measure_altitude(self, frame: Frame, att: tuple[float, float]) -> AltitudeEstimate:
-        """Step 1: laser spots -> image depth Z, fused with the sonar."""
-        return self.altimeter.measure(frame.image, frame.sonar_altitude_m, *att)
+        """Step 1: laser spots -> image depth Z, fused with the sonar, filtered over time (not an assumed value)."""
+        alt = self.altimeter.measure(frame.image, frame.sonar_altitude_m, *att)
+        if alt.source == "fixed":
+            return alt
+        z, sigma = self.altitude.update(frame.t_s, alt.altitude_m, alt.sigma_m)
+        return dataclasses.replace(alt, altitude_m=z, sigma_m=sigma)
 
     # ------------------------------------------------------------------ step 2
     def _inhibit_laser_spots(self, alt: AltitudeEstimate) -> np.ndarray:
@@ -282,7 +289,7 @@ class SlamPipeline:
     # ------------------------------------------------------------------ step 5
     def _measure_speed(
         self, track_img: np.ndarray, mask: np.ndarray, alt: AltitudeEstimate, att: tuple[float, float],
-        prior: HeadingPrior, dt_s: float,
+        prior: HeadingPrior, dt_s: float, has_attitude: bool,
     ) -> tuple[TokenTracks, SpeedMeasurement | None]:
         """Step 5: track the previous frame's tokens (their windows follow the turn) -> surge, sway, turn."""
         common, offsets = self._token_predictions(prior.step_rad, att, dt_s)
@@ -293,6 +300,8 @@ class SlamPipeline:
             self.camera, tracks.uv_prev_px, tracks.uv_curr_px, self._prev_altitude_m, alt.altitude_m, dt_s,
             dpsi_rad=prior.step_rad, altitude_sigma_m=alt.sigma_m, attitude_prev_rad=self._prev_attitude,
             attitude_curr_rad=att, dpsi_sigma_rad=prior.step_sigma_rad,
+            altitude_samples=max(alt.n_spots, 1) if alt.source.startswith("laser") else 1,
+            attitude_noise_rad=self.config.odometry.attitude_noise_sigma_rad if has_attitude else 0.0,
         )
         return tracks, speed
 

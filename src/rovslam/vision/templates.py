@@ -151,6 +151,32 @@ def window_inhibited(mask: np.ndarray, centre_uv_px: np.ndarray, size_hw: tuple[
     return bool(mask[max(0, v0) : max(0, v0 + h), max(0, u0) : max(0, u0 + w)].any())
 
 
+def self_similarity(track_img: np.ndarray, top_left_uv: tuple[int, int], size_px: int, radius_px: int,
+                    exclusion_px: int = 3) -> float:
+    """How much a window looks like its neighbourhood: the highest other peak of its autocorrelation.
+
+    The ``size_px`` window at ``top_left_uv`` of the ``(H, W) float32`` image is correlated
+    (normalised, as the tracker does) with every window within ``radius_px`` of it; the
+    result is the highest local maximum farther than ``exclusion_px`` (Chebyshev) from the
+    window itself, or -1 when there is none. A regular pattern (coral lattice, ripples, a row
+    of look-alike burrows) gives a value near 1: the tracker could lock on a neighbour.
+    """
+    u0, v0 = int(top_left_uv[0]), int(top_left_uv[1])
+    img = np.asarray(track_img, dtype=np.float32)
+    h, w = img.shape
+    patch = img[v0 : v0 + size_px, u0 : u0 + size_px]
+    su0, sv0 = max(0, u0 - radius_px), max(0, v0 - radius_px)
+    su1, sv1 = min(w, u0 + size_px + radius_px), min(h, v0 + size_px + radius_px)
+    if patch.shape != (size_px, size_px) or float(patch.std()) <= 1e-6:
+        return 1.0  # a window that cannot be correlated is as ambiguous as it gets
+    corr = cv2.matchTemplate(img[sv0:sv1, su0:su1], patch, cv2.TM_CCOEFF_NORMED)
+    is_max = corr >= cv2.dilate(corr, np.ones((3, 3), np.uint8))
+    pu, pv = u0 - su0, v0 - sv0  # where the window finds itself
+    ex = max(0, int(exclusion_px))
+    is_max[max(0, pv - ex) : pv + ex + 1, max(0, pu - ex) : pu + ex + 1] = False
+    return float(corr[is_max].max()) if is_max.any() else -1.0
+
+
 def extract_templates(
     track_img: np.ndarray,
     local_var: np.ndarray,
@@ -160,6 +186,8 @@ def extract_templates(
     border_px: int = 0,
     inhibit: np.ndarray | None = None,
     min_spacing_px: int | None = None,
+    max_self_similarity: float | None = None,
+    similarity_radius_px: int = 8,
 ) -> list[Template]:
     """Choose the highest-local-variance, non-overlapping windows as templates (Misu et al.).
 
@@ -189,6 +217,9 @@ def extract_templates(
     border_px: margin between the window and the image border (>= 0).
     inhibit: optional ``(H, W) bool`` forbidden pixels.
     min_spacing_px: least distance (in u or v) between two template anchors; >= size.
+    max_self_similarity: refuse a candidate whose :func:`self_similarity` within
+        ``similarity_radius_px`` (where the tracker will look for it) exceeds this: it is
+        ambiguous. None: no test (the paper). At most ``4 max_count`` candidates are refused.
 
     Returns
     -------
@@ -239,11 +270,19 @@ def extract_templates(
     threshold = max(float(min_local_variance), np.finfo(np.float32).tiny)
 
     templates: list[Template] = []
+    refused = 0
     while len(templates) < max_count:
         _, best, _, (u, v) = cv2.minMaxLoc(score)
         if not best >= threshold:
             break
         u0, v0 = u - half, v - half
+        if max_self_similarity is not None and refused < 4 * max_count and (
+            self_similarity(img, (u0, v0), size, similarity_radius_px) > max_self_similarity
+        ):
+            refused += 1  # ambiguous: its neighbours look the same; so would the ones next to it
+            q = max(1, size // 4)
+            score[max(0, v - q) : v + q + 1, max(0, u - q) : u + q + 1] = -1.0
+            continue
         patch = np.array(img[v0 : v0 + size, u0 : u0 + size], dtype=np.float32)
         patch.setflags(write=False)
         centre = np.array([u0 + 0.5 * (size - 1), v0 + 0.5 * (size - 1)])
