@@ -511,6 +511,7 @@ def video_cases() -> list[Case]:
     return [
         V("valid-mp4", lambda d: write_video(d / "dive.mp4"), "ok"),
         V("valid-mkv", lambda d: write_video(d / "dive.mkv"), "ok"),
+        V("valid-odd-suffix", lambda d: write_video(d / "dive.mkv").rename(d / "dive.dat"), "ok"),  # FFmpeg reads it
         V("no-camera", lambda d: write_video(d / "dive.mp4"), "error", "--camera", camera=False),
         V("truncated-mp4", damaged(".mp4", "truncate"), "error", "not a readable video"),
         V("garbled-mp4", damaged(".mp4", "garble"), "either"),

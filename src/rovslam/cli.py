@@ -155,9 +155,46 @@ _HEADING_DEG_OPT = typer.Option(False, "--heading-degrees", help="A std_msgs/Flo
                                 rich_help_panel=_BAG)
 
 
+_INPUT_PARAMS = {  # name -> (type, option): the input options of `run` and `import`
+    "camera": (Optional[Path], _CAMERA_OPT),
+    "nav": (Optional[Path], _NAV_OPT),
+    "nav_time_offset": (Optional[float], _NAV_OFFSET_OPT),
+    "nav_map": (Optional[list[str]], _NAV_MAP_OPT),
+    "fps": (Optional[float], _FPS_OPT),
+    "times": (Optional[Path], _TIMES_OPT),
+    "image_topic": (Optional[str], _IMAGE_TOPIC_OPT),
+    "heading_topic": (Optional[str], _HEADING_TOPIC_OPT),
+    "altitude_topic": (Optional[str], _ALTITUDE_TOPIC_OPT),
+    "attitude_topic": (Optional[str], _ATTITUDE_TOPIC_OPT),
+    "camera_info_topic": (Optional[str], _CAMERA_INFO_OPT),
+    "heading_convention": (str, _HEADING_CONV_OPT),
+    "heading_degrees": (bool, _HEADING_DEG_OPT),
+}
+
+
+def _with_inputs(fn):
+    """Give a command the input options of `run` (camera file, navigation log, times, topics) as one
+    ``inputs: InputOptions`` argument, checked; the command's own signature names it last."""
+    import functools
+    import inspect
+
+    sig = inspect.signature(fn)
+    own = [prm for prm in sig.parameters.values() if prm.name != "inputs"]
+    added = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=opt, annotation=kind)
+             for name, (kind, opt) in _INPUT_PARAMS.items()]
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        values = {name: kwargs.pop(name) for name in _INPUT_PARAMS}
+        return fn(*args, inputs=_input_options(**values), **kwargs)
+
+    wrapper.__signature__ = sig.replace(parameters=[*own, *added])  # type: ignore[attr-defined]
+    return wrapper
+
+
 def _input_options(camera, nav, nav_time_offset, nav_map, fps, times, image_topic, heading_topic, altitude_topic,
                    attitude_topic, camera_info_topic, heading_convention, heading_degrees):
-    """The input options of `run` and `import` as one :class:`rovslam.io.source.InputOptions`, checked."""
+    """The input options as one :class:`rovslam.io.source.InputOptions`, checked."""
     from rovslam.errors import InvalidArgumentError
     from rovslam.io.source import InputOptions
 
@@ -181,22 +218,10 @@ def _input_options(camera, nav, nav_time_offset, nav_map, fps, times, image_topi
 
 @app.command()
 @_guard
+@_with_inputs
 def run(
     sequence: Path = typer.Argument(..., help="Sequence folder (format v1), a video, a folder of images or a ROS bag."),
     out: Path = typer.Option(..., "--out", "-o", help="Folder for the results (new or empty, or see --overwrite)."),
-    camera: Optional[Path] = _CAMERA_OPT,
-    nav: Optional[Path] = _NAV_OPT,
-    nav_time_offset: Optional[float] = _NAV_OFFSET_OPT,
-    nav_map: Optional[list[str]] = _NAV_MAP_OPT,
-    fps: Optional[float] = _FPS_OPT,
-    times: Optional[Path] = _TIMES_OPT,
-    image_topic: Optional[str] = _IMAGE_TOPIC_OPT,
-    heading_topic: Optional[str] = _HEADING_TOPIC_OPT,
-    altitude_topic: Optional[str] = _ALTITUDE_TOPIC_OPT,
-    attitude_topic: Optional[str] = _ATTITUDE_TOPIC_OPT,
-    camera_info_topic: Optional[str] = _CAMERA_INFO_OPT,
-    heading_convention: str = _HEADING_CONV_OPT,
-    heading_degrees: bool = _HEADING_DEG_OPT,
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML configuration (defaults: the paper's)."),
     max_frames: Optional[int] = typer.Option(None, help="Process only the first N frames (N >= 1)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the results of an earlier run in --out (only rovslam's own files)."),
@@ -209,8 +234,10 @@ def run(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display."),
     viewer: bool = typer.Option(False, "--viewer", help="Show the run live in the rerun viewer (saved to OUT/run.rrd without a display)."),
     save_rrd: Optional[Path] = typer.Option(None, "--save-rrd", help="Save the live view as a rerun recording (.rrd)."),
+    inputs=None,
 ) -> None:
-    """Run vision-based SLAM on a sequence: trajectory with covariance, landmark map, summary."""
+    """Run vision-based SLAM on a sequence folder, a video, a ROS bag or a folder of images: trajectory with
+    covariance, landmark map, summary (with where the altitude and the heading came from)."""
     from rovslam.config import RunConfig, load_config
     from rovslam.errors import InvalidArgumentError
     from rovslam.runner import StopRequest, run_sequence
@@ -221,8 +248,6 @@ def run(
         raise InvalidArgumentError(f"--min-usable-fraction must be from 0 to 1, got {min_usable_fraction}")
     if max_distance_m is not None and not (max_distance_m > 0 and max_distance_m != float("inf")):
         raise InvalidArgumentError(f"--max-distance-m must be a positive number of metres, got {max_distance_m}")
-    inputs = _input_options(camera, nav, nav_time_offset, nav_map, fps, times, image_topic, heading_topic, altitude_topic,
-                            attitude_topic, camera_info_topic, heading_convention, heading_degrees)
     cfg = load_config(config) if config is not None else RunConfig()
     min_usable_fraction = cfg.run.min_usable_fraction if min_usable_fraction is None else min_usable_fraction
     max_distance_m = cfg.run.max_distance_m if max_distance_m is None else max_distance_m
@@ -258,25 +283,14 @@ def run(
 
 @app.command(name="import")
 @_guard
+@_with_inputs
 def import_cmd(
     source: Path = typer.Argument(..., help="A video, a folder of images or a ROS bag (with the options that open it)."),
     out: Path = typer.Option(..., "--out", "-o", help="Sequence folder to write (new or empty)."),
-    camera: Optional[Path] = _CAMERA_OPT,
-    nav: Optional[Path] = _NAV_OPT,
-    nav_time_offset: Optional[float] = _NAV_OFFSET_OPT,
-    nav_map: Optional[list[str]] = _NAV_MAP_OPT,
-    fps: Optional[float] = _FPS_OPT,
-    times: Optional[Path] = _TIMES_OPT,
-    image_topic: Optional[str] = _IMAGE_TOPIC_OPT,
-    heading_topic: Optional[str] = _HEADING_TOPIC_OPT,
-    altitude_topic: Optional[str] = _ALTITUDE_TOPIC_OPT,
-    attitude_topic: Optional[str] = _ATTITUDE_TOPIC_OPT,
-    camera_info_topic: Optional[str] = _CAMERA_INFO_OPT,
-    heading_convention: str = _HEADING_CONV_OPT,
-    heading_degrees: bool = _HEADING_DEG_OPT,
     image_format: str = typer.Option("png", "--format", help="png (lossless) or jpg."),
     max_frames: Optional[int] = typer.Option(None, help="Import only the first N frames (N >= 1)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    inputs=None,
 ) -> None:
     """Write a video, an image folder or a ROS bag, with its navigation, as a sequence folder (format v1)."""
     from rovslam.errors import InvalidArgumentError
@@ -287,8 +301,6 @@ def import_cmd(
         raise InvalidArgumentError(f"--format must be png or jpg, got {image_format!r}")
     if max_frames is not None and max_frames < 1:
         raise InvalidArgumentError(f"--max-frames must be a whole number of frames >= 1, got {max_frames}")
-    inputs = _input_options(camera, nav, nav_time_offset, nav_map, fps, times, image_topic, heading_topic, altitude_topic,
-                            attitude_topic, camera_info_topic, heading_convention, heading_degrees)
     check_import_folder(out)
     _quiet_native_logs()
     src = open_source(source, options=inputs)
