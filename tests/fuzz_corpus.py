@@ -511,6 +511,7 @@ def video_cases() -> list[Case]:
     return [
         V("valid-mp4", lambda d: write_video(d / "dive.mp4"), "ok"),
         V("valid-mkv", lambda d: write_video(d / "dive.mkv"), "ok"),
+        V("valid-odd-suffix", lambda d: write_video(d / "dive.mkv").rename(d / "dive.dat"), "ok"),  # FFmpeg reads it
         V("no-camera", lambda d: write_video(d / "dive.mp4"), "error", "--camera", camera=False),
         V("truncated-mp4", damaged(".mp4", "truncate"), "error", "not a readable video"),
         V("garbled-mp4", damaged(".mp4", "garble"), "either"),
@@ -525,6 +526,271 @@ def video_cases() -> list[Case]:
         V("camera-not-toml", lambda d: write_video(d / "dive.mp4"), "error", "not valid TOML", cam_edit=lambda t: t + "[[["),
         V("wrong-suffix", lambda d: _touch(d / "dive.txt", b"x"), "error", "neither a sequence folder"),
         V("folder-named-mp4", lambda d: (d / "dive.mp4").mkdir() or d / "dive.mp4", "error", "sequence.toml"),
+    ]
+
+
+# --------------------------------------------------------------------------- issue 12: navigation logs, image folders, bags
+
+CAMERA_FILE = CAMERA_TOML.replace('format = "rovslam-sequence/1"\n', "")  # a camera file needs no format key
+NAV_HEADER = "unix_s,hdg_deg,alt_m,qx,qy,qz,qw"
+NAV_OFFSET_S = 1_600_000_000.0
+
+
+def nav_csv_text(n: int = 24, start_s: float = 0.0, step_s: float = 0.1) -> str:
+    """A 10 Hz log over a 12-frame, 5 Hz video: heading in degrees, altitude, a level ENU quaternion."""
+    lines = [NAV_HEADER]
+    for k in range(n):
+        t = NAV_OFFSET_S + start_s + k * step_s
+        yaw = np.radians(90.0 - (10.0 + k))  # ENU yaw of the same heading
+        lines.append(f"{t!r},{10.0 + k},{1.3 + 0.001 * k},0.0,0.0,{float(np.sin(yaw / 2))!r},{float(np.cos(yaw / 2))!r}")
+    return "\n".join(lines) + "\n"
+
+
+NAV_MAP = '\n[nav]\ntime = "unix_s"\nheading = "hdg_deg"\naltitude = "alt_m"\n'
+NAV_MAP_QUAT = '\n[nav]\ntime = "unix_s"\nquaternion = ["qx", "qy", "qz", "qw"]\n'
+
+
+def nav_cases() -> list[Case]:
+    def N(name: str, nav: Callable[[Path], object], expect: str, needle: str = "", mapping: str = NAV_MAP,
+          extra: tuple[str, ...] = ("--nav-time-offset", repr(NAV_OFFSET_S))) -> Case:
+        def build(d: Path, sh: Shared) -> list[str]:
+            video = write_video(d / "dive.mp4")
+            (d / "cam.toml").write_text(CAMERA_FILE + mapping)
+            (d / "nav.csv").write_text(nav_csv_text())
+            nav(d / "nav.csv")
+            return ["run", str(video), "--camera", str(d / "cam.toml"), "--nav", str(d / "nav.csv"), "--out", str(d / "out"),
+                    "--quiet", *extra]
+
+        return Case(name, "navigation", build, expect, needle)
+
+    def lines(fn: Callable[[list[str]], list[str]]) -> Callable[[Path], None]:
+        return lambda p: edit_lines(p, fn)
+
+    nothing = lambda p: None  # noqa: E731
+    return [
+        N("valid-heading-deg", nothing, "ok"),
+        N("valid-quaternion", nothing, "ok", mapping=NAV_MAP_QUAT),
+        N("valid-nav-map-options", nothing, "ok", mapping="",
+          extra=("--nav-time-offset", repr(NAV_OFFSET_S), "--nav-map", "time=unix_s", "--nav-map", "heading=hdg_deg")),
+        N("bom", lambda p: _bytes(p, b"\xef\xbb\xbf" + p.read_bytes()), "ok"),
+        N("crlf", lambda p: _bytes(p, p.read_bytes().replace(b"\n", b"\r\n")), "ok"),
+        N("partly-overlapping", lambda p: _bytes(p, nav_csv_text(start_s=1.0).encode()), "ok"),
+        N("sparse-rows", lambda p: _bytes(p, nav_csv_text(n=3, step_s=1.5).encode()), "ok"),
+        N("empty-cells", lambda p: set_cell(p, 3, "alt_m", ""), "ok"),
+        N("no-overlap", lambda p: None, "error", "do not overlap", extra=()),
+        N("offset-wrong", lambda p: None, "error", "do not overlap", extra=("--nav-time-offset", "0")),
+        N("missing-file", lambda p: p.unlink(), "error", "nav.csv: missing"),
+        N("is-folder", lambda p: (p.unlink(), p.mkdir()), "error", "is a folder"),
+        N("latin1", lambda p: _bytes(p, p.read_bytes().replace(b"hdg_deg", b"hdg_\xb0")), "error", "not UTF-8"),
+        N("utf16", lambda p: _bytes(p, p.read_text().encode("utf-16")), "error", "UTF-16"),
+        N("binary", lambda p: _bytes(p, bytes(range(256)) * 8), "error", "nav.csv"),
+        N("empty-file", lambda p: _bytes(p, b""), "error", "empty file"),
+        N("header-only", lines(lambda ls: ls[:1]), "error", "no rows"),
+        N("column-missing", lambda p: replace_in(p, "hdg_deg", "heading"), "error", "'hdg_deg' is not a column"),
+        N("time-text", lambda p: set_cell(p, 4, "unix_s", "noon"), "error", "line 5: column 'unix_s' is not a number"),
+        N("time-backwards", lambda p: set_cell(p, 6, "unix_s", repr(NAV_OFFSET_S)), "error", "line 7: time"),
+        N("time-nan", lambda p: set_cell(p, 2, "unix_s", "nan"), "error", "line 3: column 'unix_s' is nan"),
+        N("heading-inf", lambda p: set_cell(p, 2, "hdg_deg", "inf"), "error", "not finite"),
+        N("altitude-depth", lambda p: set_column(p, "alt_m", "-13.9"), "error", "a depth is not an altitude"),
+        N("altitude-1e6", lambda p: set_column(p, "alt_m", "1e6"), "ok"),  # each reading rejected, the fixed one used
+        N("short-row", lines(lambda ls: ls[:3] + [ls[3].rsplit(",", 1)[0]] + ls[4:]), "error", "line 4"),
+        N("quaternion-zero", lambda p: set_column(p, "qw", "0.0"), "error", "length", mapping=NAV_MAP_QUAT),
+        N("quaternion-upside-down", nothing, "error", "away from straight down",
+          mapping=NAV_MAP_QUAT + 'quaternion_body = "frd"\n'),
+        N("mapping-unknown-key", nothing, "error", "unknown key", mapping=NAV_MAP + "colour = 1\n"),
+        N("mapping-bad-unit", nothing, "error", "'grad' is not one of", mapping=NAV_MAP + 'angle_unit = "grad"\n'),
+        N("mapping-not-table", nothing, "error", "must be a table", mapping='\n[[nav]]\ntime = "t"\n'),
+        N("nav-map-no-equals", nothing, "error", "KEY=VALUE", extra=("--nav-time-offset", "0", "--nav-map", "heading")),
+        N("nav-map-unknown", nothing, "error", "unknown key", extra=("--nav-time-offset", "0", "--nav-map", "x=1")),
+        N("offset-nan", nothing, "error", "--nav-time-offset", extra=("--nav-time-offset", "nan")),
+        Case("nav-map-without-nav", "navigation",
+             lambda d, sh: ["run", str(write_video(d / "dive.mp4")), "--camera", str(_touch(d / "c.toml", CAMERA_FILE.encode())),
+                            "--nav-map", "time=t", "--out", str(d / "out")], "error", "--nav NAV.csv"),
+        Case("nav-with-sequence", "navigation",
+             lambda d, sh: ["run", str(sh.base_seq), "--nav", str(_touch(d / "n.csv", nav_csv_text().encode())),
+                            "--out", str(d / "out")], "error", "--nav cannot be used with a sequence folder"),
+        Case("camera-file-without-format", "navigation",
+             lambda d, sh: ["run", str(write_video(d / "dive.mp4")), "--camera", str(_touch(d / "c.toml", CAMERA_FILE.encode())),
+                            "--out", str(d / "out"), "-q"], "ok"),
+        Case("camera-file-wrong-format", "navigation",
+             lambda d, sh: ["run", str(write_video(d / "dive.mp4")), "--camera",
+                            str(_touch(d / "c.toml", CAMERA_TOML.replace("sequence/1", "sequence/9").encode())),
+                            "--out", str(d / "out"), "-q"], "error", "key 'format'"),
+    ]
+
+
+def write_image_folder(d: Path, n: int = N_FRAMES) -> Path:
+    d.mkdir(parents=True, exist_ok=True)
+    for k, img in enumerate(seabed_frames(n)):
+        (d / f"frame{k + 1}.png").write_bytes(encode(img, ".png"))
+    return d
+
+
+def folder_cases() -> list[Case]:
+    def F(name: str, edit: Callable[[Path, Path], object], expect: str, needle: str = "",
+          extra: tuple[str, ...] = ("--fps", "5"), camera: bool = True) -> Case:
+        def build(d: Path, sh: Shared) -> list[str]:
+            folder = write_image_folder(d / "images")
+            (d / "cam.toml").write_text(CAMERA_FILE)
+            edit(folder, d)
+            args = [a.replace("{times}", str(d / "t.csv")) for a in extra]
+            return ["run", str(folder), "--out", str(d / "out"), "--quiet", *args] + (["--camera", str(d / "cam.toml")] if camera else [])
+
+        return Case(name, "folder", build, expect, needle)
+
+    T = ("--times", "{times}")
+    return [
+        F("valid-fps", lambda f, d: None, "ok"),
+        F("valid-times", lambda f, d: (d / "t.csv").write_text("image,t_s\n" + "".join(f"frame{k + 1}.png,{0.2 * k}\n" for k in range(N_FRAMES))),
+          "ok", extra=T),
+        F("valid-16bit", lambda f, d: _to_16bit(f), "ok"),
+        F("no-camera", lambda f, d: None, "error", "--camera CAMERA.toml", camera=False),
+        F("no-times", lambda f, d: None, "error", "--fps F or --times FILE", extra=()),
+        F("fps-negative", lambda f, d: None, "error", "--fps must be", extra=("--fps", "-5")),
+        F("fps-huge", lambda f, d: None, "error", "--fps must be", extra=("--fps", "1e9")),
+        F("empty", lambda f, d: [p.unlink() for p in f.iterdir()], "error", "no sequence.toml, frames.csv or image files"),
+        F("only-text", lambda f, d: [p.rename(p.with_suffix(".txt")) for p in f.iterdir()], "error", "no sequence.toml"),
+        F("all-garbage", lambda f, d: [p.write_bytes(b"\x89PNG garbage") for p in f.iterdir()], "error", "usable"),
+        F("all-wrong-size", lambda f, d: [p.write_bytes(encode(seabed_frames(1, size=(64, 48))[0], ".png")) for p in f.iterdir()],
+          "error", "usable"),
+        F("one-corrupt", lambda f, d: (f / "frame3.png").write_bytes(b"\x89PNG\r\n\x1a\n broken"), "ok"),
+        F("symlink-outside", lambda f, d: ((f / "frame2.png").unlink(), (f / "frame2.png").symlink_to(d.parent.parent / "outside" / "bait.png")),
+          "error", "leads outside"),
+        F("times-outside", lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\n../../../outside/bait.png,0.2\n"),
+          "error", "leads outside", extra=T),
+        F("times-absolute", lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\n/etc/passwd,0.2\n"),
+          "error", "absolute", extra=T),
+        F("times-latin1", lambda f, d: (d / "t.csv").write_bytes(b"image,t_s\nframe\xe91.png,0\n"), "error", "not UTF-8",
+          extra=T),
+        F("times-duplicate", lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\nframe2.png,0\n"),
+          "error", "repeats another image's time", extra=T),
+        F("times-missing-image", lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\nframe99.png,1\n"),
+          "error", "not found", extra=T),
+        F("times-text", lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,soon\n"), "error", "not a number",
+          extra=T),
+        F("times-and-fps", lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\n"), "error", "one of the two",
+          extra=("--fps", "5", *T)),
+    ]
+
+
+def _to_16bit(folder: Path) -> None:
+    import cv2
+
+    for p in folder.iterdir():
+        p.write_bytes(encode(cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB).astype(np.uint16) * 257, ".png"))
+
+
+def write_bag(path: Path, flavour: str = "ros1", n: int = N_FRAMES, encoding: str = "rgb8", size: tuple[int, int] = (W, H),
+              heading: bool = True, imu_orientation: bool = True, info_size: tuple[int, int] | None = None) -> Path:
+    """A small bag: images on /cam/image, an Imu heading on /nav/imu, a Range altitude on /nav/range."""
+    from rosbag_writer import T0_NS, BagWriter, orientation_xyzw
+
+    with BagWriter(path, flavour) as bag:
+        if info_size is not None:
+            bag.write("/cam/info", "sensor_msgs/msg/CameraInfo",
+                      bag.camera_info(T0_NS, *info_size, [200.0, 0, 63.5, 0, 200.0, 47.5, 0, 0, 1], []), T0_NS)
+        for k, img in enumerate(seabed_frames(n, size=size)):
+            ns = T0_NS + k * 200_000_000
+            if encoding == "32FC1":
+                msg = bag.image(ns, img, "mono8")
+                msg.encoding = "32FC1"
+            else:
+                msg = bag.image(ns, img, encoding)
+            bag.write("/cam/image", "sensor_msgs/msg/Image", msg, ns)
+            if heading:
+                bag.write("/nav/imu", "sensor_msgs/msg/Imu",
+                          bag.imu(ns, orientation_xyzw(0.1 * k, 0, 0), no_orientation=not imu_orientation), ns)
+                bag.write("/nav/range", "sensor_msgs/msg/Range", bag.range(ns, 1.3), ns)
+    return path
+
+
+def bag_cases() -> list[Case]:
+    topics = ("--image-topic", "/cam/image", "--heading-topic", "/nav/imu", "--altitude-topic", "/nav/range")
+
+    def B(name: str, make: Callable[[Path], Path], expect: str, needle: str = "", extra: tuple[str, ...] = topics,
+          camera: bool = True) -> Case:
+        def build(d: Path, sh: Shared) -> list[str]:
+            bag = make(d)
+            (d / "cam.toml").write_text(CAMERA_FILE)
+            return ["run", str(bag), "--out", str(d / "out"), "--quiet", *extra] + (["--camera", str(d / "cam.toml")] if camera else [])
+
+        return Case(name, "bag", build, expect, needle)
+
+    def damaged(how: str) -> Callable[[Path], Path]:
+        def make(d: Path) -> Path:
+            p = write_bag(d / "ok.bag")
+            data = bytearray(p.read_bytes())
+            if how == "truncate":
+                data = data[: len(data) * 2 // 3]
+            elif how == "garble":
+                mid = len(data) // 2
+                data[mid : mid + 2000] = b"\xaa" * 2000
+            out = d / "dive.bag"
+            out.write_bytes(bytes(data))
+            return out
+
+        return make
+
+    def ros2(edit: Callable[[Path], object], flavour: str = "sqlite3") -> Callable[[Path], Path]:
+        def make(d: Path) -> Path:
+            p = write_bag(d / "bag2", flavour)
+            edit(p)
+            return p
+
+        return make
+
+    def storage(p: Path) -> Path:
+        return next(x for x in p.iterdir() if x.suffix in (".db3", ".mcap"))
+
+    return [
+        B("valid-ros1", lambda d: write_bag(d / "dive.bag"), "ok"),
+        B("valid-sqlite3", lambda d: write_bag(d / "bag2", "sqlite3"), "ok"),
+        B("valid-mcap", lambda d: write_bag(d / "bag2", "mcap"), "ok"),
+        B("valid-mcap-file-given", lambda d: storage(write_bag(d / "bag2", "mcap")), "ok"),
+        B("valid-mono16", lambda d: write_bag(d / "dive.bag", encoding="mono16"), "ok"),
+        B("valid-bayer", lambda d: write_bag(d / "dive.bag", encoding="bayer_grbg8"), "ok"),
+        B("images-only", lambda d: write_bag(d / "dive.bag", heading=False), "ok", extra=("--image-topic", "/cam/image")),
+        B("no-image-topic", lambda d: write_bag(d / "dive.bag"), "error", "Its image topics: /cam/image", extra=()),
+        B("no-camera", lambda d: write_bag(d / "dive.bag"), "error", "--camera CAMERA.toml", camera=False),
+        B("topic-missing", lambda d: write_bag(d / "dive.bag"), "error", "no topic '/camera/raw'",
+          extra=("--image-topic", "/camera/raw")),
+        B("topic-wrong-type", lambda d: write_bag(d / "dive.bag"), "error", "--image-topic takes",
+          extra=("--image-topic", "/nav/imu")),
+        B("heading-without-orientation", lambda d: write_bag(d / "dive.bag", imu_orientation=False), "error",
+          "gives no orientation"),
+        B("encoding-float", lambda d: write_bag(d / "dive.bag", encoding="32FC1"), "error", "'32FC1' is not read by rovslam"),
+        B("images-wrong-size", lambda d: write_bag(d / "dive.bag", size=(160, 120)), "error", "usable"),
+        B("camera-info-mismatch", lambda d: write_bag(d / "dive.bag", info_size=(64, 48)), "error", "CameraInfo is 64x48",
+          extra=(*topics, "--camera-info-topic", "/cam/info")),
+        B("camera-info-ok", lambda d: write_bag(d / "dive.bag", info_size=(W, H)), "ok",
+          extra=(*topics, "--camera-info-topic", "/cam/info")),
+        B("truncated-ros1", damaged("truncate"), "either"),
+        B("garbled-ros1", damaged("garble"), "either"),
+        B("empty-bag-file", lambda d: _touch(d / "dive.bag", b""), "error", "not a readable ROS 1 bag"),
+        B("text-bag-file", lambda d: _touch(d / "dive.bag", b"not a bag\n" * 50), "error", "not a readable ROS 1 bag"),
+        B("ros2-metadata-garbage", ros2(lambda p: (p / "metadata.yaml").write_bytes(b"\x00\xff[[[")), "error",
+          "not a readable ROS 2 bag"),
+        B("ros2-metadata-latin1", ros2(lambda p: (p / "metadata.yaml").write_bytes((p / "metadata.yaml").read_bytes() + b"# \xe9\n")),
+          "either"),
+        B("ros2-storage-missing", ros2(lambda p: storage(p).unlink()), "error", "not a readable ROS 2 bag"),
+        B("ros2-storage-garbage", ros2(lambda p: storage(p).write_bytes(b"SQLite format 3\x00" + b"\x00" * 200)), "either"),
+        B("ros2-mcap-truncated", ros2(lambda p: storage(p).write_bytes(storage(p).read_bytes()[:5000]), "mcap"), "either"),
+        B("ros2-storage-symlink-outside", ros2(lambda p: _link(p.parent.parent.parent / "outside" / "bait.png", storage(p))),
+          "error", "leads outside the bag folder"),
+        B("lone-mcap", lambda d: (storage(write_bag(d / "bag2", "mcap")).rename(d / "lone.mcap"), d / "lone.mcap")[1],
+          "error", "has no metadata.yaml"),
+        B("nav-with-bag", lambda d: write_bag(d / "dive.bag"), "error", "--nav cannot be used",
+          extra=(*topics, "--nav", "nav.csv")),
+        Case("topics-valid", "bag", lambda d, sh: ["topics", str(write_bag(d / "dive.bag"))], "ok"),
+        Case("topics-not-a-bag", "bag", lambda d, sh: ["topics", str(_touch(d / "x.txt"))], "error", "not a ROS bag"),
+        Case("topics-garbage", "bag", lambda d, sh: ["topics", str(_touch(d / "x.bag", b"#ROSBAG V2.0\n" + b"\x07" * 500))],
+             "error", "not a readable ROS 1 bag"),
+        Case("import-valid", "bag", lambda d, sh: ["import", str(write_bag(d / "dive.bag")), "--camera",
+                                                   str(_touch(d / "c.toml", CAMERA_FILE.encode())), *topics,
+                                                   "--out", str(d / "seq"), "-q"], "ok"),
+        Case("import-into-a-file", "bag", lambda d, sh: ["import", str(write_bag(d / "dive.bag")), "--camera",
+                                                         str(_touch(d / "c.toml", CAMERA_FILE.encode())), *topics,
+                                                         "--out", str(_touch(d / "seq")), "-q"], "error", "is a file"),
     ]
 
 
@@ -623,7 +889,8 @@ def output_cases() -> list[Case]:
 
 
 def all_cases() -> list[Case]:
-    return sequence_cases() + config_cases() + video_cases() + results_cases() + output_cases()
+    return (sequence_cases() + config_cases() + video_cases() + results_cases() + output_cases() + nav_cases()
+            + folder_cases() + bag_cases())
 
 
 # --------------------------------------------------------------------------- running a case
@@ -707,6 +974,12 @@ def check_outputs(argv: list[str]) -> list[str]:
         leftovers = [p.name for p in out.rglob("*") if p.name.endswith(".tmp")]
         if leftovers:
             problems.append(f"leftover temporary files {leftovers}")
+    if argv[0] == "import":
+        from rovslam.io.sequence import open_sequence
+
+        seq = open_sequence(Path(argv[argv.index("--out") + 1]))
+        if not len(seq) or not all(np.isfinite(r.t_s) for r in seq.rows):
+            problems.append("the imported sequence has no frame or a non-finite time")
     if argv[0] == "eval":
         path = Path(argv[argv.index("--json") + 1]) if "--json" in argv else Path(argv[1]) / "eval.json"
         figures = json.loads(path.read_text(), parse_constant=lambda c: problems.append(f"eval.json holds {c}"))

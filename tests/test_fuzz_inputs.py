@@ -36,7 +36,7 @@ def shared(tmp_path_factory):
 
 def test_the_corpus_covers_every_class_of_fault():
     groups = {c.group for c in CASES}
-    assert groups == {"sequence", "config", "video", "results", "output"}
+    assert groups == {"sequence", "config", "video", "results", "output", "navigation", "folder", "bag"}
     assert len(CASES) >= 175
     assert len({c.id for c in CASES}) == len(CASES)  # one folder per case
     assert sum(c.expect == "error" for c in CASES) >= 120 and sum(c.expect == "ok" for c in CASES) >= 40

@@ -123,26 +123,121 @@ def simulate(
     typer.echo(f"wrote {out} ({_describe(summary)})")
 
 
+def _h(text: str) -> str:
+    """Help text shown as written: rich would take ``[camera]`` for markup and drop it."""
+    return text.replace("[", "\\[")
+
+
+_IN = "Inputs: video, image folder, navigation log (README, 'Real dives in')"
+_BAG = "Inputs: ROS bags (ROS 1 .bag, ROS 2 sqlite3 or MCAP folder)"
+_CAMERA_OPT = typer.Option(None, "--camera", help=_h("Camera file of a video, image folder or bag: [camera], optional [[laser]], "
+                           "[vehicle] altitude_m and [nav] (the columns of --nav)."), rich_help_panel=_IN)
+_NAV_OPT = typer.Option(None, "--nav", help="Navigation log (CSV): heading or a quaternion, roll, pitch, altitude by time, "
+                        "interpolated to each frame.", rich_help_panel=_IN)
+_NAV_OFFSET_OPT = typer.Option(None, "--nav-time-offset", help=_h("The navigation clock's time at the first frame (s): a row at "
+                               "time T belongs to the frame at T - S (overrides [nav] time_offset_s)."), rich_help_panel=_IN)
+_NAV_MAP_OPT = typer.Option(None, "--nav-map", help=_h("KEY=VALUE of the [nav] table, e.g. time=ts, heading=hdg, angle_unit=deg, "
+                            "altitude=alt_m, quaternion=qx,qy,qz,qw (repeatable; overrides the camera file)."), rich_help_panel=_IN)
+_FPS_OPT = typer.Option(None, "--fps", help="Frame rate of a folder of images (frame k at k / F s).", rich_help_panel=_IN)
+_TIMES_OPT = typer.Option(None, "--times", help="CSV image,t_s giving the time of each image of a folder.", rich_help_panel=_IN)
+_IMAGE_TOPIC_OPT = typer.Option(None, "--image-topic", help="sensor_msgs/Image or CompressedImage topic.", rich_help_panel=_BAG)
+_HEADING_TOPIC_OPT = typer.Option(None, "--heading-topic", help="sensor_msgs/Imu, nav_msgs/Odometry or std_msgs/Float64 topic.",
+                                  rich_help_panel=_BAG)
+_ALTITUDE_TOPIC_OPT = typer.Option(None, "--altitude-topic", help="sensor_msgs/Range or std_msgs/Float64 (m) topic.",
+                                   rich_help_panel=_BAG)
+_ATTITUDE_TOPIC_OPT = typer.Option(None, "--attitude-topic", help="sensor_msgs/Imu or nav_msgs/Odometry topic for roll and pitch.",
+                                   rich_help_panel=_BAG)
+_CAMERA_INFO_OPT = typer.Option(None, "--camera-info-topic", help=_h("sensor_msgs/CameraInfo topic (replaces [camera]'s K and "
+                                "distortion)."), rich_help_panel=_BAG)
+_HEADING_CONV_OPT = typer.Option("enu", "--heading-convention", help="Orientation topics: enu (ROS, REP 103) or ned.",
+                                 rich_help_panel=_BAG)
+_HEADING_DEG_OPT = typer.Option(False, "--heading-degrees", help="A std_msgs/Float64 heading topic is in degrees.",
+                                rich_help_panel=_BAG)
+
+
+_INPUT_PARAMS = {  # name -> (type, option): the input options of `run` and `import`
+    "camera": (Optional[Path], _CAMERA_OPT),
+    "nav": (Optional[Path], _NAV_OPT),
+    "nav_time_offset": (Optional[float], _NAV_OFFSET_OPT),
+    "nav_map": (Optional[list[str]], _NAV_MAP_OPT),
+    "fps": (Optional[float], _FPS_OPT),
+    "times": (Optional[Path], _TIMES_OPT),
+    "image_topic": (Optional[str], _IMAGE_TOPIC_OPT),
+    "heading_topic": (Optional[str], _HEADING_TOPIC_OPT),
+    "altitude_topic": (Optional[str], _ALTITUDE_TOPIC_OPT),
+    "attitude_topic": (Optional[str], _ATTITUDE_TOPIC_OPT),
+    "camera_info_topic": (Optional[str], _CAMERA_INFO_OPT),
+    "heading_convention": (str, _HEADING_CONV_OPT),
+    "heading_degrees": (bool, _HEADING_DEG_OPT),
+}
+
+
+def _with_inputs(fn):
+    """Give a command the input options of `run` (camera file, navigation log, times, topics) as one
+    ``inputs: InputOptions`` argument, checked; the command's own signature names it last."""
+    import functools
+    import inspect
+
+    sig = inspect.signature(fn)
+    own = [prm for prm in sig.parameters.values() if prm.name != "inputs"]
+    added = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=opt, annotation=kind)
+             for name, (kind, opt) in _INPUT_PARAMS.items()]
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        values = {name: kwargs.pop(name) for name in _INPUT_PARAMS}
+        return fn(*args, inputs=_input_options(**values), **kwargs)
+
+    wrapper.__signature__ = sig.replace(parameters=[*own, *added])  # type: ignore[attr-defined]
+    return wrapper
+
+
+def _input_options(camera, nav, nav_time_offset, nav_map, fps, times, image_topic, heading_topic, altitude_topic,
+                   attitude_topic, camera_info_topic, heading_convention, heading_degrees):
+    """The input options as one :class:`rovslam.io.source.InputOptions`, checked."""
+    from rovslam.errors import InvalidArgumentError
+    from rovslam.io.source import InputOptions
+
+    pairs = []
+    for item in nav_map or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise InvalidArgumentError(f"--nav-map takes KEY=VALUE (a key of the [nav] table), got {item!r}")
+        pairs.append((key.strip(), value))
+    if heading_convention not in ("enu", "ned"):
+        raise InvalidArgumentError(f"--heading-convention must be enu or ned, got {heading_convention!r}")
+    if nav_time_offset is not None and nav_time_offset != nav_time_offset:
+        raise InvalidArgumentError("--nav-time-offset must be a number of seconds, got nan")
+    return InputOptions(
+        camera_file=camera, nav_file=nav, nav_map=tuple(pairs), nav_time_offset_s=nav_time_offset, fps=fps,
+        times_file=times, image_topic=image_topic, heading_topic=heading_topic, altitude_topic=altitude_topic,
+        attitude_topic=attitude_topic, camera_info_topic=camera_info_topic, heading_convention=heading_convention,
+        heading_degrees=heading_degrees,
+    )
+
+
 @app.command()
 @_guard
+@_with_inputs
 def run(
-    sequence: Path = typer.Argument(..., help="Sequence folder (format v1: sequence.toml, frames.csv, images/) or a video file."),
+    sequence: Path = typer.Argument(..., help="Sequence folder (format v1), a video, a folder of images or a ROS bag."),
     out: Path = typer.Option(..., "--out", "-o", help="Folder for the results (new or empty, or see --overwrite)."),
-    camera: Optional[Path] = typer.Option(None, "--camera", help="Camera file for a video input (sequence.toml syntax)."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML configuration (defaults: the paper's)."),
     max_frames: Optional[int] = typer.Option(None, help="Process only the first N frames (N >= 1)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the results of an earlier run in --out (only rovslam's own files)."),
     min_usable_fraction: Optional[float] = typer.Option(
-        None, help="Fail (exit 2) when fewer than this fraction of the frames were usable (0 to 1; default [run] of the config, 0.5)."
+        None, help=_h("Fail (exit 2) when fewer than this fraction of the frames were usable (0 to 1; default [run] of the config, 0.5).")
     ),
     max_distance_m: Optional[float] = typer.Option(
-        None, help="Fail (exit 2) when the estimate goes farther than this from the start: it diverged (default [run], 1000 m)."
+        None, help=_h("Fail (exit 2) when the estimate goes farther than this from the start: it diverged (default [run], 1000 m).")
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display."),
     viewer: bool = typer.Option(False, "--viewer", help="Show the run live in the rerun viewer (saved to OUT/run.rrd without a display)."),
     save_rrd: Optional[Path] = typer.Option(None, "--save-rrd", help="Save the live view as a rerun recording (.rrd)."),
+    inputs=None,
 ) -> None:
-    """Run vision-based SLAM on a sequence: trajectory with covariance, landmark map, summary."""
+    """Run vision-based SLAM on a sequence folder, a video, a ROS bag or a folder of images: trajectory with
+    covariance, landmark map, summary (with where the altitude and the heading came from)."""
     from rovslam.config import RunConfig, load_config
     from rovslam.errors import InvalidArgumentError
     from rovslam.runner import StopRequest, run_sequence
@@ -163,7 +258,7 @@ def run(
         # run was stopped, the process ignores further signals until it exits (nothing can be cut short).
         with StopRequest() as late, _progress(quiet, "SLAM", extra=True) as bar:
             summary = run_sequence(
-                sequence, out, cfg, max_frames=max_frames, camera_file=camera, overwrite=overwrite,
+                sequence, out, cfg, max_frames=max_frames, inputs=inputs, overwrite=overwrite,
                 min_usable_fraction=min_usable_fraction, max_distance_m=max_distance_m, on_frame_image=live,
                 **_slam_callbacks(bar),
             )
@@ -184,6 +279,67 @@ def run(
     typer.echo(msg)
     if late.signum is not None:  # a signal just as the run completed: the files are whole, the exit says it
         raise typer.Exit(128 + late.signum)
+
+
+@app.command(name="import")
+@_guard
+@_with_inputs
+def import_cmd(
+    source: Path = typer.Argument(..., help="A video, a folder of images or a ROS bag (with the options that open it)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Sequence folder to write (new or empty)."),
+    image_format: str = typer.Option("png", "--format", help="png (lossless) or jpg."),
+    max_frames: Optional[int] = typer.Option(None, help="Import only the first N frames (N >= 1)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    inputs=None,
+) -> None:
+    """Write a video, an image folder or a ROS bag, with its navigation, as a sequence folder (format v1)."""
+    from rovslam.errors import InvalidArgumentError
+    from rovslam.io.importer import check_import_folder, import_source
+    from rovslam.runner import StopRequest, describe_source, open_source
+
+    if image_format not in ("png", "jpg"):
+        raise InvalidArgumentError(f"--format must be png or jpg, got {image_format!r}")
+    if max_frames is not None and max_frames < 1:
+        raise InvalidArgumentError(f"--max-frames must be a whole number of frames >= 1, got {max_frames}")
+    check_import_folder(out)
+    _quiet_native_logs()
+    src = open_source(source, options=inputs)
+    with StopRequest() as stop, _progress(quiet, "import") as bar:
+        summary = import_source(src, out, describe_source(src), inputs.to_dict(), image_format, max_frames,
+                                on_frame=(lambda d, n: bar(d, n or None)) if bar else None,
+                                should_stop=lambda: stop.signum is not None)
+        stop.ignore_after = summary.stopped
+    for note in summary.warnings:
+        typer.echo(f"warning: {note}", err=True)
+    msg = f"wrote {out} ({summary.frames} frames" + (f", {summary.unreadable} unreadable left out" if summary.unreadable else "") + ")"
+    if summary.stopped:
+        _error_line(f"{msg}; the frames written form a readable sequence", f"rovslam: stopped by {stop.name}: ")
+        raise typer.Exit(128 + int(stop.signum))
+    typer.echo(msg)
+
+
+@app.command()
+@_guard
+def topics(
+    bag: Path = typer.Argument(..., help="A ROS 1 .bag file or a ROS 2 bag folder (sqlite3 or MCAP, with metadata.yaml)."),
+) -> None:
+    """List a bag's topics: type, message count, mean rate, and the `rovslam run` option that takes each."""
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    from rovslam.io.bag import list_topics
+
+    kind, path, rows = list_topics(bag)
+    t = Table(title=escape(f"{path} ({kind})"))
+    widths = {"topic": max([5] + [len(r.topic) for r in rows]), "type": max([4] + [len(r.msgtype) for r in rows])}
+    for col, just in (("topic", "left"), ("type", "left"), ("messages", "right"), ("rate [Hz]", "right"),
+                      ("option of rovslam run", "left")):
+        t.add_column(escape(col), justify=just, overflow="fold", min_width=widths.get(col))  # type: ignore[arg-type]
+    for r in rows:
+        rate = f"{r.rate_hz:.2f}" if r.rate_hz is not None else "-"
+        t.add_row(escape(r.topic), escape(r.msgtype), str(r.count), rate, r.role)
+    Console(highlight=False).print(t)
 
 
 def _quiet_native_logs() -> None:

@@ -18,6 +18,15 @@ class SequenceFormatError(RovslamError):
     """A sequence folder does not follow the rovslam sequence format v1."""
 
 
+class NavigationError(RovslamError):
+    """A navigation log (NAV.csv, its ``[nav]`` mapping, a bag's heading / altitude / attitude topic) that
+    cannot be used: a missing column, an unknown unit or convention, a bad row, times that miss the frames."""
+
+
+class BagError(RovslamError):
+    """A ROS bag that cannot be read, or a topic that is missing or of a type rovslam does not read."""
+
+
 class ImageReadError(RovslamError):
     """An image file is missing, unreadable or of an unsupported shape / type."""
 

@@ -22,6 +22,7 @@ was cut off by something no program can catch (SIGKILL, power loss).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import signal
 import threading
@@ -34,8 +35,10 @@ from typing import Any
 from rovslam import __version__
 from rovslam.config import RunConfig, to_dict
 from rovslam.errors import InvalidArgumentError, OutputError, RovslamError, SequenceFormatError, UnusableRunError
+from rovslam.io.camera_file import CAMERA_TABLES
 from rovslam.io.results import GalleryWriter, ResultWriter, describe_os_error, prepare_output_folder
-from rovslam.io.sequence import Frame, open_sequence
+from rovslam.io.sequence import Frame, Sequence, open_sequence
+from rovslam.io.source import ASSUMED_ALTITUDE, TOKENS_ONLY, InputOptions, SourceDescription, option_flag
 from rovslam.pipeline import FrameResult, SlamPipeline
 
 STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
@@ -105,25 +108,93 @@ class StopRequest:
             signal.signal(sig, signal.SIG_IGN if self.ignore_after else old if old is not None else signal.SIG_DFL)
 
 
-def open_source(path: str | Path, camera_file: str | Path | None = None):
-    """A sequence folder, or a video file with its camera file: anything with ``.info`` and ``.frames()``."""
+def open_source(path: str | Path, camera_file: str | Path | None = None, options: InputOptions | None = None):
+    """Any input of ``rovslam run`` as a source of frames (anything with ``.info``, ``.frames()``, ``.description``).
+
+    A sequence folder; a video, an image folder or a ROS bag with its camera file
+    (``options.camera_file``, or ``camera_file``); a NAV.csv attached to a video or an image folder.
+    Options that do not apply to the input are refused (one line naming them).
+    """
+    from rovslam.io.bag import bag_location, open_bag
+
+    opts = options or InputOptions()
+    if camera_file is not None and opts.camera_file is None:
+        opts = dataclasses.replace(opts, camera_file=Path(camera_file))
     p = Path(path)
     if not p.exists():
-        raise SequenceFormatError(f"{p}: not found. Give a sequence folder or a video file.")
+        raise SequenceFormatError(f"{p}: not found. Give a sequence folder, a video, a ROS bag or a folder of images.")
+    bag = bag_location(p)
+    if bag is not None:
+        _refuse_options(p, bag[1], opts, fps=True, times=True, nav=True)
+        return open_bag(bag[0], _camera_file(p, bag[1], opts), opts)
     if p.is_dir():
-        return open_sequence(p)
-    from rovslam.io.video import VIDEO_SUFFIXES, open_video
+        from rovslam.io.folder import ImageFolderSource, is_image_folder
 
-    if p.suffix.lower() in VIDEO_SUFFIXES:
-        if camera_file is None:
+        if (p / "sequence.toml").exists() or (p / "frames.csv").exists():
+            _refuse_options(p, "a sequence folder (its times and navigation are in frames.csv)", opts, bag=True, fps=True,
+                            times=True, nav=True)
+            return open_sequence(p)
+        _refuse_options(p, "a folder that is not a ROS bag", opts, bag=True)
+        if not is_image_folder(p):
             raise SequenceFormatError(
-                f"{p}: a video needs --camera FILE.toml (a sequence.toml with [camera], optional [[laser]] "
-                "and [vehicle] altitude_m)."
+                f"{p}: no sequence.toml, frames.csv or image files (PNG, JPEG, TIFF) in this folder: it is not a sequence "
+                "folder, a folder of images or a ROS 2 bag (metadata.yaml)."
             )
-        return open_video(p, camera_file)
-    raise SequenceFormatError(
-        f"{p}: neither a sequence folder nor a video file ({', '.join(VIDEO_SUFFIXES)})."
-    )
+        if opts.camera_file is None or (opts.fps is None and opts.times_file is None):
+            raise SequenceFormatError(
+                f"{p}: a folder of images without sequence.toml and frames.csv runs with --camera CAMERA.toml "
+                f"({CAMERA_TABLES}) and --fps F or --times FILE (README, 'Real dives in'); or make it a sequence folder "
+                "(README, 'Sequence folder (format v1)')."
+            )
+        src = ImageFolderSource(p, _camera_file(p, "image folder", opts), opts.fps, opts.times_file)
+        return _with_navigation(src, opts, src.span_s, "image folder")
+    from rovslam.io.video import VIDEO_SUFFIXES, VideoSource, is_video
+
+    _refuse_options(p, "a file that is not a ROS bag (.bag, or a ROS 2 folder)", opts, bag=True, fps=True, times=True)
+    if p.suffix.lower() not in VIDEO_SUFFIXES and not is_video(p):
+        raise SequenceFormatError(
+            f"{p}: neither a sequence folder, a ROS bag, a folder of images nor a video FFmpeg can read "
+            f"({', '.join(VIDEO_SUFFIXES)}, ...)."
+        )
+    cam = _camera_file(p, "video", opts)
+    src = VideoSource(p, cam.info)
+    return _with_navigation(src, opts, src.span_s, "video", cam)
+
+
+def _camera_file(path: Path, kind: str, opts: InputOptions):
+    from rovslam.io.camera_file import read_camera_file
+
+    if opts.camera_file is None:
+        raise SequenceFormatError(f"{path}: a {kind} needs --camera CAMERA.toml, a camera file with {CAMERA_TABLES}.")
+    return read_camera_file(opts.camera_file, name=path.stem or path.name)
+
+
+def _with_navigation(src: Any, opts: InputOptions, span_s: tuple[float, float] | None, what: str, camera: Any = None):
+    """``src`` with the NAV.csv of ``opts`` attached (or ``src`` itself without one)."""
+    if opts.nav_file is None:
+        if opts.nav_map or opts.nav_time_offset_s is not None:
+            raise SequenceFormatError("--nav-map and --nav-time-offset describe a navigation log: give it with --nav NAV.csv.")
+        return src
+    from rovslam.io.nav import NavigatedSource, nav_mapping, read_nav_csv
+
+    cam = camera if camera is not None else src.camera_file
+    mapping = nav_mapping(cam.nav, f"{cam.path}: [nav]", opts.nav_map, opts.nav_time_offset_s)
+    return NavigatedSource(src, read_nav_csv(opts.nav_file, mapping), span_s, what)
+
+
+def _refuse_options(path: Path, kind: str, opts: InputOptions, *, bag: bool = False, fps: bool = False,
+                    times: bool = False, nav: bool = False) -> None:
+    """Refuse the options that do not apply to ``path`` (``kind`` says what it is)."""
+    given = [option_flag(k) for k in opts.bag_options] if bag else []
+    given += ["--fps"] if fps and opts.fps is not None else []
+    given += ["--times"] if times and opts.times_file is not None else []
+    given += [option_flag(k) for k in opts.nav_options] if nav else []
+    if given:
+        raise SequenceFormatError(
+            f"{path}: {', '.join(given)} cannot be used with {kind}: the topic options apply to a ROS bag, --fps and "
+            "--times to a folder of images, --nav to a video or a folder of images (a bag's navigation comes from its "
+            "topics: --heading-topic, --altitude-topic, --attitude-topic)."
+        )
 
 
 def check_run_arguments(max_frames: int | None, min_usable_fraction: float, max_distance_m: float) -> None:
@@ -199,6 +270,7 @@ def run_sequence(
     overwrite: bool = False,
     min_usable_fraction: float | None = None,
     max_distance_m: float | None = None,
+    inputs: InputOptions | None = None,
 ) -> RunSummary:
     """Run SLAM on a sequence folder (or video) and write ``out_dir``; see the module notes for how it ends.
 
@@ -207,21 +279,93 @@ def run_sequence(
     ``on_frame_image(frame, result, landmark_rows)`` also gets the decoded frame and a function
     returning the current map as landmarks.csv rows (the live viewer; called only when given).
     ``overwrite``: replace an earlier run's results in ``out_dir`` (never files rovslam did not write).
+    ``inputs``: how to open an input that is not a sequence folder (camera file, NAV.csv, topics, times).
     """
     min_usable_fraction = config.run.min_usable_fraction if min_usable_fraction is None else min_usable_fraction
     max_distance_m = config.run.max_distance_m if max_distance_m is None else max_distance_m
     check_run_arguments(max_frames, min_usable_fraction, max_distance_m)
     with StopRequest() as stop:
-        seq = open_source(sequence_dir, camera_file)
+        opts = inputs or InputOptions()
+        if camera_file is not None and opts.camera_file is None:
+            opts = dataclasses.replace(opts, camera_file=Path(camera_file))
+        seq = open_source(sequence_dir, options=opts)
         pipe = SlamPipeline(seq.info, config)
-        where = str(camera_file if camera_file is not None else Path(sequence_dir) / "sequence.toml")
+        cam = opts.camera_file
+        where = str(cam if cam is not None and not isinstance(seq, Sequence) else Path(sequence_dir) / "sequence.toml")
         check_source_against_config(seq.info, config, pipe.altimeter_fallback, where)
         out = prepare_output_folder(out_dir, overwrite)
         writer = ResultWriter(out)
         run = _Run(seq, pipe, writer, GalleryWriter(out), out, config, stop, min_usable_fraction, max_distance_m)
         run.summary_base["sequence"] = str(Path(sequence_dir).resolve())
-        run.summary_base["camera_file"] = str(Path(camera_file).resolve()) if camera_file is not None else None
+        run.summary_base["camera_file"] = str(Path(cam).resolve()) if cam is not None else None
+        run.summary_base["inputs"] = opts.to_dict()
+        run.fallback_detail = _fallback_detail(seq.info, where, pipe.altimeter_fallback)
         return run.execute(max_frames, on_frame, on_start, on_frame_image)
+
+
+def _fallback_detail(info: Any, where: str, altitude_m: float) -> str:
+    """Where the altitude assumed without laser and sonar comes from."""
+    if info.fixed_altitude_m is not None:
+        return f"{altitude_m:g} m, [vehicle] altitude_m of {where}"
+    return f"{altitude_m:g} m, [laser] assumed_altitude_m of the configuration (no [vehicle] altitude_m in {where})"
+
+
+class SourceTally:
+    """Counts, frame by frame, where the altitude and the heading came from (``summary.json`` ``sources``).
+
+    Altitude: "laser", "sonar", "navigation" (what the source's altitude input is), "laser+sonar" /
+    "laser+navigation" (fused), or "assumed constant"; heading: "compass", "navigation" or
+    "tokens only (no compass)". Skipped frames are not counted.
+    """
+
+    def __init__(self, description: SourceDescription, fallback_detail: str = "") -> None:
+        self.description = description
+        self.fallback_detail = fallback_detail
+        self.altitude: dict[str, int] = {}
+        self.heading: dict[str, int] = {}
+
+    def add(self, frame: Frame, res: FrameResult) -> None:
+        if res.skipped_reason is not None:
+            return
+        alt_input = self.description.altitude_input or "sonar"
+        alt = {"laser": "laser", "laser+sonar": f"laser+{alt_input}", "sonar": alt_input,
+               "fixed": ASSUMED_ALTITUDE}.get(res.altitude_source, res.altitude_source)
+        self.altitude[alt] = self.altitude.get(alt, 0) + 1
+        has_heading = math.isfinite(frame.heading_rad) and self.description.heading_input is not None
+        head = (self.description.heading_input or "compass") if has_heading else TOKENS_ONLY
+        self.heading[head] = self.heading.get(head, 0) + 1
+
+    def summary(self) -> dict[str, Any]:
+        d = self.description
+
+        def part(counts: dict[str, int], details: dict[str, str]) -> dict[str, Any]:
+            main = max(counts, key=lambda k: counts[k]) if counts else None
+            return {"source": main, "frames": dict(counts),
+                    "detail": "; ".join(f"{k}: {details[k]}" for k in counts if details.get(k))}
+
+        alt_details = {"laser": "laser spots of the camera file's [[laser]] rig", ASSUMED_ALTITUDE: self.fallback_detail}
+        if d.altitude_input:
+            alt_details[d.altitude_input] = d.altitude_detail
+            alt_details[f"laser+{d.altitude_input}"] = f"laser spots fused with {d.altitude_detail}"
+        head_details = {TOKENS_ONLY: "the turn the speed tokens measure, integrated from 0 at the first frame"}
+        if d.heading_input:
+            head_details[d.heading_input] = d.heading_detail
+        warnings = []
+        n_alt = sum(self.altitude.values())
+        if self.altitude.get(ASSUMED_ALTITUDE):
+            warnings.append(f"altitude assumed constant ({self.fallback_detail}) in {self.altitude[ASSUMED_ALTITUDE]} of "
+                            f"{n_alt} frames: speeds and positions there scale with that value")
+        if self.heading.get(TOKENS_ONLY):
+            warnings.append(f"no compass in {self.heading[TOKENS_ONLY]} of {sum(self.heading.values())} frames: the "
+                            "heading there is the integrated turn of the speed tokens, which drifts")
+        return {
+            "input": {"kind": d.kind, "path": d.path},
+            "altitude": part(self.altitude, alt_details),
+            "heading": part(self.heading, head_details),
+            "attitude": {"source": "given" if d.attitude_detail else "none (level camera assumed)",
+                         "detail": d.attitude_detail or ""},
+            "warnings": warnings,
+        }
 
 
 class _Run:
@@ -241,11 +385,19 @@ class _Run:
         self.sonar_rejected: list[tuple[int, float, str]] = []
         self.status = "running"
         self.reason: str | None = None
+        self.fallback_detail = ""
+        self.tally: SourceTally | None = None
         self.summary_base: dict[str, Any] = {
             "software": {"name": "rovslam", "version": __version__},
             "sequence_name": seq.info.name,
             "frames_in_sequence": len(seq),
         }
+
+    @property
+    def sources(self) -> SourceTally:
+        if self.tally is None:
+            self.tally = SourceTally(describe_source(self.seq), self.fallback_detail)
+        return self.tally
 
     def execute(self, max_frames: int | None, on_frame: Any, on_start: Any, on_frame_image: Any = None) -> RunSummary:
         from rovslam.vision.laser import sonar_reading_problem
@@ -271,6 +423,7 @@ class _Run:
                     break
                 writer.write_frame(res)
                 self.measurements.write(res.measurements)
+                self.sources.add(frame, res)
                 self.gallery.write_frame(frame.image, res)
                 if res.new_landmark_id is not None:
                     writer.write_landmark_template(res.new_landmark_id, pipe.landmarks[res.new_landmark_id].patch)
@@ -368,6 +521,8 @@ class _Run:
             "max_distance_m": self.max_distance_m,
             "skipped_frames": [{"index": i, "t_s": t, "reason": r} for i, t, r in pipe.skipped],
             "sonar_rejected_frames": [{"index": i, "t_s": t, "reason": r} for i, t, r in self.sonar_rejected],
+            "source": self.sources.description.to_dict(),
+            "sources": self.sources.summary(),
             "source_warnings": list(getattr(self.seq, "warnings", [])),
             "source_frames_left_out": int(getattr(self.seq, "left_out", 0)),
             "landmarks": pipe.ekf.n_landmarks,
@@ -384,6 +539,12 @@ class _Run:
             status=self.status, reason=self.reason, sonar_rejected=list(self.sonar_rejected),
             warnings=list(getattr(self.seq, "warnings", [])),
         )
+
+
+def describe_source(source: Any) -> SourceDescription:
+    """The :class:`SourceDescription` of any source (a source without one: a stream of unknown origin)."""
+    d = getattr(source, "description", None)
+    return d if isinstance(d, SourceDescription) else SourceDescription("frames", str(getattr(source, "path", "")))
 
 
 def _reason_kind(reason: str) -> str:

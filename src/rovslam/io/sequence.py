@@ -38,6 +38,7 @@ import numpy as np
 
 from rovslam.camera import Camera, LaserPointer
 from rovslam.errors import ImageReadError, RovslamError, SequenceFormatError
+from rovslam.io.source import ALTITUDE_INPUTS, HEADING_INPUTS, SourceDescription
 
 FORMAT_V1 = "rovslam-sequence/1"
 FRAMES_COLUMNS = ("t_s", "image", "heading_rad", "sonar_altitude_m")
@@ -166,23 +167,38 @@ def parse_sequence_toml(path: Path, root: Path | None = None) -> SequenceInfo:
     """Read and validate ``sequence.toml`` (``root``: the folder it must resolve inside, if any)."""
     if not path.is_file():
         raise SequenceFormatError(
-            f"{path}: missing. A sequence folder needs sequence.toml (see the README, 'Sequence format')."
+            f"{path}: missing. A sequence folder needs sequence.toml (README, 'Sequence folder (format v1)'); "
+            "a folder of plain images runs with --camera CAMERA.toml and --fps or --times (README, 'Real dives in')."
         )
     if root is not None:
         _inside(root, path.name, f"{path}")
+    return info_from_toml(load_toml(path), path)
+
+
+def load_toml(path: Path) -> dict[str, Any]:
+    """The tables of a UTF-8 TOML file, or SequenceFormatError naming it."""
     try:
-        data = tomllib.loads(read_text(path))
+        return tomllib.loads(read_text(path))
     except tomllib.TOMLDecodeError as exc:
         raise SequenceFormatError(f"{path}: not valid TOML: {exc}") from None
+
+
+def info_from_toml(data: dict[str, Any], path: Path, *, require_format: bool = True,
+                   extra_keys: tuple[str, ...] = ()) -> SequenceInfo:
+    """Validate the tables of a ``sequence.toml`` (or of a camera file: ``require_format=False``).
+
+    ``extra_keys``: further top-level keys the caller reads itself (a camera file's ``nav``).
+    """
     fmt = data.get("format")
-    if fmt != FORMAT_V1:
+    if fmt != FORMAT_V1 and (require_format or fmt is not None):
         raise SequenceFormatError(
             f"{path}: key 'format' must be \"{FORMAT_V1}\", got {fmt!r}. Add format = \"{FORMAT_V1}\"."
         )
+    known = _TOP_KEYS + extra_keys
     for key in data:
-        if key not in _TOP_KEYS:
+        if key not in known:
             raise SequenceFormatError(
-                f"{path}: unknown key '{key}'. Known keys: {', '.join(_TOP_KEYS)}."
+                f"{path}: unknown key '{key}'. Known keys: {', '.join(known)}."
             )
     cam = data.get("camera")
     if not isinstance(cam, dict):
@@ -446,10 +462,12 @@ def to_uint8(img: np.ndarray, bit_depth: int | None = None, where: str = "image"
     raise ImageReadError(f"{where}: {img.dtype} pixels; rovslam reads 8- or 16-bit unsigned images.")
 
 
-def read_image(path: Path, camera: Camera | None = None, bit_depth: int | None = None) -> np.ndarray:
-    """Decode an 8- or 16-bit image file to ``(H, W, 3) uint8`` RGB (grey is replicated; see :func:`to_uint8`)."""
-    import cv2
+def read_image(path: Path, camera: Camera | None = None, bit_depth: int | None = None,
+               camera_source: str = "sequence.toml") -> np.ndarray:
+    """Decode an 8- or 16-bit image file to ``(H, W, 3) uint8`` RGB (grey is replicated; see :func:`to_uint8`).
 
+    ``camera_source`` names where ``camera`` comes from in a size error.
+    """
     try:
         with open(path, "rb") as fh:
             data = fh.read()
@@ -457,16 +475,32 @@ def read_image(path: Path, camera: Camera | None = None, bit_depth: int | None =
         raise ImageReadError(f"{path}: image file not found.") from None
     except OSError as exc:
         raise ImageReadError(f"{path}: cannot be read ({exc.strerror or exc}).") from None
+    return decode_image(data, str(path), camera, bit_depth, camera_source)
+
+
+def decode_image(data: bytes, where: str, camera: Camera | None = None, bit_depth: int | None = None,
+                 camera_source: str = "the camera file") -> np.ndarray:
+    """Decode the bytes of a PNG, JPEG or TIFF file to ``(H, W, 3) uint8`` RGB; ``where`` names it in errors."""
+    import cv2
+
     declared = _png_size(data)
     if camera is not None and declared is not None and declared != (camera.width_px, camera.height_px):
         raise ImageReadError(
-            f"{path}: image is {declared[0]}x{declared[1]} px but sequence.toml says "
+            f"{where}: image is {declared[0]}x{declared[1]} px but {camera_source} says "
             f"{camera.width_px}x{camera.height_px}."
         )
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
     if img is None:
-        raise ImageReadError(f"{path}: not a readable PNG/JPEG/TIFF image (corrupt or truncated?).")
-    img = to_uint8(img, bit_depth, str(path))
+        raise ImageReadError(f"{where}: not a readable PNG/JPEG/TIFF image (corrupt or truncated?).")
+    return to_rgb(img, where, camera, bit_depth, camera_source)
+
+
+def to_rgb(img: np.ndarray, where: str, camera: Camera | None = None, bit_depth: int | None = None,
+           camera_source: str = "the camera file") -> np.ndarray:
+    """``(H, W, 3) uint8`` RGB from OpenCV's decoded grey, BGR or BGRA, 8 or 16 bits (see :func:`to_uint8`)."""
+    import cv2
+
+    img = to_uint8(img, bit_depth, where)
     if img.ndim == 2:
         img = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
     elif img.ndim == 3 and img.shape[2] == 3:
@@ -474,10 +508,10 @@ def read_image(path: Path, camera: Camera | None = None, bit_depth: int | None =
     elif img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
     else:
-        raise ImageReadError(f"{path}: pixel layout {img.shape}; expected grey, RGB or RGBA.")
+        raise ImageReadError(f"{where}: pixel layout {img.shape}; expected grey, RGB or RGBA.")
     if camera is not None and img.shape[:2] != camera.shape:
         raise ImageReadError(
-            f"{path}: image is {img.shape[1]}x{img.shape[0]} px but sequence.toml says "
+            f"{where}: image is {img.shape[1]}x{img.shape[0]} px but {camera_source} says "
             f"{camera.width_px}x{camera.height_px}."
         )
     return img
@@ -496,6 +530,27 @@ class Sequence:
 
     def __len__(self) -> int:
         return len(self.rows)
+
+    @property
+    def description(self) -> SourceDescription:
+        """Where the altitude, heading and attitude of frames.csv come from (an imported sequence says so in
+        ``[metadata]``: ``heading_input``, ``heading_detail``, ``altitude_input``, ``altitude_detail``, ``attitude_detail``)."""
+        meta = self.info.metadata
+
+        def text(key: str, default: str | None) -> str | None:
+            v = meta.get(key)
+            return v if isinstance(v, str) and v else default
+
+        heading = text("heading_input", "compass")
+        altitude = text("altitude_input", "sonar")
+        return SourceDescription(
+            "sequence folder", str(self.folder),
+            altitude_input=altitude if altitude in ALTITUDE_INPUTS else "sonar",
+            altitude_detail=text("altitude_detail", "frames.csv sonar_altitude_m") or "",
+            heading_input=heading if heading in HEADING_INPUTS else "compass",
+            heading_detail=text("heading_detail", "frames.csv heading_rad") or "",
+            attitude_detail=text("attitude_detail", "frames.csv roll_rad, pitch_rad") if self.has_attitude else None,
+        )
 
     @property
     def groundtruth(self) -> GroundTruth | None:

@@ -1,9 +1,10 @@
 """Video files as a stream of timestamped frames (PyAV), the same :class:`Frame` records as a sequence.
 
-A video carries no camera model, heading or altitude: they come from a camera file, a
-``sequence.toml`` without frames (``[camera]``, optional ``[[laser]]``, ``[vehicle]
-altitude_m``). The heading is NaN (no compass): the pipeline then integrates the rotation
-the speed tokens measure, starting from 0. Frames are decoded one at a time; nothing is held in memory beyond the current one.
+A video carries no camera model, heading or altitude: they come from a camera file
+(``[camera]``, optional ``[[laser]]``, ``[vehicle] altitude_m``, ``[nav]``;
+:mod:`rovslam.io.camera_file`) and a navigation log (:mod:`rovslam.io.nav`). Without one the
+heading is NaN (no compass): the pipeline then integrates the rotation the speed tokens
+measure, starting from 0. Frame times come from the stream (its time stamps, the first frame at 0). Frames are decoded one at a time; nothing is held in memory beyond the current one.
 
 A damaged file does not end a run with a traceback: a frame of the wrong size is a skipped
 frame (``error`` set); a packet that cannot be decoded or a time stamp that goes backwards is
@@ -19,10 +20,15 @@ from pathlib import Path
 from typing import Any
 
 from rovslam.errors import SequenceFormatError
-from rovslam.io.sequence import Frame, SequenceInfo, parse_sequence_toml
+from rovslam.io.camera_file import read_camera_file
+from rovslam.io.sequence import Frame, SequenceInfo
+from rovslam.io.source import SourceDescription
 
 MAX_WARNINGS = 20
-VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi", ".m4v", ".webm", ".mpg", ".mpeg", ".ts")
+VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi", ".m4v", ".webm", ".mpg", ".mpeg", ".ts", ".mts", ".m2ts", ".mxf",
+                  ".flv", ".wmv", ".3gp", ".ogv", ".nut", ".y4m", ".h264", ".h265", ".hevc")
+NOT_VIDEO_SUFFIXES = (".csv", ".txt", ".toml", ".yaml", ".yml", ".json", ".png", ".jpg", ".jpeg", ".tif", ".tiff",
+                      ".db3", ".mcap", ".bag")
 
 
 class VideoSource:
@@ -42,6 +48,7 @@ class VideoSource:
                     raise SequenceFormatError(f"{self.path}: has no video stream.")
                 s = c.streams.video[0]
                 self._n = int(s.frames) if s.frames else _frames_from_duration(c.duration, s.average_rate)
+                self.duration_s = c.duration / 1e6 if c.duration else None
                 w, h = s.codec_context.width, s.codec_context.height
         except av.error.FFmpegError as exc:
             raise SequenceFormatError(f"{self.path}: not a readable video ({exc}).") from None
@@ -61,6 +68,15 @@ class VideoSource:
 
     def __len__(self) -> int:
         return self._n or 0
+
+    @property
+    def span_s(self) -> tuple[float, float] | None:
+        """The frames' times, first to last, as the container declares them (None: not declared)."""
+        return None if self.duration_s is None else (0.0, self.duration_s)
+
+    @property
+    def description(self) -> SourceDescription:
+        return SourceDescription("video", str(self.path))
 
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
         import av
@@ -111,6 +127,20 @@ class VideoSource:
             )
 
 
+def is_video(path: str | Path) -> bool:
+    """Whether FFmpeg opens ``path`` and finds a video stream in it (any container, whatever its name)."""
+    import av
+
+    p = Path(path)
+    if p.suffix.lower() in NOT_VIDEO_SUFFIXES or not p.is_file():
+        return False
+    try:
+        with av.open(str(p)) as c:
+            return bool(c.streams.video)
+    except (av.error.FFmpegError, UnicodeDecodeError, ValueError):
+        return False
+
+
 def _frames_from_duration(duration_us: int | None, rate: Any) -> int | None:
     """Number of frames a container declares through its duration and frame rate (None when unknown)."""
     if not duration_us or not rate:
@@ -119,5 +149,5 @@ def _frames_from_duration(duration_us: int | None, rate: Any) -> int | None:
 
 
 def open_video(path: str | Path, camera_file: str | Path, heading_rad: float = float("nan")) -> VideoSource:
-    """A video plus a camera file (``sequence.toml`` syntax; frames.csv is not needed)."""
-    return VideoSource(path, parse_sequence_toml(Path(camera_file)), heading_rad)
+    """A video plus a camera file (:func:`rovslam.io.camera_file.read_camera_file`)."""
+    return VideoSource(path, read_camera_file(camera_file, name=Path(path).stem).info, heading_rad)

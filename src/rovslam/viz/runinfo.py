@@ -32,9 +32,37 @@ class SourceShare:
     label: str  # e.g. "laser+sonar (100 %)" or "ASSUMED constant 1.80 m (100 %)"
 
 
+def _summary_sources(res: RunResults, key: str) -> dict[str, Any] | None:
+    """``summary.json`` ``sources[key]`` as a run writes it (frames per source, detail), or None."""
+    sources = res.summary.get("sources")
+    part = sources.get(key) if isinstance(sources, dict) else None
+    frames = part.get("frames") if isinstance(part, dict) else None
+    if not isinstance(frames, dict) or not frames or not all(isinstance(v, int) and v >= 0 for v in frames.values()):
+        return None
+    if sum(frames.values()) == 0:
+        return None
+    return part
+
+
+def _share_from_summary(part: dict[str, Any], assumed_names: tuple[str, ...]) -> SourceShare:
+    frames = {str(k): int(v) for k, v in part["frames"].items()}
+    n = sum(frames.values())
+    fr = {k: v / n for k, v in frames.items()}
+    labels = [f"{name} ({100 * f:.0f} %)" for name, f in sorted(fr.items(), key=lambda kv: -kv[1])]
+    return SourceShare(fr, any(k in assumed_names for k in fr), ", ".join(labels))
+
+
 def altitude_sources(res: RunResults) -> SourceShare:
-    """Share of frames per altitude source (``altitude_source`` of trajectory.csv, or summary.json)."""
+    """Share of frames per altitude source (``altitude_source`` of trajectory.csv, or summary.json).
+
+    The altimeter calls every altitude input "sonar"; a run whose ``summary.json`` says its source's
+    altitude came from a navigation log (``source.altitude_input``) is labelled so.
+    """
     col = res.trajectory.get("altitude_source")
+    source = res.summary.get("source")
+    nav = isinstance(source, dict) and source.get("altitude_input") == "navigation"
+    if nav and col is not None:
+        col = np.char.replace(np.asarray(col, dtype=str), "sonar", "navigation")
     if col is None or len(col) == 0:
         src = res.summary.get("altitude_source")
         fr = {str(src): 1.0} if src else {"unknown": 1.0}
@@ -61,6 +89,9 @@ def heading_source(res: RunResults, sequence: Path | None) -> SourceShare:
     Uses ``summary.json`` ``heading_source`` when the run wrote one; otherwise looks at the
     sequence: a video, or a frames.csv whose headings are NaN, has no compass.
     """
+    part = _summary_sources(res, "heading")
+    if part is not None:
+        return _share_from_summary(part, ("tokens only (no compass)",))
     given = res.summary.get("heading_source")
     if isinstance(given, str) and given:
         tokens_only = "token" in given
