@@ -9,9 +9,9 @@ Beyond the paper, which takes every match its innovation gate lets through (step
   refused by the innovation test frame after frame, all telling the same vehicle offset, mean
   that the filter has become inconsistent (a wrong match, an odometry fault moved it outside
   its bounds), not that the matches are wrong. The monitor says when to recover: the vehicle
-  covariance is inflated by the offset the matches tell, and they are admitted. Expected
-  landmarks that are not found for several frames (the estimate is farther off than the
-  search windows) are searched for in a wider window first.
+  covariance is inflated by the offset the matches tell, and they are admitted. A confirmed
+  landmark expected in view but not found for several frames (the estimate may be farther off
+  than the search window) is searched for in a wider window, with a stricter correlation.
 
 Every refusal keeps its reason; every recovery is an event of the run.
 """
@@ -68,30 +68,39 @@ class RecoveryMonitor:
 
     config: AssociationConfig
     refused_streak: int = 0
-    unfound_streak: int = 0
-    wide_search: bool = False  # search the wide window (set after landmarks were lost, until recovered)
+    missed: dict[int, int] = field(default_factory=dict)  # confirmed landmark -> frames in a row expected, not found
     offsets: list[np.ndarray] = field(default_factory=list)  # vehicle offsets told during the streak
     events: list[RecoveryEvent] = field(default_factory=list)
 
-    def landmarks_searched(self, expected: int, found: int) -> None:
-        """Step 3: ``expected`` landmarks in view (gate (5), inside the image), ``found`` of them matched."""
-        self.unfound_streak = self.unfound_streak + 1 if expected > 0 and found == 0 else 0
-        if self.config.recovery and self.unfound_streak >= self.config.wide_search_after_frames:
-            self.wide_search = True
+    # At most this many landmarks are searched in the wide window per frame (it costs a millisecond each).
+    MAX_WIDE_PER_FRAME = 2
 
-    def refusals(self, offsets_m: list[np.ndarray], accepted_any: bool) -> np.ndarray | None:
+    def wide_candidates(self, ids) -> set[int]:
+        """Of the confirmed landmarks expected in view, those to search in the wide window this frame."""
+        if not self.config.recovery:
+            return set()
+        lost = [i for i in ids if self.missed.get(int(i), 0) >= self.config.wide_search_after_frames]
+        lost.sort(key=lambda i: -self.missed[int(i)])
+        return {int(i) for i in lost[: self.MAX_WIDE_PER_FRAME]}
+
+    def searched(self, landmark_id: int, accepted: bool) -> None:
+        """A confirmed landmark expected in view (gate (5), inside the image) was accepted, or not (lost or refused)."""
+        self.missed[landmark_id] = 0 if accepted else self.missed.get(landmark_id, 0) + 1
+
+    def refusals(self, offsets_m: list[np.ndarray], accepted_older: bool) -> np.ndarray | None:
         """Step 6: the vehicle offsets (world, metres) told by this frame's strong refused matches.
 
         Returns the offset to recover by when the evidence is enough (``recovery_after_frames``
         frames in a row, or two landmarks agreeing now, all within
-        ``recovery_offset_agreement_m``), else None. An accepted match breaks the streak.
+        ``recovery_offset_agreement_m``), else None. ``accepted_older``: a landmark older than
+        the refused ones was accepted, so the estimate agrees with an older part of the map
+        and the refused matches are the suspects: the streak ends. (Landmarks mapped since
+        the estimate went wrong agree with it by construction: they are no evidence.)
         """
         cfg = self.config
-        if not cfg.recovery or accepted_any or not offsets_m:
+        if not cfg.recovery or accepted_older or not offsets_m:
             self.refused_streak = 0
             self.offsets.clear()
-            if accepted_any:
-                self.wide_search = False
             return None
         self.refused_streak += 1
         self.offsets.extend(np.asarray(o, dtype=np.float64) for o in offsets_m)
@@ -105,6 +114,5 @@ class RecoveryMonitor:
     def recovered(self, event: RecoveryEvent) -> None:
         self.events.append(event)
         self.refused_streak = 0
-        self.unfound_streak = 0
-        self.wide_search = False
+        self.missed.clear()
         self.offsets.clear()

@@ -252,25 +252,27 @@ class SlamPipeline:
         uv_pred = ground_to_pixels(self.camera, mn_to_ground(mn_pred, z, self.focal_px), z, *att)
         psi_map = self.ekf.map_heading_rad(psi)
         half = lm.size_px / 2.0
-        wide = self.recovery.wide_search
-        tracker = self.config.tracker
-        if wide:  # lost: a wider window, and only clear, unambiguous matches
-            tracker = dataclasses.replace(tracker, min_correlation=self.config.association.strong_correlation,
-                                          max_second_peak_ratio=min(tracker.max_second_peak_ratio, 0.9))
+        assoc = self.config.association
+        inside = [k for k, uv in enumerate(uv_pred) if not self.landmarks[int(visible[k])].dead and self._inside(uv, half - 2)]
+        wide = self.recovery.wide_candidates(int(visible[k]) for k in inside if self.landmarks[int(visible[k])].confirmed)
+        # A landmark lost for several frames: a wider window, and only clear, unambiguous matches.
+        strict = dataclasses.replace(self.config.tracker, min_correlation=assoc.strong_correlation,
+                                     max_second_peak_ratio=min(self.config.tracker.max_second_peak_ratio, 0.9))
         tracked = []
-        expected = 0
-        for i, uv, s in zip(visible, uv_pred, s_pred):
-            rec = self.landmarks[int(i)]
-            if rec.dead or not self._inside(uv, half - 2):
-                continue
-            expected += 1
-            radius = self.config.association.wide_search_radius_px if wide else self._search_radius_px(s, slack_px)
-            m = match_template(track_img, oriented_patch(rec, psi_map), uv, radius, tracker)
-            if not m.ok or not self._inside(m.uv_px, half):
+        for k in inside:
+            i, uv, s = int(visible[k]), uv_pred[k], s_pred[k]
+            rec = self.landmarks[i]
+            if i in wide:
+                m = match_template(track_img, oriented_patch(rec, psi_map), uv, assoc.wide_search_radius_px, strict)
+            else:
+                m = match_template(track_img, oriented_patch(rec, psi_map), uv, self._search_radius_px(s, slack_px),
+                                   self.config.tracker)
+            if not (m.ok and self._inside(m.uv_px, half)):
+                if rec.confirmed:
+                    self.recovery.searched(i, False)
                 continue
             refused = REASON_LASER if self._covers_laser_spot(m.uv_px, alt.spots_uv_px) else ""
             tracked.append(TrackedLandmark(rec, m.uv_px, pixels_to_mn(self.camera, m.uv_px, z, *att)[0], m.score, refused))
-        self.recovery.landmarks_searched(expected, sum(not t.refused for t in tracked))
         return visible, tracked
 
     def _expected_motion(self, prior: HeadingPrior, altitude_m: float, dt_s: float) -> tuple[np.ndarray, float]:
@@ -417,6 +419,8 @@ class SlamPipeline:
             tentative = not t.record.confirmed
             if id(t) not in refused or reason == REASON_JOINT:
                 t.record.observed(accepted, frame.t_s, assoc.confirm_observations)
+            if t.record.confirmed:  # found and refused still counts as missing: it keeps the wide window
+                self.recovery.searched(t.record.id, accepted)
             nis = res.nis if res is not None else math.nan
             observations.append(Observation(t.record.id, "track", t.uv_px, t.mn_px, t.score, nis, accepted, reason,
                                             tentative))
@@ -437,13 +441,15 @@ class SlamPipeline:
         """
         strong = [t for t in live if id(t) in results and not results[id(t)].accepted and t.record.confirmed
                   and t.score >= self.config.association.strong_correlation]
-        accepted_any = any(results[id(t)].accepted for t in live if id(t) in results and t.record.confirmed)
+        oldest_refused = min((t.record.id for t in strong), default=-1)
+        accepted_older = any(results[id(t)].accepted for t in live
+                             if id(t) in results and t.record.confirmed and t.record.id < oldest_refused)
         theta = self.ekf.map_heading_rad(heading.heading_rad)
         offsets = []
         for t in strong:
             depth = alt.altitude_m - self.ekf.landmark_height_m(t.record.id)
             offsets.append(-(depth / self.focal_px) * (rot2(theta) @ results[id(t)].innovation_px))
-        offset = self.recovery.refusals(offsets, accepted_any)
+        offset = self.recovery.refusals(offsets, accepted_older)
         if offset is None:
             return
         self.ekf.inflate_vehicle_covariance(4.0 * np.outer(offset, offset) + np.eye(2) * (0.25 * float(offset @ offset)))
