@@ -198,10 +198,11 @@ class ProceduralRelief:
 
 
 def _raise_domes(h: np.ndarray, objs, x0: float, y0: float, texel_m: float, ratio: float) -> None:
-    """Add a dome ``H (1 - r^2)^1.5`` (H = ratio x mean radius) over every stone's outline, in place.
+    """Add a stone ``H (1 - r^4)^1.5`` (H = ratio x mean radius) over every stone's outline, in place.
 
     The outline is the texture's (ellipse with the same harmonics), so the raised stone is
-    the one drawn on the texture. The profile's steepest slope is about 1.5 H / radius.
+    the one drawn on the texture. The profile has a rounded top and steep sides (its
+    steepest slope, at r = 0.88, is about 2.6 H / radius) meeting the sand smoothly.
     """
     n_r, n_c = h.shape
     for k in range(len(objs.x_m)):
@@ -220,7 +221,7 @@ def _raise_domes(h: np.ndarray, objs, x0: float, y0: float, texel_m: float, rati
         hk = objs.harmonics[k]
         outline = 1.0 + sum(hk[q, 0] * np.cos((q + 2) * phi + hk[q, 1]) for q in range(4))
         r2 = (u * u + v * v) / (outline * outline)
-        h[r_lo:r_hi, c_lo:c_hi] += ratio * np.sqrt(a * b) * np.maximum(1.0 - r2, 0.0) ** 1.5
+        h[r_lo:r_hi, c_lo:c_hi] += ratio * np.sqrt(a * b) * np.maximum(1.0 - r2 * r2, 0.0) ** 1.5
 
 
 class ArrayRelief:
@@ -266,8 +267,9 @@ class PhotoReliefParams:
 
     Height = coarse band (luminance blurred at ``coarse_sigma_mm`` minus its blur at
     ``background_sigma_mm``) + ``fine_weight`` x fine band (blur at ``fine_sigma_mm`` minus
-    the coarse blur), scaled so that the 1st-99th percentile span is ``relief_m``, then
-    smoothed until the steepest slope is at most ``max_slope``.
+    the coarse blur), scaled so that the 1st-99th percentile span is ``relief_m``; where
+    that is steeper than ``max_slope`` somewhere, the fine band is blurred more (x1.25 at a
+    time) until it is not.
     """
 
     relief_m: float = 0.08
@@ -306,16 +308,18 @@ def relief_from_photo(seabed: ImageSeabed, params: PhotoReliefParams | None = No
         small = cv2.GaussianBlur(small, (0, 0), sigma_px / f, borderType=cv2.BORDER_REFLECT)
         return cv2.resize(small, (img.shape[1], img.shape[0]), interpolation=cv2.INTER_LINEAR)
 
-    fine, coarse, back = blur(lum, p.fine_sigma_mm), blur(lum, p.coarse_sigma_mm), blur(lum, p.background_sigma_mm)
-    h = (coarse - back) + p.fine_weight * (fine - coarse)
-    lo, hi = np.percentile(h, [1.0, 99.0])
-    h = (h - 0.5 * (lo + hi)) * (p.relief_m / max(float(hi - lo), 1e-6))
-    h -= float(h.mean())
-    for _ in range(12):  # soften the steepest faces, if any, until the slope bound holds
-        gy, gx = np.gradient(h, seabed.texel_m)
-        if float(np.sqrt(gx * gx + gy * gy).max()) <= p.max_slope:
+    coarse = blur(lum, p.coarse_sigma_mm)
+    band = coarse - blur(lum, p.background_sigma_mm)
+    fine_sigma = p.fine_sigma_mm
+    for _ in range(20):  # widen the fine band's blur until the slope bound holds at the full relief span
+        h = band + p.fine_weight * (blur(lum, fine_sigma) - coarse)
+        lo, hi = np.percentile(h, [1.0, 99.0])
+        h = (h - 0.5 * (lo + hi)) * (p.relief_m / max(float(hi - lo), 1e-6))
+        h -= float(h.mean())
+        g_north, g_east = np.gradient(h, seabed.texel_m)
+        if float(np.sqrt(g_north * g_north + g_east * g_east).max()) <= p.max_slope:
             break
-        h = blur(h, 1.5 * p.fine_sigma_mm)
+        fine_sigma *= 1.25
     else:
         raise SimulationError(
             f"the photo relief stays steeper than max_slope={p.max_slope}; lower relief_m or fine_weight"

@@ -28,7 +28,7 @@ The presets of issue 9, as hard as the real seabed (each 3 to 10 minutes of dive
   scale, fine regular ripples, gravel, many look-alike burrows, shells and urchins,
   low-contrast mud, faint laser spots that bleed into the green channel.
 * ``swell`` - 2 m altitude swinging by +-30 cm, surge, sway, yaw and heave from the swell,
-  tether jerks, 0.4 m/s, shallow-water sunlight caustics.
+  tether jerks, lanes at 0.45 m/s, shallow-water sunlight caustics.
 
 Determinism: the trajectory, the sensors, the seabed, the marine snow and every frame's
 noise come from generators keyed by the seed (and the frame index), so a seed gives
@@ -41,6 +41,7 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -247,18 +248,18 @@ _NEW: tuple[Scenario, ...] = (
     ),
     Scenario(
         name="swell",
-        description="2 m altitude swinging +-30 cm, swell surge/sway/yaw/heave and tether jerks, 0.4 m/s, "
+        description="2 m altitude swinging +-30 cm, swell surge/sway/yaw/heave and tether jerks, 0.45 m/s, "
         "1.5 deg roll/pitch, shallow-water caustics, relief, lamps",
         n_frames=1500,
         texture=TextureParams(texel_mm=1.0),
         relief=ReliefParams(ripple_height_m=0.005, stone_height_ratio=0.6, undulation_m=0.01),
         lighting=LightingParams(reference_altitude_m=2.0, caustics=CausticParams(strength=0.2)),
         vehicle=VehicleParams(altitude_m=2.0, altitude_swing_m=0.3, altitude_swing_period_s=40.0,
-                              cruise_speed_mps=0.4, accel_limit_mps2=0.1, waypoint_tolerance_m=0.04,
+                              cruise_speed_mps=0.45, accel_limit_mps2=0.2, waypoint_tolerance_m=0.04,
                               wave_surge_mps=0.12, wave_sway_mps=0.08, wave_yaw_rad=3.0 * _DEG, wave_heave_m=0.04,
                               wave_period_s=7.0, tether_jerk_mps=0.03, attitude_sigma_rad=1.5 * _DEG,
                               current_mean_mps=0.02, current_wander_mps=0.01),
-        grid=GridPattern(half_size_m=(0.8, 0.8), lane_spacing_m=0.3,
+        grid=GridPattern(half_size_m=(1.0, 1.0), lane_spacing_m=0.3,
                          offsets_m=((0.0, 0.0), (0.0, 0.0), (0.15, 0.15), (0.15, 0.15))),
         nav=NavSensorParams(compass_sigma_rad=0.5 * _DEG, compass_drift_rad=0.5 * _DEG),
     ),
@@ -352,9 +353,6 @@ def build_world(sc: Scenario, seed: int, grow_m: float = 0.25, texture_path: Pat
     ``texture_path`` replaces the scenario's seabed by that image; on a scenario with relief,
     the relief is then derived from the image (:func:`~rovslam.sim.relief.relief_from_photo`).
     """
-    from rovslam.sim.relief import relief_from_photo
-    from rovslam.sim.texture import ImageSeabed
-
     photo, mm = None, None
     if texture_path is not None:
         photo, mm = Path(texture_path), float(texture_mm_per_px)
@@ -362,12 +360,21 @@ def build_world(sc: Scenario, seed: int, grow_m: float = 0.25, texture_path: Pat
         photo, mm = shared_data_file(sc.seabed_photo), sc.photo_mm_per_px
     if photo is None:
         return World.procedural(int(seed), sc.texture, relief=sc.relief, grow_m=grow_m), "procedural"
-    seabed = ImageSeabed.from_file(photo, mm)
-    relief = None
+    params = None
     if sc.relief is not None:
         params = sc.relief if isinstance(sc.relief, PhotoReliefParams) else PhotoReliefParams()
-        relief = relief_from_photo(seabed, params)
+    seabed, relief = _photo_seabed(str(photo.resolve()), photo.stat().st_mtime_ns, mm, params)
     return World(seabed, seed=int(seed), grow_m=grow_m, relief=relief), f"{photo.name} at {mm} mm/px"
+
+
+@lru_cache(maxsize=2)
+def _photo_seabed(path: str, mtime_ns: int, mm_per_px: float, relief: PhotoReliefParams | None):
+    """(ImageSeabed, its relief or None), shared in a process (the relief takes a second or two to derive)."""
+    from rovslam.sim.relief import relief_from_photo
+    from rovslam.sim.texture import ImageSeabed
+
+    seabed = ImageSeabed.from_file(path, mm_per_px)
+    return seabed, None if relief is None else relief_from_photo(seabed, relief)
 
 
 def _yaw_rate_radps(traj: Trajectory) -> np.ndarray:

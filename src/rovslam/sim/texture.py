@@ -86,7 +86,7 @@ class TextureParams:
     fine_ripple_wavelength_m: float = 0.02
     fine_ripple_azimuth_rad: float = 0.7
     coral_cover: float = 0.0  # fraction under coral: a warped hexagonal lattice of corallites + branches
-    coral_spacing_m: float = 0.012  # corallite spacing (about 10 px at 1.31 m: one token holds a few)
+    coral_spacing_m: float = 0.014  # corallite spacing (about 11 px at 1.31 m: a 16 px token holds two)
     coral_scale_m: float = 0.25  # size of the coral patches
     coral_rgb: RGB = (0.62, 0.50, 0.40)
     mud_cover: float = 0.0  # fraction under smooth, low-contrast mud
@@ -326,14 +326,14 @@ class ProceduralSeabed:
         if not patch.any():
             return
         s = p.coral_spacing_m
-        wx = xs + 0.6 * s * field(_L_CORAL_WARP_X, 0.15)
-        wy = ys + 0.6 * s * field(_L_CORAL_WARP_Y, 0.15)
+        wx = xs + 0.8 * s * field(_L_CORAL_WARP_X, 0.3)  # the lattice bends slowly, as a colony grows
+        wy = ys + 0.8 * s * field(_L_CORAL_WARP_Y, 0.3)
         k = 4.0 * np.pi / (np.sqrt(3.0) * s)
         g = sum(np.cos(k * (wx * np.cos(a) + wy * np.sin(a))) for a in (0.0, np.pi / 3.0, 2.0 * np.pi / 3.0))
-        wall = smoothstep(0.2, 1.2, g) * smoothstep(2.7, 2.1, g)  # a ring around each cell's centre
-        pit = smoothstep(2.2, 2.8, g)  # the dark mouth of the corallite
-        branch = smoothstep(0.75, 0.95, 1.0 - np.abs(field(_L_CORAL_BRANCH, 0.008)))
-        lum = (0.7 + 0.45 * wall - 0.45 * pit + 0.25 * branch + 0.08 * fine).astype(np.float32)
+        wall = smoothstep(-0.2, 1.0, g) * smoothstep(2.7, 1.9, g)  # a ring around each cell's centre
+        pit = smoothstep(2.0, 2.8, g)  # the dark mouth of the corallite
+        branch = smoothstep(0.8, 0.97, 1.0 - np.abs(field(_L_CORAL_BRANCH, 0.01)))
+        lum = (0.55 + 0.6 * wall - 0.4 * pit + 0.12 * branch + 0.05 * fine).astype(np.float32)
         coral = lum[..., None] * np.asarray(p.coral_rgb, dtype=np.float32)
         img += patch.astype(np.float32)[..., None] * (coral - img)
 
@@ -394,7 +394,8 @@ class ProceduralSeabed:
                 continue
             x = (ci + rng.random(k)) * cell
             y = (cj + rng.random(k)) * cell
-            a = median * np.exp(0.5 * rng.standard_normal(k))
+            spread = 0.12 if kind == _K_URCHIN else 0.5  # urchins: all much the same size (look-alike blobs)
+            a = median * np.exp(spread * rng.standard_normal(k))
             a = np.minimum(a, reach / _EXTENT[kind])
             angle = rng.uniform(0.0, np.pi * 2.0, k)
             if kind == _K_SHELL:

@@ -101,11 +101,12 @@ class World:
         ``relief``: None (flat), a :class:`~rovslam.sim.relief.ReliefParams` (the procedural
         relief of this seabed) or any relief source.
         """
-        from rovslam.sim.relief import ProceduralRelief, ReliefParams
+        from rovslam.sim.relief import ReliefParams
 
-        seabed = shared_seabed(int(seed), params if params is not None else TextureParams())
+        texture = params if params is not None else TextureParams()
+        seabed = shared_seabed(int(seed), texture)
         if isinstance(relief, ReliefParams):
-            relief = ProceduralRelief(relief, seabed)
+            relief = shared_relief(int(seed), texture, relief)
         return cls(seabed, seed=seed, relief=relief, **kwargs)
 
     @classmethod
@@ -234,6 +235,14 @@ def shared_seabed(seed: int, params: TextureParams) -> ProceduralSeabed:
     Sharing is safe: a seabed is deterministic and thread-safe.
     """
     return ProceduralSeabed(params, seed)
+
+
+@lru_cache(maxsize=2)
+def shared_relief(seed: int, texture: TextureParams, params) -> "ProceduralRelief":
+    """One :class:`~rovslam.sim.relief.ProceduralRelief` per (seed, texture, relief params) in a process."""
+    from rovslam.sim.relief import ProceduralRelief
+
+    return ProceduralRelief(params, shared_seabed(seed, texture))
 
 
 def _align(r_lo: int, r_hi: int, c_lo: int, c_hi: int) -> tuple[int, int, int, int]:
