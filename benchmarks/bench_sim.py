@@ -1,17 +1,18 @@
-"""Benchmark of the seabed simulator: per-frame rendering, and writing the paper's whole trial.
+"""Benchmark of the seabed simulator: per-frame rendering of every preset, and writing whole dives.
 
-Run: ``python benchmarks/bench_sim.py`` (about a minute; ``--frames 300`` for a quick run,
-``--full`` to also write the complete 13,275-frame ``portofino`` trial and time it).
-Prints, per frame, medians over ``--repeats`` runs:
+Run: ``python benchmarks/bench_sim.py`` (a few minutes; ``--frames 100`` for a quick run,
+``--presets portofino swell`` for some, ``--full`` to also write the complete 13,275-frame
+``portofino`` trial and time it). Prints, per frame, medians over ``--repeats`` runs:
 
-* ``render``: :meth:`FrameRenderer.render` alone (canvas already built), for each preset;
-* ``write const``: the baseline, measured in the same run: the sequence writer storing a
-  constant image (the I/O floor of the format, no rendering);
-* ``write rendered``: the writer storing an already rendered frame (PNG cost of real content);
-* ``simulate``: :func:`rovslam.sim.simulate` end to end (trajectory, seabed generation,
-  rendering, encoding, CSVs), and its extrapolation to the 13,275 frames of ``portofino``;
-
-with the ratio to the constant-image baseline.
+* ``render``: :meth:`FrameRenderer.render` alone (seabed and relief windows already
+  built), for each preset, over its first ``--frames`` frames (a fifth of them for the
+  1920x1080 ``hd-survey``), with the ratio to ``render portofino`` (the baseline, measured
+  in the same run, as every ratio here);
+* ``write const``: the sequence writer storing a constant image (the I/O floor of the format);
+* ``simulate``: :func:`rovslam.sim.simulate` end to end (trajectory, seabed and relief
+  generation, rendering, H.264 where the preset has it, encoding, CSVs) over the same
+  frames, and that rate extrapolated to the preset's whole dive (``dive s``): an upper
+  bound, since a longer dive spreads the seabed generation over more frames.
 """
 
 from __future__ import annotations
@@ -26,31 +27,40 @@ from pathlib import Path
 import numpy as np
 
 from rovslam.io.sequence import SequenceInfo, SequenceWriter
-from rovslam.sim import SCENARIOS, World, frame_pose, frame_rng, renderer_for, simulate, simulate_trajectory
+from rovslam.sim import SCENARIOS, frame_pose, frame_rng, renderer_for, simulate, simulate_trajectory
+from rovslam.sim.scenarios import build_world
 
 TRIAL_FRAMES = SCENARIOS["portofino"].n_frames
+DEFAULT_PRESETS = ("portofino", "rough-turns", "portofino-relief", "photo-survey", "photo-turns", "hd-survey",
+                   "still-camera", "turbid-relief", "coral-repetitive", "swell")
 
 
 def _parse() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--frames", type=int, default=1000, help="frames per timed run")
+    ap.add_argument("--frames", type=int, default=300, help="frames per timed run (hd-survey: a fifth)")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per row (median reported)")
+    ap.add_argument("--presets", nargs="*", default=list(DEFAULT_PRESETS), help="presets to time")
     ap.add_argument("--full", action="store_true", help="also write the whole portofino trial once")
     return ap.parse_args()
+
+
+def _frames_for(name: str, n: int) -> int:
+    return max(5, n // 5) if SCENARIOS[name].camera.width_px > 1200 else n
 
 
 def bench_render(name: str, n: int) -> float:
     """Seconds per frame of rendering alone over the first n frames of a preset."""
     sc = SCENARIOS[name]
     traj = simulate_trajectory(sc.vehicle, sc.grid, n, sc.frame_rate_hz, seed=0)
-    world = World.procedural(0, sc.texture, grow_m=float(np.max(np.hypot(traj.x_m, traj.y_m))) + 0.05)
-    renderer = renderer_for(sc.camera, sc.water, sc.sensor, sc.spots)
+    world, _ = build_world(sc, 0, grow_m=float(np.max(np.hypot(traj.x_m, traj.y_m))) + 0.05)
+    renderer = renderer_for(sc.camera, sc.water, sc.sensor, sc.spots, sc.lighting)
 
     def frame(k: int) -> np.ndarray:
         return renderer.render(world, frame_pose(traj, k), sc.lasers, frame_rng(0, k),
                                velocity_mps=(traj.surge_mps[k], traj.sway_mps[k]), t_s=traj.t_s[k])
 
-    frame(0)  # builds the canvas
+    for k in range(0, n, max(1, n // 10)):  # build the windows the run will use
+        frame(k)
     t0 = time.perf_counter()
     for k in range(n):
         frame(k)
@@ -80,29 +90,27 @@ def bench_simulate(name: str, n: int, root: Path) -> float:
 
 def main() -> None:
     args = _parse()
-    n = args.frames
     root = Path(tempfile.mkdtemp(prefix="rovslam-bench-sim-"))
     try:
-        rows: list[tuple[str, float]] = []
-        for name in ("portofino", "rough-turns"):
-            rows.append((f"render {name}", statistics.median(bench_render(name, n) for _ in range(args.repeats))))
+        rows: list[tuple[str, int, float, float | None]] = []  # label, frames, s/frame, dive s
+        names = ["portofino"] + [p for p in args.presets if p != "portofino"]
+        for name in names:
+            n = _frames_for(name, args.frames)
+            rows.append((f"render {name}", n, statistics.median(bench_render(name, n) for _ in range(args.repeats)),
+                         None))
         sc = SCENARIOS["portofino"]
         const = np.full((sc.camera.height_px, sc.camera.width_px, 3), 100, np.uint8)
-        base = statistics.median(bench_write(const, n, root) for _ in range(args.repeats))
-        rows.append(("write const (baseline)", base))
-        traj = simulate_trajectory(sc.vehicle, sc.grid, 1, 5.0, seed=0)
-        rendered = renderer_for(sc.camera, sc.water, sc.sensor, sc.spots).render(
-            World.procedural(0, sc.texture), frame_pose(traj, 0), sc.lasers, frame_rng(0, 0))
-        rows.append(("write rendered", statistics.median(bench_write(rendered, n, root) for _ in range(args.repeats))))
-        for name in ("portofino", "rough-turns"):
-            rows.append((f"simulate {name}", statistics.median(bench_simulate(name, n, root)
-                                                             for _ in range(args.repeats))))
-        print(f"{n} frames per run, median of {args.repeats} runs")
-        print(f"{'':26s} {'ms/frame':>9s} {'frames/s':>9s} {'x baseline':>10s}")
-        for label, sec in rows:
-            print(f"{label:26s} {sec * 1e3:9.2f} {1.0 / sec:9.0f} {sec / base:10.2f}")
-        sim = dict(rows)["simulate portofino"]
-        print(f"portofino trial ({TRIAL_FRAMES} frames) extrapolated: {sim * TRIAL_FRAMES:.0f} s")
+        rows.append(("write const", args.frames,
+                     statistics.median(bench_write(const, args.frames, root) for _ in range(args.repeats)), None))
+        for name in names:
+            n = _frames_for(name, args.frames)
+            sec = statistics.median(bench_simulate(name, n, root) for _ in range(args.repeats))
+            rows.append((f"simulate {name}", n, sec, sec * SCENARIOS[name].n_frames))
+        base = rows[0][2]
+        print(f"median of {args.repeats} runs; ratios to 'render portofino'")
+        print(f"{'':28s} {'frames':>6s} {'ms/frame':>9s} {'x base':>7s} {'dive s':>7s}")
+        for label, n, sec, dive in rows:
+            print(f"{label:28s} {n:6d} {sec * 1e3:9.2f} {sec / base:7.2f} {'' if dive is None else f'{dive:7.0f}'}")
         if args.full:
             out = root / "full"
             t0 = time.perf_counter()

@@ -30,10 +30,10 @@ from rovslam.sim.relief import (
     sonar_first_return_m,
 )
 from rovslam.sim.texture import ImageSeabed, ProceduralSeabed, TextureParams
+from test_sim_geometry import BACKGROUND, MM_PER_PX, _centroid
+from test_sim_lasers import red_dominance_centres
 
 CAM = PORTOFINO_CAMERA
-MM_PER_PX = 0.5
-BACKGROUND = 40
 RELIEF_MM = 2.0
 
 
@@ -69,13 +69,6 @@ def _stones_world(seed: int = 0, dot_sigma_texels: float = 3.0):
     return world, pts, tops
 
 
-def _centroid(grey: np.ndarray, u: float, v: float, half: int = 6) -> tuple[float, float]:
-    iu, iv = int(round(u)), int(round(v))
-    win = np.clip(grey[iv - half : iv + half + 1, iu - half : iu + half + 1].astype(float) - BACKGROUND, 0, None)
-    yy, xx = np.mgrid[iv - half : iv + half + 1, iu - half : iu + half + 1]
-    return float((win * xx).sum() / win.sum()), float((win * yy).sum() / win.sum())
-
-
 def _ideal(world: World, camera: Camera, pose: Pose) -> np.ndarray:
     return render_frame(world, camera, pose, water=WaterParams.none(), sensor=SensorParams.ideal(), noise_free=True)
 
@@ -105,7 +98,7 @@ def test_a_point_on_a_stone_projects_where_a_pinhole_camera_puts_it(stones, came
     on_plane = ground_to_pixels(camera, level / pose.altitude_m, 1.0, pose.roll_rad, pose.pitch_rad)
     inside = (uv[:, 0] > 8) & (uv[:, 0] < camera.width_px - 9) & (uv[:, 1] > 8) & (uv[:, 1] < camera.height_px - 9)
     assert inside.sum() >= 20
-    err = np.array([np.hypot(*np.subtract(_centroid(img, u, v), (u, v))) for u, v in uv[inside]])
+    err = np.array([np.hypot(*np.subtract(_centroid(img, u, v, half=6), (u, v))) for u, v in uv[inside]])
     assert err.max() < 0.5
     assert err.mean() < 0.05  # in fact about 0.01 px
     # The relief matters: on a flat seabed these dots would be up to 10 px elsewhere.
@@ -133,7 +126,7 @@ def test_a_point_on_a_10_cm_stone_moves_8_percent_faster_than_the_sand_beside_it
         va = CAM.cy_px - CAM.focal_px * 0.02 / (1.31 - h_m)  # rough guesses, refined by the centroid
         vb = CAM.cy_px + CAM.focal_px * 0.02 / (1.31 - h_m)
         u = CAM.cx_px + CAM.focal_px * y_m / (1.31 - h_m)
-        return _centroid(b, u, vb)[1] - _centroid(a, u, va)[1]
+        return _centroid(b, u, vb, half=6)[1] - _centroid(a, u, va, half=6)[1]
 
     stone, sand = motion(-0.03, 0.10), motion(0.03, 0.0)
     assert sand == pytest.approx(CAM.focal_px * 0.04 / 1.31, abs=0.05)
@@ -146,18 +139,6 @@ def relief_world():
     return World.procedural(2, sc.texture, relief=sc.relief), sc
 
 
-def _red_centres(img: np.ndarray, min_excess: int = 60) -> np.ndarray:
-    d = img[..., 0].astype(int) - np.maximum(img[..., 1], img[..., 2]).astype(int)
-    n, lab, stats, _ = cv2.connectedComponentsWithStats((d >= min_excess).astype(np.uint8))
-    yy, xx = np.indices(d.shape)
-    out = []
-    for i in range(1, n):
-        if stats[i, cv2.CC_STAT_AREA] >= 3:
-            wgt = np.where(lab == i, d, 0).astype(float)
-            out.append(((wgt * xx).sum() / wgt.sum(), (wgt * yy).sum() / wgt.sum()))
-    return np.array(out)
-
-
 def test_laser_altitude_equals_the_range_to_the_local_relief(relief_world):
     world, sc = relief_world
     offsets = np.array([las.origin_m[:2] for las in PAPER_LASERS])  # vertical beams 5 cm off each axis
@@ -168,7 +149,7 @@ def test_laser_altitude_equals_the_range_to_the_local_relief(relief_world):
         pose = Pose(*rng.uniform(-0.4, 0.4, 2), z, float(rng.uniform(-3, 3)))
         img = render_frame(world, CAM, pose, PAPER_LASERS, sc.water, None, sensor=sc.sensor, spots=sc.spots,
                            lighting=sc.lighting, noise_free=True)
-        centres = _red_centres(img)
+        centres = red_dominance_centres(img)
         assert len(centres) == 4
         hit = offsets @ rot2(pose.heading_rad).T + [pose.x_m, pose.y_m]
         local_range = z - heights_at(world.relief, hit[:, 0], hit[:, 1])

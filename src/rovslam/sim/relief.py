@@ -24,14 +24,13 @@ fixed-point ray cast converges (see :mod:`rovslam.sim.render`).
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
 from rovslam.errors import SimulationError
+from rovslam.sim._chunks import ChunkedGrid
 from rovslam.sim._noise import lattice_noise_grid, smoothstep
 from rovslam.sim.texture import ImageSeabed, ProceduralSeabed, mirror_indices
 
@@ -105,16 +104,18 @@ class ReliefParams:
             )
 
 
-class ProceduralRelief:
-    """The relief of a :class:`ProceduralSeabed` (see the module docstring). Thread-safe."""
+class ProceduralRelief(ChunkedGrid):
+    """The relief of a :class:`ProceduralSeabed` (see the module docstring).
+
+    ``region`` gives ``(n_rows, n_cols) float32`` heights. Thread-safe.
+    """
 
     def __init__(self, params: ReliefParams, seabed: ProceduralSeabed) -> None:
+        super().__init__(params.chunk_texels, params.cache_chunks, (), np.float32)
         self.params = params
         self.seabed = seabed
         self.seed = seabed.seed
         self._texel_m = params.texel_mm * 1e-3
-        self._cache: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
-        self._lock = threading.Lock()
         tp = seabed.params
         # Largest stone / boulder radius the texture draws (sizes are capped to their reach).
         max_radius = 3.0 * tp.stone_radius_mm * 1e-3
@@ -135,34 +136,6 @@ class ProceduralRelief:
     @property
     def height_range_m(self) -> tuple[float, float]:
         return self._range
-
-    def region(self, row0: int, col0: int, n_rows: int, n_cols: int) -> np.ndarray:
-        """``(n_rows, n_cols) float32`` heights, assembled from cached chunks."""
-        c = self.params.chunk_texels
-        out = np.empty((n_rows, n_cols), dtype=np.float32)
-        for ci in range(row0 // c, (row0 + n_rows - 1) // c + 1):
-            r_lo, r_hi = max(row0, ci * c), min(row0 + n_rows, (ci + 1) * c)
-            for cj in range(col0 // c, (col0 + n_cols - 1) // c + 1):
-                c_lo, c_hi = max(col0, cj * c), min(col0 + n_cols, (cj + 1) * c)
-                out[r_lo - row0 : r_hi - row0, c_lo - col0 : c_hi - col0] = self.chunk(ci, cj)[
-                    r_lo - ci * c : r_hi - ci * c, c_lo - cj * c : c_hi - cj * c
-                ]
-        return out
-
-    def chunk(self, ci: int, cj: int) -> np.ndarray:
-        """Chunk ``(ci, cj)``: ``(C, C) float32`` heights."""
-        key = (int(ci), int(cj))
-        with self._lock:
-            hit = self._cache.get(key)
-            if hit is not None:
-                self._cache.move_to_end(key)
-                return hit
-            data = self._generate_chunk(*key)
-            data.setflags(write=False)
-            self._cache[key] = data
-            while len(self._cache) > self.params.cache_chunks:
-                self._cache.popitem(last=False)
-            return data
 
     def _generate_chunk(self, ci: int, cj: int) -> np.ndarray:
         p, t, n = self.params, self._texel_m, self.params.chunk_texels

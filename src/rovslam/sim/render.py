@@ -645,16 +645,18 @@ class FrameRenderer:
     # ------------------------------------------------------------------ the frame
     def _radiance_plane(self, world: World, pose: Pose, velocity_mps: tuple[float, float]) -> np.ndarray:
         """(H, W, 3) float32 radiance of a flat seabed through the homography (the original model)."""
-        seabed = self._sample_seabed(world, pose)
-        kern = self._motion_kernel(pose, velocity_mps)
-        if kern is not None:
-            seabed = cv2.filter2D(seabed, -1, kern, borderType=cv2.BORDER_REFLECT)
-        if self.water.forward_scatter_px >= 0.2:
-            seabed = cv2.GaussianBlur(seabed, (0, 0), self.water.forward_scatter_px, borderType=cv2.BORDER_REFLECT)
+        seabed = self._blur_in_water(self._sample_seabed(world, pose), pose, velocity_mps)
         gain, haze, has_haze = self._radiometry(pose.altitude_m)
         img = cv2.multiply(seabed, gain, dtype=cv2.CV_32F)
-        if has_haze:
-            img = cv2.add(img, haze)
+        return cv2.add(img, haze) if has_haze else img
+
+    def _blur_in_water(self, img: np.ndarray, pose: Pose, velocity_mps: tuple[float, float]) -> np.ndarray:
+        """Motion blur over the exposure, then the forward scattering of turbid water."""
+        kern = self._motion_kernel(pose, velocity_mps)
+        if kern is not None:
+            img = cv2.filter2D(img, -1, kern, borderType=cv2.BORDER_REFLECT)
+        if self.water.forward_scatter_px >= 0.2:
+            img = cv2.GaussianBlur(img, (0, 0), self.water.forward_scatter_px, borderType=cv2.BORDER_REFLECT)
         return img
 
     def _radiance_rays(
@@ -666,16 +668,9 @@ class FrameRenderer:
             gain = self._lamp_gain(world, pose, hits, t_s)
         else:
             gain = self._radiometry(pose.altitude_m)[0]
-        img = cv2.multiply(hits.albedo, gain, dtype=cv2.CV_32F)
-        kern = self._motion_kernel(pose, velocity_mps)
-        if kern is not None:
-            img = cv2.filter2D(img, -1, kern, borderType=cv2.BORDER_REFLECT)
-        if self.water.forward_scatter_px >= 0.2:
-            img = cv2.GaussianBlur(img, (0, 0), self.water.forward_scatter_px, borderType=cv2.BORDER_REFLECT)
+        img = self._blur_in_water(cv2.multiply(hits.albedo, gain, dtype=cv2.CV_32F), pose, velocity_mps)
         _, haze, has_haze = self._radiometry(pose.altitude_m)
-        if has_haze:
-            img = cv2.add(img, haze)
-        return img
+        return cv2.add(img, haze) if has_haze else img
 
     def _lens_psf(self, img: np.ndarray) -> np.ndarray:
         """The lens point-spread function: a Gaussian core plus an optional wide glare skirt."""

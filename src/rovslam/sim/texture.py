@@ -15,8 +15,6 @@ Texel ``(i, j)`` of every texture source lies at world ``x = i * texel_m`` (nort
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -25,6 +23,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from rovslam.errors import SimulationError
+from rovslam.sim._chunks import ChunkedGrid
 from rovslam.sim._noise import lattice_noise_grid, lattice_noise_points, smoothstep
 
 RGB = tuple[float, float, float]
@@ -159,20 +158,20 @@ class _Objects:
     harmonics: np.ndarray  # (N, 4, 2): outline harmonics k = 2..5, (amplitude, phase)
 
 
-class ProceduralSeabed:
+class ProceduralSeabed(ChunkedGrid):
     """Procedural, unbounded, deterministic seabed (see the module docstring).
 
-    Thread-safe: chunks are generated under a lock and cached read-only.
+    ``region`` gives ``(n_rows, n_cols, 3) uint8`` albedo texels. Thread-safe: chunks are
+    generated under a lock and cached read-only.
     """
 
     def __init__(self, params: TextureParams | None = None, seed: int = 0) -> None:
         if int(seed) < 0:
             raise SimulationError(f"seed must be >= 0, got {seed}")
         self.params = params if params is not None else TextureParams()
+        super().__init__(self.params.chunk_texels, self.params.cache_chunks, (3,), np.uint8)
         self.seed = int(seed)
         self._texel_m = self.params.texel_mm * 1e-3
-        self._cache: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
-        self._lock = threading.Lock()
         p = self.params
         if p.ripple_azimuth_rad is None:
             self._ripple_az = float(np.random.default_rng([self.seed, 7001]).uniform(0.0, np.pi))
@@ -186,36 +185,6 @@ class ProceduralSeabed:
     @property
     def texel_m(self) -> float:
         return self._texel_m
-
-    # ------------------------------------------------------------------ regions and chunks
-    def region(self, row0: int, col0: int, n_rows: int, n_cols: int) -> np.ndarray:
-        """``(n_rows, n_cols, 3) uint8`` albedo texels, assembled from cached chunks."""
-        c = self.params.chunk_texels
-        out = np.empty((n_rows, n_cols, 3), dtype=np.uint8)
-        for ci in range(row0 // c, (row0 + n_rows - 1) // c + 1):
-            r_lo, r_hi = max(row0, ci * c), min(row0 + n_rows, (ci + 1) * c)
-            for cj in range(col0 // c, (col0 + n_cols - 1) // c + 1):
-                c_lo, c_hi = max(col0, cj * c), min(col0 + n_cols, (cj + 1) * c)
-                chunk = self.chunk(ci, cj)
-                out[r_lo - row0 : r_hi - row0, c_lo - col0 : c_hi - col0] = chunk[
-                    r_lo - ci * c : r_hi - ci * c, c_lo - cj * c : c_hi - cj * c
-                ]
-        return out
-
-    def chunk(self, ci: int, cj: int) -> np.ndarray:
-        """Chunk ``(ci, cj)``: ``(C, C, 3) uint8``, texels ``ci*C .. ci*C + C - 1`` (rows)."""
-        key = (int(ci), int(cj))
-        with self._lock:
-            hit = self._cache.get(key)
-            if hit is not None:
-                self._cache.move_to_end(key)
-                return hit
-            data = self._generate_chunk(*key)
-            data.setflags(write=False)
-            self._cache[key] = data
-            while len(self._cache) > self.params.cache_chunks:
-                self._cache.popitem(last=False)
-            return data
 
     # ------------------------------------------------------------------ generation
     def _generate_chunk(self, ci: int, cj: int) -> np.ndarray:
