@@ -339,3 +339,32 @@ def test_relief_reaching_the_camera_is_refused():
         render_frame(world, CAM, Pose(0.0, 0.0, 1.0), noise_free=True)
     with pytest.raises(SimulationError, match="finite"):
         ArrayRelief(np.full((8, 8), np.nan), 1.0)
+
+
+def test_rolling_shutter_skews_the_image_by_the_motion_during_readout():
+    from dataclasses import replace
+
+    from test_sim_geometry import _dot_world
+
+    world, pts = _dot_world()
+    readout, speed = 0.03, 0.5
+    sensor = replace(SensorParams.ideal(), readout_s=readout)
+    pose = Pose(0.0, 0.0, 1.31, 0.0)
+    img = render_frame(world, CAM, pose, water=WaterParams.none(), sensor=sensor, velocity_mps=(speed, 0.0),
+                       noise_free=True)[..., 1]
+    glob = _ideal(world, CAM, pose)[..., 1]
+    mn = (CAM.focal_px / pose.altitude_m) * pts  # heading 0: forward = north
+    u, v = CAM.cx_px + mn[:, 1], CAM.cy_px - mn[:, 0]
+    inside = (u > 12) & (u < CAM.width_px - 13) & (v > 20) & (v < CAM.height_px - 21)
+    shifts, expected = [], []
+    for ui, vi in zip(u[inside], v[inside]):
+        _, v_glob = _centroid(glob, ui, vi)
+        _, v_roll = _centroid(img, ui, vi)
+        _, v_roll = _centroid(img, ui, v_roll)  # again, centred on the shifted dot
+        shifts.append(v_roll - v_glob)
+        # Row v is exposed readout * (v - centre) / (H - 1) after mid-frame (v: where the dot is
+        # seen): the camera is speed * that further north, so the seabed appears further down.
+        expected.append(CAM.focal_px * speed * readout * (v_roll - 0.5 * (CAM.height_px - 1))
+                        / (CAM.height_px - 1) / pose.altitude_m)
+    np.testing.assert_allclose(shifts, expected, atol=0.05)
+    assert max(np.abs(expected)) > 4.0
