@@ -2,7 +2,9 @@
 
 Run: ``python benchmarks/bench_sim.py`` (a few minutes; ``--frames 100`` for a quick run,
 ``--presets portofino swell`` for some, ``--full`` to also write the complete 13,275-frame
-``portofino`` trial and time it). Prints, per frame, medians over ``--repeats`` runs:
+``portofino`` trial and time it). Prints, per frame, medians over ``--repeats`` runs of the
+wall time and of the CPU time of the process (all its threads: what a frame costs a
+shared machine, and steadier than the wall time when other work runs beside it):
 
 * ``render``: :meth:`FrameRenderer.render` alone (seabed and relief windows already
   built), for each preset, over its first ``--frames`` frames (a fifth of them for the
@@ -11,7 +13,7 @@ Run: ``python benchmarks/bench_sim.py`` (a few minutes; ``--frames 100`` for a q
 * ``write const``: the sequence writer storing a constant image (the I/O floor of the format);
 * ``simulate``: :func:`rovslam.sim.simulate` end to end (trajectory, seabed and relief
   generation, rendering, H.264 where the preset has it, encoding, CSVs) over the same
-  frames, and that rate extrapolated to the preset's whole dive (``dive s``): an upper
+  frames, and that CPU rate extrapolated to the preset's whole dive (``dive s``): an upper
   bound, since a longer dive spreads the seabed generation over more frames.
 """
 
@@ -48,8 +50,22 @@ def _frames_for(name: str, n: int) -> int:
     return max(5, n // 5) if SCENARIOS[name].camera.width_px > 1200 else n
 
 
-def bench_render(name: str, n: int) -> float:
-    """Seconds per frame of rendering alone over the first n frames of a preset."""
+class _Clock:
+    """Wall and CPU seconds elapsed since construction."""
+
+    def __init__(self) -> None:
+        self.wall, self.cpu = time.perf_counter(), time.process_time()
+
+    def per(self, n: int) -> tuple[float, float]:
+        return (time.perf_counter() - self.wall) / n, (time.process_time() - self.cpu) / n
+
+
+def _median(runs: list[tuple[float, float]]) -> tuple[float, float]:
+    return statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs)
+
+
+def bench_render(name: str, n: int) -> tuple[float, float]:
+    """(wall, CPU) seconds per frame of rendering alone over the first n frames of a preset."""
     sc = SCENARIOS[name]
     traj = simulate_trajectory(sc.vehicle, sc.grid, n, sc.frame_rate_hz, seed=0)
     world, _ = build_world(sc, 0, grow_m=float(np.max(np.hypot(traj.x_m, traj.y_m))) + 0.05)
@@ -61,56 +77,56 @@ def bench_render(name: str, n: int) -> float:
 
     for k in range(0, n, max(1, n // 10)):  # build the windows the run will use
         frame(k)
-    t0 = time.perf_counter()
+    clock = _Clock()
     for k in range(n):
         frame(k)
-    return (time.perf_counter() - t0) / n
+    return clock.per(n)
 
 
-def bench_write(image: np.ndarray, n: int, root: Path) -> float:
-    """Seconds per frame for the sequence writer storing ``image`` n times."""
+def bench_write(image: np.ndarray, n: int, root: Path) -> tuple[float, float]:
+    """(wall, CPU) seconds per frame for the sequence writer storing ``image`` n times."""
     sc = SCENARIOS["portofino"]
     out = root / "write"
     shutil.rmtree(out, ignore_errors=True)
     info = SequenceInfo(name="bench", camera=sc.camera, lasers=sc.lasers)
-    t0 = time.perf_counter()
+    clock = _Clock()
     with SequenceWriter(out, info) as w:
         for k in range(n):
             w.write_frame(0.2 * k, image, 0.0, 1.31, truth=(0.0, 0.0, 1.31, 0.0))
-    return (time.perf_counter() - t0) / n
+    return clock.per(n)
 
 
-def bench_simulate(name: str, n: int, root: Path) -> float:
+def bench_simulate(name: str, n: int, root: Path) -> tuple[float, float]:
     out = root / "sim"
     shutil.rmtree(out, ignore_errors=True)
-    t0 = time.perf_counter()
+    clock = _Clock()
     simulate(name, out, frames=n, seed=0)
-    return (time.perf_counter() - t0) / n
+    return clock.per(n)
 
 
 def main() -> None:
     args = _parse()
     root = Path(tempfile.mkdtemp(prefix="rovslam-bench-sim-"))
     try:
-        rows: list[tuple[str, int, float, float | None]] = []  # label, frames, s/frame, dive s
+        rows: list[tuple[str, int, tuple[float, float], float | None]] = []  # label, frames, s/frame, dive s
         names = ["portofino"] + [p for p in args.presets if p != "portofino"]
         for name in names:
             n = _frames_for(name, args.frames)
-            rows.append((f"render {name}", n, statistics.median(bench_render(name, n) for _ in range(args.repeats)),
-                         None))
+            rows.append((f"render {name}", n, _median([bench_render(name, n) for _ in range(args.repeats)]), None))
         sc = SCENARIOS["portofino"]
         const = np.full((sc.camera.height_px, sc.camera.width_px, 3), 100, np.uint8)
         rows.append(("write const", args.frames,
-                     statistics.median(bench_write(const, args.frames, root) for _ in range(args.repeats)), None))
+                     _median([bench_write(const, args.frames, root) for _ in range(args.repeats)]), None))
         for name in names:
             n = _frames_for(name, args.frames)
-            sec = statistics.median(bench_simulate(name, n, root) for _ in range(args.repeats))
-            rows.append((f"simulate {name}", n, sec, sec * SCENARIOS[name].n_frames))
+            sec = _median([bench_simulate(name, n, root) for _ in range(args.repeats)])
+            rows.append((f"simulate {name}", n, sec, sec[1] * SCENARIOS[name].n_frames))
         base = rows[0][2]
-        print(f"median of {args.repeats} runs; ratios to 'render portofino'")
-        print(f"{'':28s} {'frames':>6s} {'ms/frame':>9s} {'x base':>7s} {'dive s':>7s}")
-        for label, n, sec, dive in rows:
-            print(f"{label:28s} {n:6d} {sec * 1e3:9.2f} {sec / base:7.2f} {'' if dive is None else f'{dive:7.0f}'}")
+        print(f"median of {args.repeats} runs; ratios to 'render portofino'; dive s: CPU for the whole preset")
+        print(f"{'':28s} {'frames':>6s} {'wall ms':>8s} {'x base':>7s} {'CPU ms':>8s} {'x base':>7s} {'dive s':>7s}")
+        for label, n, (wall, cpu), dive in rows:
+            print(f"{label:28s} {n:6d} {wall * 1e3:8.2f} {wall / base[0]:7.2f} {cpu * 1e3:8.2f} {cpu / base[1]:7.2f} "
+                  f"{'' if dive is None else f'{dive:7.0f}'}")
         if args.full:
             out = root / "full"
             t0 = time.perf_counter()

@@ -144,6 +144,9 @@ _RELIEF_12CM = ReliefParams(ripple_height_m=0.005, stone_height_ratio=0.6, ledge
                             ledge_width_m=0.03, undulation_m=0.008)
 _BOULDERS = TextureParams(boulder_density_per_m2=1.5, boulder_radius_mm=70.0)
 _DEG = float(np.deg2rad(1.0))
+# A 1 mm texture for the 2 m altitude presets: a canvas (up to 4096 texels, 4 m) spans up to 9 x 9
+# chunks of 0.512 m, so the chunk cache holds 100 (80 MB), not to regenerate chunks between canvases.
+_MM_TEXTURE = TextureParams(texel_mm=1.0, cache_chunks=100)
 # The photo is 2.29 m (east) x 2.13 m (north) at 1 mm/px: lanes within +-0.65 m north, +-0.7 m east
 # keep the footprint (half-diagonal 0.28 m at 1.31 m) and the cross-track error on it, with ~5 cm to spare.
 _PHOTO_GRID = GridPattern(
@@ -210,7 +213,7 @@ _NEW: tuple[Scenario, ...] = (
         n_frames=450,
         frame_rate_hz=1.5,
         camera=STILL_CAMERA,
-        texture=TextureParams(texel_mm=1.0),
+        texture=_MM_TEXTURE,
         relief=ReliefParams(ripple_height_m=0.005, stone_height_ratio=0.6, undulation_m=0.01),
         lighting=_STILL_LAMPS,
         sensor=SensorParams(exposure_s=0.002),
@@ -251,7 +254,7 @@ _NEW: tuple[Scenario, ...] = (
         description="2 m altitude swinging +-30 cm, swell surge/sway/yaw/heave and tether jerks, 0.45 m/s, "
         "1.5 deg roll/pitch, shallow-water caustics, relief, lamps",
         n_frames=1500,
-        texture=TextureParams(texel_mm=1.0),
+        texture=_MM_TEXTURE,
         relief=ReliefParams(ripple_height_m=0.005, stone_height_ratio=0.6, undulation_m=0.01),
         lighting=LightingParams(reference_altitude_m=2.0, caustics=CausticParams(strength=0.2)),
         vehicle=VehicleParams(altitude_m=2.0, altitude_swing_m=0.3, altitude_swing_period_s=40.0,
