@@ -253,6 +253,8 @@ class FrameRenderer:
         self._xn = ((coarse[:, 0] - camera.cx_px) / camera.fx_px).reshape(cu.shape).astype(np.float32)
         self._yn = ((coarse[:, 1] - camera.cy_px) / camera.fy_px).reshape(cu.shape).astype(np.float32)
         self._vignette_c = (1.0 + self._xn**2 + self._yn**2) ** np.float32(-0.5 * self.sensor.vignetting_power)
+        r2_c = ((self._xn - ox * half_x) ** 2 + (self._yn - oy * half_y) ** 2) / (half_x**2 + half_y**2)
+        self._haze_pattern_c = np.sqrt(self.sensor.light_corner_ratio**r2_c).astype(np.float32)  # as the plane path
         self._row_frac = ((pos_v - 0.5 * (h - 1)) / max(h - 1, 1))[:, None]
         self._level_untilted: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._e_ref = reference_irradiance(lighting) if lighting is not None else 1.0
@@ -398,8 +400,12 @@ class FrameRenderer:
         return big[s : s + cam.height_px, s : s + cam.width_px]
 
     # ------------------------------------------------------------------ radiometry
-    def _lamp_gain(self, world: World, pose: Pose, hits: _Hits, t_s: float) -> np.ndarray:
-        """(H, W, 3) float32 gain (DN per DN of albedo, as the plane path's) under the vehicle's lamps."""
+    def _lamp_gain(self, world: World, pose: Pose, hits: _Hits, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """(gain, haze), (H, W, 3) float32 each, under the vehicle's lamps.
+
+        The gain is DN per DN of albedo (as the plane path's), the haze the backscatter added
+        over the range of each ray to the seabed (the plane path's model, with the relief's ranges).
+        """
         lp, wp, sp = self.lighting, self.water, self.sensor
         t, ax, ay = hits.depth_m, hits.ax, hits.ay
         px, py = t * ax, t * ay
@@ -431,7 +437,10 @@ class FrameRenderer:
             sun = self._caustics(world, hits, t_s) * (np.float32(sp.exposure_gain) * self._vignette_c)
             chans = [ch + np.float32(k) * sun * np.exp(np.float32(-a) * r_cam)
                      for ch, k, a in zip(chans, lp.caustics.rgb, wp.attenuation_per_m)]
-        return self.upsample(cv2.merge(chans))
+        veil = (np.float32(255.0 * sp.exposure_gain) * self._haze_pattern_c
+                * (1.0 - np.exp(np.float32(-wp.backscatter_per_m) * r_cam)))
+        haze = [np.float32(b) * veil for b in wp.backscatter_rgb]
+        return self.upsample(cv2.merge(chans)), self.upsample(cv2.merge(haze))
 
     def _lamp_visibility(self, world: World, pose: Pose, hits: _Hits, vec) -> np.ndarray:
         """(H, W) float32 in [0, 1]: how much of one lamp reaches each hit past the relief (soft cast shadow).
@@ -665,11 +674,11 @@ class FrameRenderer:
         """(H, W, 3) float32 radiance on the ray-cast path: relief, vehicle lamps, rolling shutter."""
         hits = self._cast_rays(world, pose, velocity_mps, yaw_rate_radps)
         if self.lighting is not None:
-            gain = self._lamp_gain(world, pose, hits, t_s)
+            gain, haze = self._lamp_gain(world, pose, hits, t_s)
+            has_haze = any(b > 0 for b in self.water.backscatter_rgb)
         else:
-            gain = self._radiometry(pose.altitude_m)[0]
+            gain, haze, has_haze = self._radiometry(pose.altitude_m)
         img = self._blur_in_water(cv2.multiply(hits.albedo, gain, dtype=cv2.CV_32F), pose, velocity_mps)
-        _, haze, has_haze = self._radiometry(pose.altitude_m)
         return cv2.add(img, haze) if has_haze else img
 
     def _lens_psf(self, img: np.ndarray) -> np.ndarray:
