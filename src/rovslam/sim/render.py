@@ -18,16 +18,17 @@ the laser spots (saturated red discs with a halo and speckle); shot and read noi
 
 Relief (a world with a :mod:`~rovslam.sim.relief` height field), lamps on the vehicle
 (:class:`~rovslam.sim.lighting.LightingParams`) and rolling shutter take the ray-cast path
-instead of the homography: every pixel's ray ``C + t D`` (camera centre C, world direction
-D per unit of depth below the camera, t the depth) is intersected with the relief by the
-fixed-point iteration ``t <- Z - h(C + t D)`` (``RAY_ITERATIONS`` steps, each one
-``cv2.remap`` of the height window). The error shrinks by the factor ``|grad h . D|`` per
-step: under 0.2 for the slopes (< 3) and fields of view (< +-12 degrees) of the presets,
-so four steps leave less than a hundredth of a pixel. The albedo is then sampled where the
-rays land, the relief's slopes give the normals for the lamps, and a seabed point ``h``
-above the mean plane is seen where a pinhole camera at ``Z - h`` puts it: a 10 cm stone
-seen from 1.31 m moves 8 % faster across the image than the sand beside it. The lasers
-hit the relief too (the same iteration per beam).
+instead of the homography: every ray ``C + t D`` (camera centre C, world direction D per
+unit of depth below the camera, t the depth) is intersected with the relief by Newton steps
+on ``t = Z - h(C + t D)`` (``RAY_ITERATIONS`` of them, each one ``cv2.remap`` of the
+window of heights and slopes). With slopes under about 3 and fields of view within +-12
+degrees the ray meets the relief once and ``1 + grad h . D`` stays well above 0, so three
+steps leave far less than a hundredth of a pixel. The rays are cast on a grid of every
+``ray_step_px(camera)``-th pixel and interpolated (the depth of the hits is smooth at that
+scale); the albedo is sampled at every pixel where its ray lands, the relief's slopes give
+the normals for the lamps, and a seabed point ``h`` above the mean plane is seen where a
+pinhole camera at ``Z - h`` puts it: a 10 cm stone seen from 1.31 m moves 8 % faster
+across the image than the sand beside it. The lasers hit the relief too (Newton per beam).
 
 Everything that does not change from frame to frame (pixel grids, undistortion, vignetting
 and lamp maps, the attenuation and haze maps per centimetre of altitude) is computed once
@@ -541,7 +542,7 @@ class FrameRenderer:
         """((N, 2) pixels (u, v), (N,) path length m, (N,) depth of the hit below the camera m) per laser.
 
         Flat seabed: the beam meets the plane ``altitude_m`` below the camera. With relief:
-        the fixed point of ``t <- (Z - h(hit(t)) - o_z) / d_z`` (beam origin o, direction d).
+        the root of ``o_z + t d_z = Z - h(hit(t))`` (beam origin o, direction d; Newton steps).
         """
         if not lasers:
             return np.zeros((0, 2)), np.zeros(0), np.zeros(0)

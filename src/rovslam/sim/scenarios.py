@@ -140,8 +140,9 @@ _ROUGH = Scenario(
 
 
 # ------------------------------------------------------------------ issue 9: as hard as the real seabed
-_RELIEF_12CM = ReliefParams(ripple_height_m=0.005, stone_height_ratio=0.6, ledge_height_m=0.04,
-                            ledge_width_m=0.03, undulation_m=0.008)
+# (the ledge's face, 5 cm over 2.5 cm, is steep enough for the lamps to cast a shadow below it)
+_RELIEF_12CM = ReliefParams(ripple_height_m=0.005, stone_height_ratio=0.6, ledge_height_m=0.05,
+                            ledge_width_m=0.025, undulation_m=0.008)
 _BOULDERS = TextureParams(boulder_density_per_m2=1.5, boulder_radius_mm=70.0)
 _DEG = float(np.deg2rad(1.0))
 # A 1 mm texture for the 2 m altitude presets: a canvas (up to 4096 texels, 4 m) spans up to 9 x 9
