@@ -30,7 +30,7 @@ import numpy as np
 
 from rovslam.io.sequence import SequenceInfo, SequenceWriter
 from rovslam.sim import SCENARIOS, frame_pose, frame_rng, renderer_for, simulate, simulate_trajectory
-from rovslam.sim.scenarios import build_world
+from rovslam.sim.scenarios import build_world, survey_area_m
 
 TRIAL_FRAMES = SCENARIOS["portofino"].n_frames
 DEFAULT_PRESETS = ("portofino", "rough-turns", "portofino-relief", "photo-survey", "photo-turns", "hd-survey",
@@ -69,6 +69,7 @@ def bench_render(name: str, n: int) -> tuple[float, float]:
     sc = SCENARIOS[name]
     traj = simulate_trajectory(sc.vehicle, sc.grid, n, sc.frame_rate_hz, seed=0)
     world, _ = build_world(sc, 0, grow_m=float(np.max(np.hypot(traj.x_m, traj.y_m))) + 0.05)
+    world.area_m = survey_area_m(sc, traj)  # as simulate does
     renderer = renderer_for(sc.camera, sc.water, sc.sensor, sc.spots, sc.lighting)
 
     def frame(k: int) -> np.ndarray:

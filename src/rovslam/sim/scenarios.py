@@ -145,9 +145,10 @@ _RELIEF_12CM = ReliefParams(ripple_height_m=0.005, stone_height_ratio=0.6, ledge
                             ledge_width_m=0.025, undulation_m=0.008)
 _BOULDERS = TextureParams(boulder_density_per_m2=1.5, boulder_radius_mm=70.0)
 _DEG = float(np.deg2rad(1.0))
-# A 1 mm texture for the 2 m altitude presets: a canvas (up to 4096 texels, 4 m) spans up to 9 x 9
-# chunks of 0.512 m, so the chunk cache holds 100 (80 MB), not to regenerate chunks between canvases.
+# Coarser textures for the 2 m altitude presets (pixels of 0.8 to 2 mm): a canvas (at most 4096
+# texels) then holds the whole survey; the chunk cache holds 100 chunks (80 MB), all a canvas spans.
 _MM_TEXTURE = TextureParams(texel_mm=1.0, cache_chunks=100)
+_SWELL_TEXTURE = TextureParams(texel_mm=1.25, cache_chunks=100)
 # The photo is 2.29 m (east) x 2.13 m (north) at 1 mm/px: lanes within +-0.65 m north, +-0.7 m east
 # keep the footprint (half-diagonal 0.28 m at 1.31 m) and the cross-track error on it, with ~5 cm to spare.
 _PHOTO_GRID = GridPattern(
@@ -255,7 +256,7 @@ _NEW: tuple[Scenario, ...] = (
         description="2 m altitude swinging +-30 cm, swell surge/sway/yaw/heave and tether jerks, 0.45 m/s, "
         "1.5 deg roll/pitch, shallow-water caustics, relief, lamps",
         n_frames=1500,
-        texture=_MM_TEXTURE,
+        texture=_SWELL_TEXTURE,
         relief=ReliefParams(ripple_height_m=0.005, stone_height_ratio=0.6, undulation_m=0.01),
         lighting=LightingParams(reference_altitude_m=2.0, caustics=CausticParams(strength=0.2)),
         vehicle=VehicleParams(altitude_m=2.0, altitude_swing_m=0.3, altitude_swing_period_s=40.0,
@@ -381,6 +382,21 @@ def _photo_seabed(path: str, mtime_ns: int, mm_per_px: float, relief: PhotoRelie
     return seabed, None if relief is None else relief_from_photo(seabed, relief)
 
 
+def survey_area_m(sc: Scenario, traj: Trajectory, margin_m: float = 0.05) -> tuple[float, float, float, float]:
+    """(north min, north max, east min, east max) of the seabed the camera can see along ``traj``.
+
+    The camera's footprint radius at the highest altitude (plus the deepest relief a preset
+    has, 0.1 m, and the largest tilt) around every position, and ``margin_m``.
+    """
+    cam = sc.camera
+    half_diag = float(np.hypot(max(cam.cx_px, cam.width_px - cam.cx_px) / cam.fx_px,
+                               max(cam.cy_px, cam.height_px - cam.cy_px) / cam.fy_px))
+    tilt = float(np.max(np.abs(np.concatenate([traj.roll_rad, traj.pitch_rad])), initial=0.0))
+    reach = (float(np.max(traj.altitude_m)) + 0.1) * np.tan(np.arctan(half_diag) + tilt) + margin_m
+    return (float(traj.x_m.min()) - reach, float(traj.x_m.max()) + reach,
+            float(traj.y_m.min()) - reach, float(traj.y_m.max()) + reach)
+
+
 def _yaw_rate_radps(traj: Trajectory) -> np.ndarray:
     """(N,) heading rate from the true headings (for the rolling shutter)."""
     if len(traj) < 2:
@@ -422,6 +438,7 @@ def simulate(
     # Size the first canvas to the whole survey, so it is built once (the path is known).
     grow_m = min(1.0, float(np.max(np.hypot(traj.x_m, traj.y_m)))) + 0.05
     world, texture_note = build_world(sc, int(seed), grow_m, texture_path, texture_mm_per_px)
+    world.area_m = survey_area_m(sc, traj)
     relief_m = sonar_m = None
     if world.relief is not None:
         relief_m = heights_at(world.relief, traj.x_m, traj.y_m)

@@ -70,14 +70,16 @@ class World:
     """A seabed (any :class:`~rovslam.sim.texture.TextureSource`), its optional relief, the seed of the water.
 
     ``max_canvas_texels`` bounds a canvas side (memory: side^2 x 3 bytes); ``grow_m`` is the
-    margin added around a frame's footprint when a canvas has to be rebuilt. ``relief``
+    margin added around a frame's footprint when a canvas has to be rebuilt; ``area_m``
+    (north min, north max, east min, east max), when the frames to come are known to stay
+    in it, is what a canvas covers when it fits under the cap (one build per canvas). ``relief``
     (any :class:`~rovslam.sim.relief.ReliefSource`, None: a flat seabed) gives the heights
     the renderer casts its rays onto.
     """
 
     def __init__(
         self, seabed: TextureSource, seed: int = 0, max_canvas_texels: int = 4096, grow_m: float = 0.25,
-        relief: ReliefSource | None = None,
+        relief: ReliefSource | None = None, area_m: tuple[float, float, float, float] | None = None,
     ) -> None:
         if int(seed) < 0:
             raise SimulationError(f"seed must be >= 0, got {seed}")
@@ -92,6 +94,7 @@ class World:
         self.canvas_builds = 0  # how many canvases were built (for benchmarks and tests)
         self.relief = relief
         self._grow_m = float(grow_m)
+        self.area_m = area_m
         self._relief_canvas: ReliefCanvas | None = None
 
     @classmethod
@@ -159,12 +162,22 @@ class World:
                 f"max_canvas_texels={self.max_canvas_texels}; lower the altitude or use a coarser texture"
             )
 
-    def _bounds(self, need: tuple[int, int, int, int], grow: int, current: tuple[int, int, int, int] | None):
+    def _bounds(self, need: tuple[int, int, int, int], grow: int, current: tuple[int, int, int, int] | None,
+                texel_m: float):
         """Bounds (r_lo, r_hi, c_lo, c_hi) of a new canvas holding ``need``, grown by ``grow`` texels.
 
-        ``current`` (the current canvas's bounds) is merged in if the union stays under the cap.
+        With ``area_m`` set, the canvas covers that area (and ``need``) when it fits under the
+        cap. Otherwise ``current`` (the current canvas's bounds) is merged in if the union
+        stays under the cap. (Bounds never change a texel's value, only how often canvases
+        are built.)
         """
         r_lo, r_hi, c_lo, c_hi = need[0] - grow, need[1] + grow, need[2] - grow, need[3] + grow
+        if self.area_m is not None:
+            x0, x1, y0, y1 = self.area_m
+            a = _align(min(int(np.floor(x0 / texel_m)), need[0]), max(int(np.ceil(x1 / texel_m)), need[1]),
+                       min(int(np.floor(y0 / texel_m)), need[2]), max(int(np.ceil(y1 / texel_m)), need[3]))
+            if max(a[1] - a[0], a[3] - a[2]) <= self.max_canvas_texels:
+                return a
         if current is not None:  # grow the current canvas if the union stays small enough
             u = (min(r_lo, current[0]), max(r_hi, current[1]), min(c_lo, current[2]), max(c_hi, current[3]))
             if max(u[1] - u[0], u[3] - u[2]) <= self.max_canvas_texels:
@@ -181,7 +194,7 @@ class World:
         if current is not None:
             rows, cols = current.texels.shape[0] * step, current.texels.shape[1] * step
             cur = (current.row0, current.row0 + rows, current.col0, current.col0 + cols)
-        r_lo, r_hi, c_lo, c_hi = self._bounds(need, self._grow_texels, cur)
+        r_lo, r_hi, c_lo, c_hi = self._bounds(need, self._grow_texels, cur, self.texel_m)
         texels = self.seabed.region(r_lo, c_lo, r_hi - r_lo, c_hi - c_lo)
         if level > 0:
             texels = cv2.GaussianBlur(texels, (0, 0), level, borderType=cv2.BORDER_REFLECT)
@@ -210,7 +223,7 @@ class World:
             ):
                 cur_b = None if cur is None else (cur.row0, cur.row0 + rows, cur.col0, cur.col0 + cols)
                 grow = max(1, int(round(self._grow_m / self.relief.texel_m / ALIGN_TEXELS))) * ALIGN_TEXELS
-                cur = self._build_relief(self._bounds(win, grow, cur_b))
+                cur = self._build_relief(self._bounds(win, grow, cur_b, self.relief.texel_m))
                 self._relief_canvas = cur
         r, c = win[0] - cur.row0, win[2] - cur.col0
         return ReliefCanvas(cur.relief[r : r + win[1] - win[0], c : c + win[3] - win[2]], win[0], win[2])
