@@ -112,7 +112,11 @@ class MemorySource:
 
 
 class ReplaySource:
-    """A sequence read ``times`` times in a row, times and indices continuing (a dive ``times`` as long)."""
+    """A sequence flown ``times`` times, forth and back in turn, times and indices continuing.
+
+    Odd passes read the frames in reverse order (the vehicle flies the survey backwards), so the
+    images stay continuous from one pass to the next: a dive ``times`` as long over the same area.
+    """
 
     def __init__(self, seq: Any, times: int) -> None:
         self.seq, self.times = seq, int(times)
@@ -122,7 +126,8 @@ class ReplaySource:
         self.warnings: list[str] = []
         self.left_out = 0
         rows = seq.rows
-        self._period_s = rows[-1].t_s - rows[0].t_s + (rows[1].t_s - rows[0].t_s if len(rows) > 1 else 1.0)
+        self._t0, self._t1 = rows[0].t_s, rows[-1].t_s
+        self._dt = rows[1].t_s - rows[0].t_s if len(rows) > 1 else 1.0
 
     def __len__(self) -> int:
         return len(self.seq) * self.times
@@ -130,13 +135,23 @@ class ReplaySource:
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Any]:
         n = len(self.seq)
         stop = len(self) if stop is None else min(stop, len(self))
+        period = self._t1 - self._t0 + self._dt
         for k in range(self.times):
             if k * n >= stop:
                 return
-            for f in self.seq.frames(stop=min(n, stop - k * n)):
-                if f.index + k * n >= start:
-                    yield dataclasses.replace(f, index=f.index + k * n, t_s=f.t_s + k * self._period_s)
+            backwards = k % 2 == 1
+            passed = self.seq.frames() if not backwards else self._backwards()
+            for j, f in enumerate(passed):
+                index = k * n + j
+                if index >= stop:
+                    break
+                if index >= start:
+                    t = (self._t1 - f.t_s if backwards else f.t_s - self._t0) + k * period + self._t0
+                    yield dataclasses.replace(f, index=index, t_s=t)
 
+    def _backwards(self) -> Iterator[Any]:
+        for j in range(len(self.seq) - 1, -1, -1):  # one frame at a time: nothing held
+            yield from self.seq.frames(j, j + 1, prefetch=0)
 
 @contextmanager
 def source_override(source: Any) -> Iterator[None]:

@@ -22,7 +22,8 @@ So "local variance >= 12.3" means: over the template's window, the band-passed 8
 channel has a standard deviation of at least 3.5 grey levels.
 
 All functions are vectorised OpenCV calls on float32 images; the Gaussian kernels are
-computed once per sigma and cached.
+computed once per sigma and cached, and the intermediate images are combined in place (each
+call allocates only the arrays it returns: every image-sized allocation costs page faults).
 """
 
 from __future__ import annotations
@@ -152,7 +153,7 @@ def bandpass(channel_img: np.ndarray, sigma_fine_px: float, sigma_coarse_px: flo
         fine = img
     kc = gaussian_kernel(float(sigma_coarse_px))
     coarse = cv2.sepFilter2D(img, cv2.CV_32F, kc, kc)
-    return cv2.subtract(fine, coarse)
+    return cv2.subtract(fine, coarse, dst=coarse)  # in place: one image-sized array fewer per frame
 
 
 def local_variance(img: np.ndarray, size_px: int) -> np.ndarray:
@@ -184,7 +185,9 @@ def local_variance(img: np.ndarray, size_px: int) -> np.ndarray:
         )
     ksize = (size, size)
     mean = cv2.boxFilter(arr, cv2.CV_32F, ksize)
-    mean_sq = cv2.sqrBoxFilter(arr, cv2.CV_32F, ksize)
-    var = cv2.subtract(mean_sq, cv2.multiply(mean, mean))
+    var = cv2.sqrBoxFilter(arr, cv2.CV_32F, ksize)
+    # In place (the same arithmetic, no new image-sized arrays): var = max(E[x^2] - E[x]^2, 0);
     # float32 cancellation can leave tiny negatives on flat areas.
-    return cv2.max(var, 0.0)
+    cv2.multiply(mean, mean, dst=mean)
+    cv2.subtract(var, mean, dst=var)
+    return cv2.max(var, 0.0, dst=var)
