@@ -137,3 +137,31 @@ def test_keep_freed_memory_where_glibc_is():
 
     glibc = sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc"
     assert keep_freed_memory() is glibc
+
+
+@pytest.mark.parametrize("channel", ["grey", "green", "blue"])
+@pytest.mark.parametrize("despeckle_px", [0, 1, 3, 5])
+def test_despeckled_channel_is_the_opening_of_the_float_channel(channel, despeckle_px):
+    from rovslam.vision.filters import despeckled_channel, remove_specks, template_channel
+
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (61, 83, 3), dtype=np.uint8)
+    img[rng.random((61, 83)) < 0.02] = 255  # bright specks
+    want = remove_specks(template_channel(img, channel), despeckle_px)
+    got = despeckled_channel(img, channel, despeckle_px)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(despeckled_channel(img[:, :, 1], channel, despeckle_px),
+                                  remove_specks(template_channel(img[:, :, 1], channel), despeckle_px))
+
+
+def test_despeckled_channel_refuses_what_template_channel_refuses():
+    from rovslam.errors import InvalidArgumentError
+    from rovslam.vision.filters import despeckled_channel
+
+    with pytest.raises(InvalidArgumentError, match="red is reserved"):
+        despeckled_channel(np.zeros((8, 8, 3), np.uint8), "red", 3)
+    with pytest.raises(InvalidArgumentError, match="8-bit"):
+        despeckled_channel(np.zeros((8, 8, 3), np.float32), "grey", 3)
+    with pytest.raises(InvalidArgumentError, match="shape"):
+        despeckled_channel(np.zeros((8, 8, 4), np.uint8), "grey", 3)
