@@ -1,6 +1,8 @@
 """Motion-from-tokens speed estimator: geometry, mirrored motion, tilt, robustness, Q, gaps."""
 
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -162,15 +164,18 @@ def test_covariance_floors_and_altitude_scale_term():
     uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])
     cfg = OdometryConfig()
     m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, config=cfg)
-    # Perfect tokens: per-token variance floored at (0.15 px * Z/f / dt)^2, /8 -> sigma 3.2e-4 m/s,
-    # below the 5e-4 m/s floor, so Q = floor^2 I.
-    np.testing.assert_allclose(m.cov_mps2, np.eye(2) * 0.0005**2, rtol=1e-9, atol=1e-18)
+    # Perfect tokens: each token's variance floored at (0.15 px * Z/f / dt)^2, /8, plus the error all
+    # tokens share (common_sigma_px, 0.15 px, not divided): Q = 1.125 (0.15 Z/f/dt)^2 I, above the floor.
+    token_var = (0.15 * Z / 1075.0 / DT) ** 2
+    np.testing.assert_allclose(m.cov_mps2, np.eye(2) * token_var * (1 / 8 + 1), rtol=1e-9, atol=1e-18)
     # Altitude sigma 5 cm at Z = 1.31 m: a scale error of 0.1 * 0.05 / 1.31 = 3.82e-3 m/s along the speed.
     m2 = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, altitude_sigma_m=0.05, config=cfg)
-    expected_surge_var = (0.1 * 0.05 / Z) ** 2 + (0.15 * Z / 1075.0 / DT) ** 2 / 8
-    assert m2.cov_mps2[0, 0] == pytest.approx(expected_surge_var, rel=1e-9)
-    assert m2.cov_mps2[1, 1] == pytest.approx(0.0005**2, rel=1e-9)
+    assert m2.cov_mps2[0, 0] == pytest.approx((0.1 * 0.05 / Z) ** 2 + token_var * 1.125, rel=1e-9)
+    assert m2.cov_mps2[1, 1] == pytest.approx(token_var * 1.125, rel=1e-9)
     assert m2.cov_mps2[0, 1] == pytest.approx(0.0, abs=1e-15)
+    # Without the shared term, the floor of the speed's sigma shows.
+    m3 = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, config=dataclasses.replace(cfg, common_sigma_px=0.0))
+    np.testing.assert_allclose(m3.cov_mps2, np.eye(2) * 0.0005**2, rtol=1e-9, atol=1e-18)
 
 
 def test_covariance_matches_the_scatter_of_the_estimate():
@@ -180,18 +185,20 @@ def test_covariance_matches_the_scatter_of_the_estimate():
     trials = 600
     est = np.empty((trials, 2))
     covs = np.empty((trials, 2, 2))
-    cfg = OdometryConfig(outlier_threshold_px=3.0)
+    common_px = 0.2  # an error all tokens of a step share (e.g. a compression artefact): their scatter cannot show it
+    cfg = OdometryConfig(outlier_threshold_px=3.0, common_sigma_px=common_px)
     for t in range(trials):
         uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.005])
         uv0 = uv0 + rng.normal(0.0, sigma_px, uv0.shape)
-        uv1 = uv1 + rng.normal(0.0, sigma_px, uv1.shape)
+        uv1 = uv1 + rng.normal(0.0, sigma_px, uv1.shape) + rng.normal(0.0, common_px, 2)
         m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, config=cfg)
         est[t] = m.speed_mps
         covs[t] = m.cov_mps2
     emp = np.var(est - [0.1, 0.025], axis=0)
     pred = covs.mean(axis=0).diagonal()
-    # Per-token displacement sigma sqrt(2)*0.3 px -> 2.59e-3 m/s, /sqrt(8) -> 9.1e-4 m/s.
-    np.testing.assert_allclose(np.sqrt(emp), 9.14e-4, rtol=0.1)
+    # Per-token displacement sigma sqrt(2)*0.3 px -> 2.59e-3 m/s, /sqrt(8) -> 9.1e-4 m/s; with the shared
+    # 0.2 px (1.22e-3 m/s): 1.52e-3 m/s.
+    np.testing.assert_allclose(np.sqrt(emp), 1.52e-3, rtol=0.1)
     ratio = emp / pred
     assert np.all((ratio > 0.8) & (ratio < 1.25)), ratio
 
@@ -264,7 +271,7 @@ def test_held_speed_drives_the_filter_through_a_gap():
 
     rng = np.random.default_rng(18)
     est = SpeedEstimator(OdometryConfig(gap_speed_sigma_mps=0.02))
-    ekf = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0))
+    ekf = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0, landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0))
     empty = np.zeros((0, 2))
     uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])
     growth = []

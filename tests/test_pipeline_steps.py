@@ -110,7 +110,10 @@ def test_a_laser_spot_inside_the_landmark_template_refuses_the_match(spectrum, m
     control = run(with_spot=False)
     assert [(o.landmark_id, o.kind, o.accepted) for o in control.observations] == [(0, "track", True)]
     spotted = run(with_spot=True)
-    assert not [o for o in spotted.observations if o.kind == "track"]
+    # Found by the correlation, refused before the filter sees it, and the reason kept.
+    assert [(o.landmark_id, o.kind, o.accepted, o.reason) for o in spotted.observations if o.kind == "track"] == [
+        (0, "track", False, "laser spot inside the template")
+    ]
 
 
 def test_landmark_boxes_are_masked_before_the_speed_tokens_are_chosen(spectrum):

@@ -97,7 +97,7 @@ def simulate(
     out: Path = typer.Option(Path("sim-seq"), "--out", "-o", help="Sequence folder to write."),
     frames: Optional[int] = typer.Option(None, help="Number of frames (default: the scenario's)."),
     seed: int = typer.Option(0, help="Random seed; the same seed writes byte-identical files."),
-    image_format: str = typer.Option("png", "--format", help="png or jpg."),
+    image_format: Optional[str] = typer.Option(None, "--format", help="png or jpg (default: the scenario's)."),
     texture: Optional[Path] = typer.Option(None, help="Seabed photo/orthomosaic to use instead of the procedural texture."),
     texture_mm_per_px: Optional[float] = typer.Option(None, help="Scale of --texture (millimetres per pixel)."),
     list_scenarios: bool = typer.Option(False, "--list", help="List the scenarios and exit."),
@@ -109,9 +109,9 @@ def simulate(
 
     if list_scenarios:
         for name, sc in SCENARIOS.items():
-            typer.echo(f"{name:20s} {getattr(sc, 'description', '')}")
+            typer.echo(f"{name:18s} {sc.summary_line()}")
         return
-    if image_format not in ("png", "jpg"):
+    if image_format is not None and image_format not in ("png", "jpg"):
         raise SimulationError(f"--format must be png or jpg, got {image_format!r}")
     if frames is not None and frames <= 0:
         raise SimulationError(f"--frames must be a positive number of frames, got {frames}")

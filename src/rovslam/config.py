@@ -119,6 +119,7 @@ class SpeedTemplateConfig(_Checked):
     search_radius_px: int = _num(8, ge=1)  # around the position predicted from the last speed
     border_px: int = _num(4, ge=0)  # extra margin from the image border
     min_spacing_px: int = _num(40, ge=0)  # least distance between two tokens (u or v); 16 = just non-overlapping
+    max_self_similarity: float = _num(0.9, gt=0, le=1)  # a token that looks like its neighbours is not chosen (1: off)
 
 
 @dataclass(frozen=True)
@@ -132,6 +133,39 @@ class LandmarkTemplateConfig(_Checked):
     max_search_radius_px: int = _num(60, ge=1)
     border_px: int = _num(8, ge=0)
     inhibit_margin_px: int = _num(4, ge=0)  # speed templates keep this far from landmark templates
+
+
+@dataclass(frozen=True)
+class AssociationConfig(_Checked):
+    """Which landmark matches the filter believes (beyond the paper, which takes every match in its gate).
+
+    * Unambiguous landmarks: a candidate template whose autocorrelation within
+      ``similarity_radius_px`` has another peak above ``max_self_similarity`` is never made
+      a landmark; among the ``candidates`` strongest, the most distinctive is taken.
+    * Tentative landmarks: a new landmark corrects only itself (its position and height)
+      until it has been seen consistently ``confirm_observations`` times.
+    * Joint compatibility: the landmarks matched in one frame are tested together (their
+      innovations share the vehicle's error); the one that does not fit is refused.
+    * Recovery: correct-looking matches (correlation >= ``strong_correlation``) refused by the
+      innovation test ``recovery_after_frames`` frames in a row, telling the same vehicle
+      offset, mean the filter is wrong, not the matches: the vehicle covariance is inflated
+      by that offset and they are admitted. Expected landmarks not found for
+      ``wide_search_after_frames`` frames are searched for within ``wide_search_radius_px``.
+    """
+
+    TABLE: ClassVar[str] = "association"
+    max_self_similarity: float = _num(0.8, gt=0, le=1)  # 1: no test (the paper)
+    similarity_radius_px: int = _num(24, ge=1)
+    candidates: int = _num(5, ge=1)
+    confirm_observations: int = _num(3, ge=0)  # 0: a landmark corrects the vehicle from its first re-observation
+    joint_compatibility: bool = True
+    joint_quantile: float = _num(0.999, gt=0, le=1)  # chi-square quantile of the joint test (2K dof)
+    recovery: bool = True
+    strong_correlation: float = _num(0.95, gt=0, le=1)
+    recovery_after_frames: int = _num(3, ge=1)
+    recovery_offset_agreement_m: float = _num(0.01, gt=0)  # the refused matches' vehicle offsets agree within this
+    wide_search_after_frames: int = _num(5, ge=1)
+    wide_search_radius_px: int = _num(150, ge=1)
 
 
 @dataclass(frozen=True)
@@ -183,7 +217,8 @@ class OdometryConfig(_Checked):
     outlier_threshold_px: float = _num(1.0, gt=0)  # residual beyond which a token is an outlier
     min_inliers: int = _num(2, ge=1)
     min_speed_sigma_mps: float = _num(0.0005, gt=0)  # floor of the speed standard deviation
-    token_sigma_px: float = _num(0.15, gt=0)  # one token's displacement noise
+    token_sigma_px: float = _num(0.15, gt=0)  # one token's displacement noise (floor)
+    common_sigma_px: float = _num(0.15, ge=0)  # an error all tokens of a step share (compression, lighting): not / n
     gap_speed_sigma_mps: float = _num(0.02, ge=0)  # added per second without tokens
     initial_speed_sigma_mps: float = _num(0.2, gt=0)  # speed sigma held before the first good measurement
     max_accel_mps2: float = _num(0.0, ge=0)  # > 0: a speed changing faster than this (+3 sigma) is a wrong consensus (0: off)
@@ -214,6 +249,9 @@ class SlamConfig(_Checked):
     heading_bias_sigma_rad: float = _num(0.0087, ge=0)  # > 0: estimate the slow compass error in the state (0: paper)
     heading_bias_tau_s: float = _num(120.0, gt=0)  # its correlation time (Ornstein-Uhlenbeck)
     backend: Backend = "ekf"  # the online estimate: "ekf" (the paper's) or "isam2" (GTSAM, [smoother])
+    landmark_height_sigma_m: float = _num(0.03, ge=0)  # > 0: each landmark's height in the state, this prior (0: flat seabed, the paper)
+    altitude_bias_sigma_m: float = _num(0.01, ge=0)  # > 0: the measured altitude's offset from the seabed datum in the state
+    altitude_bias_tau_s: float = _num(1.0, gt=0)  # its correlation time (the relief passing under the lasers)
 
 
 RobustLoss = Literal["huber", "cauchy", "none"]
@@ -283,6 +321,7 @@ class RunConfig:
     speed_templates: SpeedTemplateConfig = field(default_factory=SpeedTemplateConfig)
     landmark_templates: LandmarkTemplateConfig = field(default_factory=LandmarkTemplateConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    association: AssociationConfig = field(default_factory=AssociationConfig)
     laser: LaserConfig = field(default_factory=LaserConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     slam: SlamConfig = field(default_factory=SlamConfig)

@@ -17,7 +17,7 @@ import numpy as np
 from rovslam.camera import wrap_angle
 from rovslam.vision.templates import Template
 
-__all__ = ["LandmarkRecord", "oriented_patch", "wide_patch_size_px"]
+__all__ = ["LandmarkRecord", "most_distinctive", "oriented_patch", "wide_patch_size_px"]
 
 # Landmark templates are re-oriented when the heading differs from the one they were cut at
 # by more than this.
@@ -38,6 +38,21 @@ class LandmarkRecord:
     observations: int = 0
     rejected: int = 0
     last_seen_t_s: float = math.nan
+    self_similarity: float = math.nan  # the template's highest other autocorrelation peak when it was chosen
+    confirmed: bool = False  # seen again consistently: its observations correct the vehicle
+    dead: bool = False  # refused while tentative: never searched again
+
+    def observed(self, accepted: bool, t_s: float, confirm_after: int) -> None:
+        """Count one observation; a tentative landmark is confirmed after ``confirm_after`` consistent ones."""
+        if accepted:
+            self.observations += 1
+            self.last_seen_t_s = t_s
+            if not self.confirmed and self.observations > confirm_after:  # the first one is its initialisation
+                self.confirmed = True
+        else:
+            self.rejected += 1
+            if not self.confirmed and self.rejected >= 2:
+                self.dead = True
 
     @classmethod
     def cut(
@@ -50,6 +65,7 @@ class LandmarkRecord:
         return cls(
             landmark_id, template.patch, float(template.local_variance), t_s, frame, heading_rad=heading_rad,
             patch_wide=cv2.getRectSubPix(track_img, (wide, wide), centre), observations=1, last_seen_t_s=t_s,
+            self_similarity=float(template.self_similarity),
         )
 
 
@@ -71,3 +87,19 @@ def oriented_patch(record: LandmarkRecord, heading_rad: float) -> np.ndarray:
     turned = cv2.warpAffine(record.patch_wide, rot, (n, n), flags=cv2.INTER_LINEAR)
     k = (n - record.patch.shape[0]) // 2
     return turned[k : k + record.patch.shape[0], k : k + record.patch.shape[1]]
+
+
+def most_distinctive(candidates: list[Template]) -> Template | None:
+    """The candidate to make a landmark: strong (local variance) and unlike its neighbourhood.
+
+    Scored ``local_variance * (1 - self_similarity)``: of two equally contrasted windows, the
+    one whose autocorrelation has the lower second peak is the safer to recognise again.
+    """
+    if not candidates:
+        return None
+
+    def score(t: Template) -> float:
+        ss = t.self_similarity if math.isfinite(t.self_similarity) else 0.0
+        return t.local_variance * (1.0 - max(ss, 0.0))
+
+    return max(candidates, key=score)

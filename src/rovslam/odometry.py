@@ -242,7 +242,9 @@ def speed_from_tokens(
     speed = d / dt
     if float(np.hypot(speed[0], speed[1])) > config.max_speed_mps:
         return _failure(n_tokens, "implausible speed", config)
-    cov = fit.cov_d_m2 / dt**2
+    # The tokens' scatter shows their independent errors; an error they all share (block artefacts of
+    # a compressed video, a lighting change, interpolation bias) it cannot show: a floor per step.
+    cov = fit.cov_d_m2 / dt**2 + np.eye(2) * (config.common_sigma_px / px_per_m / dt) ** 2
     # Relief parallax: the tokens and the altitude see the seabed at different heights.
     n_altitude = max(int(altitude_samples), 1)
     cov = cov + config.relief_scale_gain**2 * max(relief_var, 0.0) * (1.0 / n_inl + 1.0 / n_altitude) * np.outer(

@@ -29,11 +29,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rovslam.altitude import AltitudeFilter
+from rovslam.association import REASON_GATE, REASON_JOINT, REASON_LASER, RecoveryEvent, RecoveryMonitor, jointly_compatible
 from rovslam.camera import ground_to_pixels, mn_to_ground, pixels_to_ground, rot2
 from rovslam.config import RunConfig
 from rovslam.heading import HeadingEstimate, HeadingPrior, HeadingTracker
 from rovslam.io.sequence import Frame, SequenceInfo
-from rovslam.landmarks import LandmarkRecord, oriented_patch
+from rovslam.landmarks import LandmarkRecord, most_distinctive, oriented_patch
 from rovslam.odometry import SpeedEstimator, SpeedMeasurement
 from rovslam.slam import EkfSlam
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
@@ -65,6 +66,8 @@ class Observation:
     score: float
     nis: float
     accepted: bool
+    reason: str = ""  # why it was refused ("" when accepted)
+    tentative: bool = False  # a landmark not yet confirmed: it corrected only itself
 
 
 @dataclass(frozen=True)
@@ -75,6 +78,7 @@ class TrackedLandmark:
     uv_px: np.ndarray  # (2,) template centre in the image
     mn_px: np.ndarray  # (2,) level-equivalent (m, n) of (3)
     score: float
+    refused: str = ""  # refused before the filter saw it (a laser spot inside the template)
 
 
 @dataclass(frozen=True)
@@ -110,6 +114,7 @@ class FrameResult:
     skipped_reason: str | None = None
     token_uv_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (K, 2) tracked tokens
     measurements: FrameMeasurements | None = None  # what this frame measured, as both back ends consume it
+    recovery: RecoveryEvent | None = None  # the filter re-admitted to its map in this frame
 
 
 class SlamPipeline:
@@ -132,6 +137,7 @@ class SlamPipeline:
 
             self.smoother = Isam2Smoother(config.smoother)
         self.landmarks: list[LandmarkRecord] = []
+        self.recovery = RecoveryMonitor(config.association)
         self.skipped: list[tuple[int, float, str]] = []
         self._prev_t_s: float | None = None
         self._prev_altitude_m: float | None = None
@@ -170,7 +176,9 @@ class SlamPipeline:
         heading = self._fuse_heading(prior, speed)
         if self._n == 0 and frame.has_attitude:
             self._start_filter(alt.altitude_m)
-        observations = self._predict_and_update(speed, tracked, alt, prior, heading, dt_s, frame.t_s)  # step 6
+        n_events = len(self.recovery.events)
+        observations = self._predict_and_update(speed, tracked, alt, prior, heading, dt_s, frame)  # step 6
+        event = self.recovery.events[-1] if len(self.recovery.events) > n_events else None
         new_id = None
         if new_template is not None:  # step 7
             new_id, init = self._add_landmark(track_img, new_template, alt, att, heading, frame)
@@ -182,6 +190,7 @@ class SlamPipeline:
         return self._result(
             frame, dt_s, heading, alt.altitude_m, speed,
             altitude=alt, tracks=tracks, visible=len(visible), observations=tuple(observations), new_id=new_id,
+            recovery=event,
         )
 
     # ------------------------------------------------------------------ before step 1
@@ -203,7 +212,16 @@ class SlamPipeline:
         if alt.source == "fixed":
             return alt
         z, sigma = self.altitude.update(frame.t_s, alt.altitude_m, alt.sigma_m)
+        if self.ekf.altitude_bias_sigma_m == 0.0:
+            # Without the filter's altitude-offset state b: over relief the lasers (or the sonar) range
+            # to the seabed under their few points, not to the mean seabed; that spread is Z's error too.
+            sigma = math.sqrt(sigma * sigma + self._terrain_sigma_m(z, alt) ** 2)
         return dataclasses.replace(alt, altitude_m=z, sigma_m=sigma)
+
+    def _terrain_sigma_m(self, altitude_m: float, alt: AltitudeEstimate) -> float:
+        """How far the relief under the altimeter's points strays from the mean seabed (from the tokens' parallax)."""
+        samples = max(alt.n_spots, 1) if alt.source.startswith("laser") else 1
+        return self.config.odometry.relief_scale_gain * altitude_m * math.sqrt(self.speed.relief_var / samples)
 
     # ------------------------------------------------------------------ step 2
     def _inhibit_laser_spots(self, alt: AltitudeEstimate) -> np.ndarray:
@@ -234,16 +252,27 @@ class SlamPipeline:
         uv_pred = ground_to_pixels(self.camera, mn_to_ground(mn_pred, z, self.focal_px), z, *att)
         psi_map = self.ekf.map_heading_rad(psi)
         half = lm.size_px / 2.0
+        assoc = self.config.association
+        inside = [k for k, uv in enumerate(uv_pred) if not self.landmarks[int(visible[k])].dead and self._inside(uv, half - 2)]
+        wide = self.recovery.wide_candidates(int(visible[k]) for k in inside if self.landmarks[int(visible[k])].confirmed)
+        # A landmark lost for several frames: a wider window, and only clear, unambiguous matches.
+        strict = dataclasses.replace(self.config.tracker, min_correlation=assoc.strong_correlation,
+                                     max_second_peak_ratio=min(self.config.tracker.max_second_peak_ratio, 0.9))
         tracked = []
-        for i, uv, s in zip(visible, uv_pred, s_pred):
-            if not self._inside(uv, half - 2):
+        for k in inside:
+            i, uv, s = int(visible[k]), uv_pred[k], s_pred[k]
+            rec = self.landmarks[i]
+            if i in wide:
+                m = match_template(track_img, oriented_patch(rec, psi_map), uv, assoc.wide_search_radius_px, strict)
+            else:
+                m = match_template(track_img, oriented_patch(rec, psi_map), uv, self._search_radius_px(s, slack_px),
+                                   self.config.tracker)
+            if not (m.ok and self._inside(m.uv_px, half)):
+                if rec.confirmed:
+                    self.recovery.searched(i, False)
                 continue
-            rec = self.landmarks[int(i)]
-            m = match_template(track_img, oriented_patch(rec, psi_map), uv, self._search_radius_px(s, slack_px),
-                               self.config.tracker)
-            if not m.ok or not self._inside(m.uv_px, half) or self._covers_laser_spot(m.uv_px, alt.spots_uv_px):
-                continue
-            tracked.append(TrackedLandmark(rec, m.uv_px, pixels_to_mn(self.camera, m.uv_px, z, *att)[0], m.score))
+            refused = REASON_LASER if self._covers_laser_spot(m.uv_px, alt.spots_uv_px) else ""
+            tracked.append(TrackedLandmark(rec, m.uv_px, pixels_to_mn(self.camera, m.uv_px, z, *att)[0], m.score, refused))
         return visible, tracked
 
     def _expected_motion(self, prior: HeadingPrior, altitude_m: float, dt_s: float) -> tuple[np.ndarray, float]:
@@ -269,19 +298,27 @@ class SlamPipeline:
     def _choose_new_landmark(
         self, track_img: np.ndarray, mask: np.ndarray, tracked: list[TrackedLandmark]
     ) -> Template | None:
-        """Step 3, new-landmark test (6): the template with the highest local variance, when none is tracked."""
-        if tracked or not self.ekf.may_add_landmark():
+        """Step 3, new-landmark test (6), when none is tracked: a strong template unlike its neighbourhood.
+
+        The paper takes the highest local variance; a template whose autocorrelation within
+        the search region has another high peak (a lattice, ripples, look-alike burrows)
+        would be confused with its neighbour, so it is never chosen, and of the strongest
+        candidates the most distinctive is (:func:`rovslam.landmarks.most_distinctive`).
+        """
+        if any(not t.refused for t in tracked) or not self.ekf.may_add_landmark():
             return None
-        lm = self.config.landmark_templates
+        lm, assoc = self.config.landmark_templates, self.config.association
         cands = extract_templates(
-            track_img, local_variance(track_img, lm.size_px), lm.size_px, 1, lm.min_local_variance, lm.border_px, mask
+            track_img, local_variance(track_img, lm.size_px), lm.size_px, assoc.candidates, lm.min_local_variance,
+            lm.border_px, mask, None, assoc.max_self_similarity if assoc.max_self_similarity < 1.0 else None,
+            assoc.similarity_radius_px,
         )
-        return cands[0] if cands else None
+        return most_distinctive(cands)
 
     # ------------------------------------------------------------------ step 4
     def _inhibit_landmarks(self, mask: np.ndarray, tracked: list[TrackedLandmark], new: Template | None) -> None:
         """Step 4: the speed templates keep away from the tracked and new landmark templates (in place)."""
-        boxes = [t.uv_px for t in tracked] + ([new.centre_uv_px] if new is not None else [])
+        boxes = [t.uv_px for t in tracked if not t.refused] + ([new.centre_uv_px] if new is not None else [])
         if boxes:
             lm = self.config.landmark_templates
             inhibit_boxes(mask, np.asarray(boxes), int(lm.size_px / 2.0) + lm.inhibit_margin_px)
@@ -346,28 +383,86 @@ class SlamPipeline:
     # ------------------------------------------------------------------ step 6
     def _predict_and_update(
         self, speed: SpeedMeasurement | None, tracked: list[TrackedLandmark], alt: AltitudeEstimate,
-        prior: HeadingPrior, heading: HeadingEstimate, dt_s: float, t_s: float,
+        prior: HeadingPrior, heading: HeadingEstimate, dt_s: float, frame: Frame,
     ) -> list[Observation]:
-        """Step 6: prediction (1), (2) with the measured speed, then an update (3) per landmark tracked."""
+        """Step 6: prediction (1), (2) with the measured speed, then the landmark updates (3).
+
+        The matches are first tested together (joint compatibility); a tentative landmark
+        corrects only itself until confirmed; strong matches refused frame after frame start a
+        recovery (:mod:`rovslam.association`).
+        """
         if speed is not None and dt_s > 0:
-            self._predict(speed, prior.previous_rad, dt_s, heading.sigma_rad)
+            bias_sigma = max(self.config.slam.altitude_bias_sigma_m, self._terrain_sigma_m(alt.altitude_m, alt))
+            self._predict(speed, prior.previous_rad, dt_s, heading.sigma_rad, alt.altitude_m, bias_sigma)
+        assoc = self.config.association
+        refused = {id(t): t.refused for t in tracked if t.refused}
+        live = [t for t in tracked if not t.refused]
+        if assoc.joint_compatibility and len(live) > 1:
+            args = [self._update_args(t, alt, heading) for t in live]
+            _, out = jointly_compatible(lambda ix: self.ekf.joint_nis([args[j] for j in ix]), len(live),
+                                        assoc.joint_quantile)
+            for j in out:
+                refused[id(live[j])] = REASON_JOINT
+        results = {}
+        for t in live:
+            if id(t) in refused:
+                continue
+            res = self.ekf.update(*self._update_args(t, alt, heading), landmark_only=not t.record.confirmed
+                                  and assoc.confirm_observations > 0)
+            results[id(t)] = res
+        self._recover(live, results, refused, alt, heading, frame)
         observations = []
         for t in tracked:
-            res = self.ekf.update(
-                t.record.id, t.mn_px, heading.heading_rad, alt.altitude_m, self.focal_px,
-                altitude_sigma_m=alt.sigma_m, heading_sigma_rad=heading.observation_sigma_rad,
-            )
-            if res.accepted:
-                t.record.observations += 1
-                t.record.last_seen_t_s = t_s
-            else:
-                t.record.rejected += 1
-            observations.append(Observation(t.record.id, "track", t.uv_px, t.mn_px, t.score, res.nis, res.accepted))
+            res = results.get(id(t))
+            accepted = res is not None and res.accepted
+            reason = refused.get(id(t), "" if accepted else REASON_GATE)
+            tentative = not t.record.confirmed
+            if id(t) not in refused or reason == REASON_JOINT:
+                t.record.observed(accepted, frame.t_s, assoc.confirm_observations)
+            if t.record.confirmed:  # found and refused still counts as missing: it keeps the wide window
+                self.recovery.searched(t.record.id, accepted)
+            nis = res.nis if res is not None else math.nan
+            observations.append(Observation(t.record.id, "track", t.uv_px, t.mn_px, t.score, nis, accepted, reason,
+                                            tentative))
         return observations
 
-    def _predict(self, speed: SpeedMeasurement, heading_rad: float, dt_s: float, heading_sigma_rad: float | None) -> None:
+    def _update_args(self, t: TrackedLandmark, alt: AltitudeEstimate, heading: HeadingEstimate) -> tuple:
+        """The arguments of ``EkfSlam.update`` / ``joint_nis`` for one match."""
+        return (t.record.id, t.mn_px, heading.heading_rad, alt.altitude_m, self.focal_px, None, alt.sigma_m,
+                heading.observation_sigma_rad)
+
+    def _recover(self, live: list[TrackedLandmark], results: dict, refused: dict, alt: AltitudeEstimate,
+                 heading: HeadingEstimate, frame: Frame) -> None:
+        """Strong, confirmed matches refused by the innovation test: the filter may be the one that is wrong.
+
+        Each tells the vehicle offset that would explain it (``-(Z - h)/f R [nu]``); when the
+        :class:`~rovslam.association.RecoveryMonitor` finds them consistent for long enough, the
+        vehicle covariance is inflated by that offset, they are admitted, and the event recorded.
+        """
+        strong = [t for t in live if id(t) in results and not results[id(t)].accepted and t.record.confirmed
+                  and t.score >= self.config.association.strong_correlation]
+        oldest_refused = min((t.record.id for t in strong), default=-1)
+        accepted_older = any(results[id(t)].accepted for t in live
+                             if id(t) in results and t.record.confirmed and t.record.id < oldest_refused)
+        theta = self.ekf.map_heading_rad(heading.heading_rad)
+        offsets = []
+        for t in strong:
+            depth = alt.altitude_m - self.ekf.landmark_height_m(t.record.id)
+            offsets.append(-(depth / self.focal_px) * (rot2(theta) @ results[id(t)].innovation_px))
+        offset = self.recovery.refusals(offsets, accepted_older)
+        if offset is None:
+            return
+        self.ekf.inflate_vehicle_covariance(4.0 * np.outer(offset, offset) + np.eye(2) * (0.25 * float(offset @ offset)))
+        for t in strong:
+            results[id(t)] = self.ekf.update(*self._update_args(t, alt, heading))
+        self.recovery.recovered(RecoveryEvent(frame.index, frame.t_s, (float(offset[0]), float(offset[1])),
+                                              tuple(t.record.id for t in strong), "refused matches"))
+
+    def _predict(self, speed: SpeedMeasurement, heading_rad: float, dt_s: float, heading_sigma_rad: float | None,
+                 altitude_m: float | None = None, altitude_bias_sigma_m: float | None = None) -> None:
         """Prediction (1) of the filter and of the dead reckoning reported beside it."""
-        self.ekf.predict(speed.surge_mps, speed.sway_mps, speed.cov_mps2, heading_rad, dt_s, heading_sigma_rad)
+        self.ekf.predict(speed.surge_mps, speed.sway_mps, speed.cov_mps2, heading_rad, dt_s, heading_sigma_rad,
+                         altitude_m, altitude_bias_sigma_m)
         self._dr += motion_step_m(speed.speed_mps, heading_rad, dt_s)
         if speed.ok:
             self._last_speed_mps = speed.speed_mps
@@ -415,6 +510,7 @@ class SlamPipeline:
         self, frame: Frame, dt_s: float, heading: HeadingEstimate, altitude_m: float, speed: SpeedMeasurement | None,
         *, altitude: AltitudeEstimate | None = None, tracks: TokenTracks | None = None, visible: int = 0,
         observations: tuple[Observation, ...] = (), new_id: int | None = None, skipped_reason: str | None = None,
+        recovery: RecoveryEvent | None = None,
     ) -> FrameResult:
         """The one place a :class:`FrameResult` is built (processed and skipped frames alike)."""
         meas = self._measurements(frame, dt_s, heading, altitude_m, altitude, speed, observations)
@@ -437,7 +533,7 @@ class SlamPipeline:
             landmarks_visible=visible, landmarks_tracked=sum(o.accepted for o in observations if o.kind == "track"),
             n_landmarks=self.ekf.n_landmarks, observations=observations, new_landmark_id=new_id,
             dr_x_m=float(self._dr[0]), dr_y_m=float(self._dr[1]), skipped_reason=skipped_reason,
-            token_uv_px=tracks.uv_curr_px if tracks else _NO_POINTS, measurements=meas,
+            token_uv_px=tracks.uv_curr_px if tracks else _NO_POINTS, measurements=meas, recovery=recovery,
         )
 
     def _measurements(
@@ -448,11 +544,7 @@ class SlamPipeline:
         slam = self.config.slam
         sigma_z = altitude.sigma_m if altitude else math.nan
         turn = speed is not None and speed.ok and math.isfinite(speed.dpsi_sigma_rad) and speed.dpsi_sigma_rad > 0
-        landmarks = tuple(
-            LandmarkMeasurement(o.landmark_id, o.kind, o.mn_px,
-                                observation_noise_px2(o.mn_px, slam.pixel_sigma_px, altitude_m, sigma_z), o.accepted)
-            for o in observations
-        )
+        landmarks = tuple(self._landmark_measurement(o, altitude_m, sigma_z) for o in observations)
         return FrameMeasurements(
             index=frame.index, t_s=frame.t_s, dt_s=dt_s,
             speed_mps=speed.speed_mps if speed else np.zeros(2), speed_cov_mps2=speed.cov_mps2 if speed else _NO_COV,
@@ -463,6 +555,17 @@ class SlamPipeline:
             heading_step_sigma_rad=speed.dpsi_sigma_rad if turn else math.nan,
             altitude_m=altitude_m, altitude_sigma_m=sigma_z, focal_px=self.focal_px, landmarks=landmarks,
         )
+
+    def _landmark_measurement(self, o: Observation, altitude_m: float, sigma_z: float) -> LandmarkMeasurement:
+        """An observation as the flat-seabed model (3) at the frame's altitude sees it (for the smoother).
+
+        A landmark ``h`` above the seabed is seen at depth ``Z - h``: its [m, n] scaled by
+        ``(Z - h) / Z`` is what a flat seabed at Z would show (the filter's current height).
+        """
+        depth = altitude_m - self.ekf.landmark_height_m(o.landmark_id)
+        scale = depth / altitude_m
+        noise = observation_noise_px2(o.mn_px, self.config.slam.pixel_sigma_px, depth, sigma_z)
+        return LandmarkMeasurement(o.landmark_id, o.kind, o.mn_px * scale, noise * scale**2, o.accepted)
 
     def _reported_cov(self, cov_m2: np.ndarray, xy_m: np.ndarray, altitude_m: float, has_attitude: bool) -> np.ndarray:
         """(2, 2) covariance of the true position: the filter's, plus the apparent-frame errors.
@@ -498,6 +601,8 @@ class SlamPipeline:
             rows.append(
                 {"id": rec.id, "x_m": float(xy[0]), "y_m": float(xy[1]), "var_x_m2": float(c[0, 0]),
                  "cov_xy_m2": float(c[0, 1]), "var_y_m2": float(c[1, 1]), "first_t_s": rec.first_t_s,
-                 "observations": rec.observations, "local_variance": rec.local_variance}
+                 "observations": rec.observations, "local_variance": rec.local_variance,
+                 "height_m": self.ekf.landmark_height_m(rec.id), "height_sigma_m": self.ekf.landmark_height_sigma_m(rec.id),
+                 "self_similarity": rec.self_similarity, "confirmed": int(rec.confirmed), "rejected": rec.rejected}
             )
         return rows

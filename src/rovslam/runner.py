@@ -553,6 +553,11 @@ class _Run:
             "source_warnings": list(getattr(self.seq, "warnings", [])),
             "source_frames_left_out": int(getattr(self.seq, "left_out", 0)),
             "landmarks": pipe.ekf.n_landmarks,
+            "recoveries": [
+                {"frame": e.frame, "t_s": e.t_s, "offset_m": list(e.offset_m), "landmarks": list(e.landmarks),
+                 "cause": e.cause}
+                for e in pipe.recovery.events
+            ],
             "wall_time_s": wall,
             "frames_per_second": self.n / wall if wall > 0 else None,
             "config": to_dict(self.config),

@@ -65,6 +65,10 @@ TRAJECTORY_COLUMNS = (
     "skipped",
 )
 OBSERVATION_COLUMNS = ("t_s", "frame", "landmark_id", "kind", "u_px", "v_px", "score", "nis", "accepted")
+# Written since the consistency work (issue 10); readers do not require them (older runs lack them).
+OBSERVATION_EXTRA_COLUMNS = ("reason", "tentative")
+TRAJECTORY_EXTRA_COLUMNS = ("var_surge_mps2", "cov_surge_sway_mps2", "var_sway_mps2", "tokens_inliers", "recovery")
+LANDMARK_EXTRA_COLUMNS = ("height_m", "height_sigma_m", "self_similarity", "confirmed", "rejected")
 LANDMARK_COLUMNS = (
     "id",
     "x_m",
@@ -276,11 +280,11 @@ class ResultWriter:
             self._traj = csv.writer(self._fhs["trajectory.csv"], lineterminator="\n")
             self._obs = csv.writer(self._fhs["observations.csv"], lineterminator="\n")
             with output_errors(self._paths["trajectory.csv"]):
-                self._traj.writerow(TRAJECTORY_COLUMNS)
+                self._traj.writerow(TRAJECTORY_COLUMNS + TRAJECTORY_EXTRA_COLUMNS)
             with output_errors(self._paths["trajectory.tum"]):
                 self._fhs["trajectory.tum"].write("# t x y z qx qy qz qw  (rovslam: z = altitude, heading about z)\n")
             with output_errors(self._paths["observations.csv"]):
-                self._obs.writerow(OBSERVATION_COLUMNS)
+                self._obs.writerow(OBSERVATION_COLUMNS + OBSERVATION_EXTRA_COLUMNS)
         except BaseException:
             self.close(quiet=True)
             raise
@@ -298,6 +302,8 @@ class ResultWriter:
                     _f(r.altitude_m), _f(r.surge_mps), _f(r.sway_mps), r.tokens_tracked, r.landmarks_tracked,
                     _f(r.heading_rad), _f(r.altitude_sigma_m), r.altitude_source, int(r.speed_ok),
                     _f(r.dr_x_m), _f(r.dr_y_m), int(r.skipped_reason is not None),
+                    _f(r.speed_cov_mps2[0, 0]), _f(r.speed_cov_mps2[0, 1]), _f(r.speed_cov_mps2[1, 1]),
+                    r.tokens_inliers, int(getattr(r, "recovery", None) is not None),
                 ]
             )
             name = "trajectory.tum"
@@ -307,7 +313,8 @@ class ResultWriter:
             if r.observations:
                 self._obs.writerows(
                     [_f(r.t_s), r.index, ob.landmark_id, ob.kind, _f(ob.uv_px[0]), _f(ob.uv_px[1]),
-                     _f(ob.score), _f(ob.nis), int(ob.accepted)]
+                     _f(ob.score), _f(ob.nis), int(ob.accepted), getattr(ob, "reason", ""),
+                     int(getattr(ob, "tentative", False))]
                     for ob in r.observations
                 )
         except OSError as exc:
@@ -330,10 +337,12 @@ class ResultWriter:
         atomic_write_bytes(path, buf.tobytes())
 
     def write_landmarks(self, rows: list[dict[str, Any]]) -> None:
-        """(Re)write landmarks.csv atomically from dicts with the LANDMARK_COLUMNS keys."""
-        lines = [",".join(LANDMARK_COLUMNS)]
+        """(Re)write landmarks.csv atomically from dicts with the LANDMARK_COLUMNS keys (and the extra ones present)."""
+        extra = tuple(c for c in LANDMARK_EXTRA_COLUMNS if rows and c in rows[0])
+        cols = LANDMARK_COLUMNS + extra
+        lines = [",".join(cols)]
         for row in rows:
-            lines.append(",".join(str(row[c]) if isinstance(row[c], (int, str)) else _f(row[c]) for c in LANDMARK_COLUMNS))
+            lines.append(",".join(str(row[c]) if isinstance(row[c], (int, str)) else _f(row[c]) for c in cols))
         atomic_write_text(self.out / "landmarks.csv", "\n".join(lines) + "\n")
 
     def write_summary(self, summary: dict[str, Any]) -> None:
@@ -568,7 +577,7 @@ def read_results(out_dir: str | Path) -> RunResults:
     obs: dict[str, np.ndarray] = {}
     obs_path = out / "observations.csv"
     if obs_path.is_file():
-        obs, lines = _read_table(obs_path, OBSERVATION_COLUMNS, ("kind",))
+        obs, lines = _read_table(obs_path, OBSERVATION_COLUMNS, ("kind", "reason"))
         _check_time(obs_path, obs, lines, strict=False)
     lm_path = out / "landmarks.csv"
     lms = _read_table(lm_path, LANDMARK_COLUMNS)[0] if lm_path.is_file() else {}

@@ -5,7 +5,7 @@ A sequence is a folder::
     SEQ/sequence.toml    camera, laser rig, metadata
     SEQ/frames.csv       t_s,image,heading_rad,sonar_altitude_m[,roll_rad,pitch_rad]
     SEQ/images/...       PNG, JPEG or TIFF, 8- or 16-bit, RGB or grey
-    SEQ/groundtruth.csv  optional: t_s,x_m,y_m,altitude_m,heading_rad
+    SEQ/groundtruth.csv  optional: t_s,x_m,y_m,altitude_m,heading_rad[,relief_m]
 
 Reading validates everything that can be checked without decoding images (encoding, keys,
 columns, numbers, monotonic time, image files present and inside the folder) and raises a
@@ -44,6 +44,7 @@ FORMAT_V1 = "rovslam-sequence/1"
 FRAMES_COLUMNS = ("t_s", "image", "heading_rad", "sonar_altitude_m")
 ATTITUDE_COLUMNS = ("roll_rad", "pitch_rad")
 GROUNDTRUTH_COLUMNS = ("t_s", "x_m", "y_m", "altitude_m", "heading_rad")
+RELIEF_COLUMN = "relief_m"  # optional: seabed height above the mean plane under the camera (altitude_m is above the plane)
 _CAMERA_REQUIRED = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
 _CAMERA_OPTIONAL = ("distortion", "yaw_offset_rad", "bit_depth")
 _LASER_KEYS = ("origin_m", "direction")
@@ -104,6 +105,7 @@ class GroundTruth:
     y_m: np.ndarray
     altitude_m: np.ndarray
     heading_rad: np.ndarray
+    relief_m: np.ndarray | None = None  # (N,) when the file has the optional relief_m column
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -420,14 +422,15 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
 
 
 def read_groundtruth(path: str | Path) -> GroundTruth:
-    """Read ``groundtruth.csv`` (t_s,x_m,y_m,altitude_m,heading_rad), validated."""
+    """Read ``groundtruth.csv`` (t_s,x_m,y_m,altitude_m,heading_rad[,relief_m]), validated."""
     p = Path(path)
-    _, rows = read_csv_table(p, GROUNDTRUTH_COLUMNS)
-    cols: dict[str, list[float]] = {c: [] for c in GROUNDTRUTH_COLUMNS}
+    header, rows = read_csv_table(p, GROUNDTRUTH_COLUMNS)
+    names = GROUNDTRUTH_COLUMNS + ((RELIEF_COLUMN,) if RELIEF_COLUMN in header else ())
+    cols: dict[str, list[float]] = {c: [] for c in names}
     last_t = -math.inf
     for line, row in rows:
         where = f"{p}, line {line}"
-        for c in GROUNDTRUTH_COLUMNS:
+        for c in names:
             cols[c].append(float_cell(row, c, where))  # type: ignore[arg-type]
         if cols["t_s"][-1] <= last_t:
             raise SequenceFormatError(f"{where}: t_s is not after the previous row's; rows must be in time order.")
@@ -676,6 +679,7 @@ class SequenceWriter:
         with_attitude: bool = False,
         with_groundtruth: bool = True,
         encode_threads: int = 2,
+        with_relief: bool = False,
     ):
         if image_format not in ("png", "jpg"):
             raise SequenceFormatError(f"image format must be 'png' or 'jpg', got {image_format!r}")
@@ -684,6 +688,7 @@ class SequenceWriter:
         self.image_format = image_format
         self.jpeg_quality = int(jpeg_quality)
         self.with_attitude = with_attitude
+        self.with_relief = with_relief
         (self.folder / "images").mkdir(parents=True, exist_ok=True)
         import tomli_w
 
@@ -695,7 +700,7 @@ class SequenceWriter:
         if with_groundtruth:
             self._gt_fh = (self.folder / "groundtruth.csv").open("w", newline="", encoding="utf-8")
             self._gt = csv.writer(self._gt_fh, lineterminator="\n")
-            self._gt.writerow(GROUNDTRUTH_COLUMNS)
+            self._gt.writerow(GROUNDTRUTH_COLUMNS + ((RELIEF_COLUMN,) if with_relief else ()))
         self._pool = ThreadPoolExecutor(max_workers=max(1, encode_threads), thread_name_prefix="rovslam-enc")
         self._pending: list[Future[None]] = []
         self.count = 0
@@ -720,9 +725,9 @@ class SequenceWriter:
         sonar_altitude_m: float | None = None,
         roll_rad: float | None = None,
         pitch_rad: float | None = None,
-        truth: tuple[float, float, float, float] | None = None,
+        truth: tuple[float, ...] | None = None,
     ) -> None:
-        """Write one frame; ``truth`` = (x_m, y_m, altitude_m, heading_rad) for groundtruth.csv."""
+        """Write one frame; ``truth`` = (x_m, y_m, altitude_m, heading_rad[, relief_m]) for groundtruth.csv."""
         cam = self.info.camera
         if image_rgb.dtype != np.uint8 or image_rgb.shape[:2] != cam.shape:
             raise ImageReadError(
@@ -739,6 +744,11 @@ class SequenceWriter:
             row += [_fmt(roll_rad), _fmt(pitch_rad)]
         self._frames.writerow(row)
         if self._gt_fh is not None and truth is not None:
+            if len(truth) != 4 + self.with_relief:
+                raise SequenceFormatError(
+                    f"frame {self.count}: truth needs {4 + self.with_relief} values (x_m, y_m, altitude_m, heading_rad"
+                    f"{', relief_m' if self.with_relief else ''}), got {len(truth)}"
+                )
             self._gt.writerow([repr(float(t_s))] + [_fmt(v) for v in truth])
         self.count += 1
 

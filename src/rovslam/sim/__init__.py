@@ -1,9 +1,12 @@
-"""Seabed simulator: procedural or photographic seabed, ROV trajectory, camera / water / laser renderer.
+"""Seabed simulator: procedural or photographic seabed and relief, ROV trajectory, camera / water / lamps / laser renderer.
 
 Entry points: :func:`simulate` (a whole sequence folder from a scenario preset in
 :data:`SCENARIOS`) and :func:`render_frame` (one frame for one pose, a pure function).
 """
 
+from rovslam.sim.codec import H264Params, H264RoundTrip
+from rovslam.sim.lighting import CausticParams, Lamp, LightingParams
+from rovslam.sim.relief import ArrayRelief, PhotoReliefParams, ProceduralRelief, ReliefParams, relief_from_photo
 from rovslam.sim.render import FrameRenderer, LaserSpotParams, Pose, SensorParams, render_frame, renderer_for
 from rovslam.sim.scenarios import (
     PAPER_LASERS,
@@ -13,6 +16,7 @@ from rovslam.sim.scenarios import (
     SimulationSummary,
     frame_pose,
     frame_rng,
+    shared_data_file,
     simulate,
 )
 from rovslam.sim.texture import ImageSeabed, ProceduralSeabed, TextureParams, TextureSource
@@ -29,7 +33,18 @@ from rovslam.sim.water import WaterParams
 from rovslam.sim.world import World
 
 __all__ = [
+    "ArrayRelief",
+    "CausticParams",
     "FrameRenderer",
+    "H264Params",
+    "H264RoundTrip",
+    "Lamp",
+    "LightingParams",
+    "PhotoReliefParams",
+    "ProceduralRelief",
+    "ReliefParams",
+    "relief_from_photo",
+    "shared_data_file",
     "GridPattern",
     "ImageSeabed",
     "LaserSpotParams",

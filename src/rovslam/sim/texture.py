@@ -15,8 +15,6 @@ Texel ``(i, j)`` of every texture source lies at world ``x = i * texel_m`` (nort
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -25,6 +23,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from rovslam.errors import SimulationError
+from rovslam.sim._chunks import ChunkedGrid
 from rovslam.sim._noise import lattice_noise_grid, lattice_noise_points, smoothstep
 
 RGB = tuple[float, float, float]
@@ -76,6 +75,23 @@ class TextureParams:
     weed_rgb: RGB = (0.25, 0.27, 0.15)
     light_azimuth_rad: float = 2.4  # sun / ambient light direction for the relief shading
     light_elevation_rad: float = 0.95
+    # Features that fool correlation (issue 9); all off by default, so the original presets
+    # are unchanged. Boulders are large stones (the relief gives them height).
+    boulder_density_per_m2: float = 0.0
+    boulder_radius_mm: float = 80.0
+    urchin_density_per_m2: float = 0.0  # dark spiny look-alike blobs
+    urchin_radius_mm: float = 14.0
+    fine_ripple_strength: float = 0.0  # a regular second ripple train at the scale of a 16 px token
+    fine_ripple_wavelength_m: float = 0.02
+    fine_ripple_azimuth_rad: float = 0.7
+    coral_cover: float = 0.0  # fraction under coral: a warped hexagonal lattice of corallites + branches
+    coral_spacing_m: float = 0.014  # corallite spacing (about 11 px at 1.31 m: a 16 px token holds two)
+    coral_scale_m: float = 0.25  # size of the coral patches
+    coral_rgb: RGB = (0.62, 0.50, 0.40)
+    mud_cover: float = 0.0  # fraction under smooth, low-contrast mud
+    mud_contrast: float = 0.18  # how much of the texture beneath shows through the mud
+    mud_scale_m: float = 0.35
+    mud_rgb: RGB = (0.50, 0.46, 0.38)
 
     def __post_init__(self) -> None:
         if not (0.05 <= self.texel_mm <= 20.0):
@@ -84,22 +100,31 @@ class TextureParams:
             raise SimulationError(f"TextureParams.chunk_texels must be >= 64, got {self.chunk_texels}")
         if self.cache_chunks < 4:
             raise SimulationError(f"TextureParams.cache_chunks must be >= 4, got {self.cache_chunks}")
-        if not (0.0 <= self.weed_cover < 0.9):
-            raise SimulationError(f"TextureParams.weed_cover must be in [0, 0.9), got {self.weed_cover}")
+        for name in ("weed_cover", "coral_cover", "mud_cover"):
+            if not (0.0 <= getattr(self, name) < 0.9):
+                raise SimulationError(f"TextureParams.{name} must be in [0, 0.9), got {getattr(self, name)}")
         for name in ("pebble_density_per_m2", "stone_density_per_m2", "shell_density_per_m2",
-                     "burrow_density_per_m2"):
+                     "burrow_density_per_m2", "boulder_density_per_m2", "urchin_density_per_m2",
+                     "fine_ripple_strength"):
             if getattr(self, name) < 0:
                 raise SimulationError(f"TextureParams.{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("boulder_radius_mm", "urchin_radius_mm", "fine_ripple_wavelength_m", "coral_spacing_m",
+                     "coral_scale_m", "mud_scale_m"):
+            if not getattr(self, name) > 0:
+                raise SimulationError(f"TextureParams.{name} must be > 0, got {getattr(self, name)}")
+        if not (0.0 <= self.mud_contrast <= 1.0):
+            raise SimulationError(f"TextureParams.mud_contrast must be in [0, 1], got {self.mud_contrast}")
 
 
 # Lattice-noise layer identifiers (one independent field each).
 _L_BRIGHT1, _L_BRIGHT2, _L_MOTTLE1, _L_MOTTLE2, _L_GRAIN, _L_SPECK = 1, 2, 3, 4, 5, 6
 _L_RIPPLE_PHASE, _L_RIPPLE_AMP, _L_WEED1, _L_WEED2, _L_WEED_FIBRE, _L_TINT, _L_GRAVEL, _L_WEED_FIL = (
     7, 8, 9, 10, 11, 12, 13, 14)
+_L_CORAL, _L_CORAL_WARP_X, _L_CORAL_WARP_Y, _L_CORAL_BRANCH, _L_MUD, _L_FINE_RIPPLE = 15, 16, 17, 18, 19, 20
 # Object kinds (per-cell generators).
-_K_PEBBLE, _K_STONE, _K_SHELL, _K_BURROW = 101, 102, 103, 104
+_K_PEBBLE, _K_STONE, _K_SHELL, _K_BURROW, _K_BOULDER, _K_URCHIN = 101, 102, 103, 104, 105, 106
 # How far (in sizes) an object's drawing reaches: outline harmonics and shadow, fan, rim.
-_EXTENT = {_K_PEBBLE: 1.5, _K_STONE: 1.5, _K_SHELL: 1.1, _K_BURROW: 2.2}
+_EXTENT = {_K_PEBBLE: 1.5, _K_STONE: 1.5, _K_SHELL: 1.1, _K_BURROW: 2.2, _K_BOULDER: 1.5, _K_URCHIN: 1.7}
 
 _PEBBLE_PALETTE = np.array(
     [
@@ -133,20 +158,20 @@ class _Objects:
     harmonics: np.ndarray  # (N, 4, 2): outline harmonics k = 2..5, (amplitude, phase)
 
 
-class ProceduralSeabed:
+class ProceduralSeabed(ChunkedGrid):
     """Procedural, unbounded, deterministic seabed (see the module docstring).
 
-    Thread-safe: chunks are generated under a lock and cached read-only.
+    ``region`` gives ``(n_rows, n_cols, 3) uint8`` albedo texels. Thread-safe: chunks are
+    generated under a lock and cached read-only.
     """
 
     def __init__(self, params: TextureParams | None = None, seed: int = 0) -> None:
         if int(seed) < 0:
             raise SimulationError(f"seed must be >= 0, got {seed}")
         self.params = params if params is not None else TextureParams()
+        super().__init__(self.params.chunk_texels, self.params.cache_chunks, (3,), np.uint8)
         self.seed = int(seed)
         self._texel_m = self.params.texel_mm * 1e-3
-        self._cache: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
-        self._lock = threading.Lock()
         p = self.params
         if p.ripple_azimuth_rad is None:
             self._ripple_az = float(np.random.default_rng([self.seed, 7001]).uniform(0.0, np.pi))
@@ -160,36 +185,6 @@ class ProceduralSeabed:
     @property
     def texel_m(self) -> float:
         return self._texel_m
-
-    # ------------------------------------------------------------------ regions and chunks
-    def region(self, row0: int, col0: int, n_rows: int, n_cols: int) -> np.ndarray:
-        """``(n_rows, n_cols, 3) uint8`` albedo texels, assembled from cached chunks."""
-        c = self.params.chunk_texels
-        out = np.empty((n_rows, n_cols, 3), dtype=np.uint8)
-        for ci in range(row0 // c, (row0 + n_rows - 1) // c + 1):
-            r_lo, r_hi = max(row0, ci * c), min(row0 + n_rows, (ci + 1) * c)
-            for cj in range(col0 // c, (col0 + n_cols - 1) // c + 1):
-                c_lo, c_hi = max(col0, cj * c), min(col0 + n_cols, (cj + 1) * c)
-                chunk = self.chunk(ci, cj)
-                out[r_lo - row0 : r_hi - row0, c_lo - col0 : c_hi - col0] = chunk[
-                    r_lo - ci * c : r_hi - ci * c, c_lo - cj * c : c_hi - cj * c
-                ]
-        return out
-
-    def chunk(self, ci: int, cj: int) -> np.ndarray:
-        """Chunk ``(ci, cj)``: ``(C, C, 3) uint8``, texels ``ci*C .. ci*C + C - 1`` (rows)."""
-        key = (int(ci), int(cj))
-        with self._lock:
-            hit = self._cache.get(key)
-            if hit is not None:
-                self._cache.move_to_end(key)
-                return hit
-            data = self._generate_chunk(*key)
-            data.setflags(write=False)
-            self._cache[key] = data
-            while len(self._cache) > self.params.cache_chunks:
-                self._cache.popitem(last=False)
-            return data
 
     # ------------------------------------------------------------------ generation
     def _generate_chunk(self, ci: int, cj: int) -> np.ndarray:
@@ -209,12 +204,10 @@ class ProceduralSeabed:
         grain = field(_L_GRAIN, 0.0014)
         lum += p.grain * grain
         if p.ripple_strength > 0:
-            ca, sa = np.cos(self._ripple_az), np.sin(self._ripple_az)
-            phase = (2.0 * np.pi / p.ripple_wavelength_m) * (xs * ca + ys * sa)
-            phase = phase + p.ripple_irregularity * field(_L_RIPPLE_PHASE, 0.16)
-            profile = (np.sin(phase) + 0.35 * np.sin(2.0 * phase + 0.8)) * (1.0 / 1.2)
-            amp = smoothstep(-0.7, 0.9, field(_L_RIPPLE_AMP, 0.32))
+            amp, profile = self.ripples(field, xs, ys)
             lum += (p.ripple_strength * amp * profile).astype(np.float32)
+        if p.fine_ripple_strength > 0:
+            lum += self._fine_ripples(field, xs, ys)
         speck = field(_L_SPECK, 0.0011)
         lum *= 1.0 - p.speck_contrast * smoothstep(1.9, 2.6, speck)
         lum *= 1.0 + 0.6 * p.speck_contrast * smoothstep(-2.0, -2.7, speck)
@@ -241,13 +234,25 @@ class ProceduralSeabed:
                 img *= (1.0 - 0.3 * smoothstep(0.05, 0.6, patch))[..., None]  # shade under the turf
                 img += (0.95 * cover)[..., None] * (weed - img)
 
+        if p.coral_cover > 0:
+            self._draw_coral(img, field, xs, ys, fine)
+
         # Objects, drawn in a fixed global order so overlaps resolve the same in every chunk.
         light = self._light_vector()
         self._draw_burrows(img, x0, y0, n, fine)
         surface = 0.2 * fine + 0.14 * grain  # stone surface texture
         self._draw_ellipsoids(img, self._objects(_K_PEBBLE, x0, y0, n), x0, y0, n, surface, light)
         self._draw_ellipsoids(img, self._objects(_K_STONE, x0, y0, n), x0, y0, n, surface, light)
+        if p.boulder_density_per_m2 > 0:
+            self._draw_ellipsoids(img, self._objects(_K_BOULDER, x0, y0, n), x0, y0, n, surface, light)
         self._draw_shells(img, self._objects(_K_SHELL, x0, y0, n), x0, y0, n, light)
+        if p.urchin_density_per_m2 > 0:
+            self._draw_urchins(img, self._objects(_K_URCHIN, x0, y0, n), x0, y0, n)
+        if p.mud_cover > 0:
+            mud = smoothstep(-0.35, 0.35, field(_L_MUD, p.mud_scale_m) - float(ndtri(1.0 - p.mud_cover)))
+            veil = np.asarray(p.mud_rgb, dtype=np.float32) * (1.0 + 0.04 * fine)[..., None]
+            veil += p.mud_contrast * (img - np.asarray(p.sand_rgb, dtype=np.float32))
+            img += mud[..., None] * (veil - img)
 
         # Darker and brighter areas over tens of centimetres.
         bright = 1.0 + p.brightness_variation * (
@@ -255,6 +260,51 @@ class ProceduralSeabed:
         )
         img *= bright[..., None]
         return np.clip(img * 255.0 + 0.5, 0.0, 255.0).astype(np.uint8)
+
+    def ripples(self, field, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(amplitude (R, C) float32 in [0, 1], profile (R, C) float64 in about [-1.1, 1.1]) of the sand ripples.
+
+        ``field(layer, cell_m)`` evaluates a lattice-noise layer on the grid whose north and
+        east coordinates are ``xs`` (R, 1) and ``ys`` (1, C): the same crests on any grid,
+        so the relief's ripples lie under the texture's.
+        """
+        p = self.params
+        ca, sa = np.cos(self._ripple_az), np.sin(self._ripple_az)
+        phase = (2.0 * np.pi / p.ripple_wavelength_m) * (xs * ca + ys * sa)
+        phase = phase + p.ripple_irregularity * field(_L_RIPPLE_PHASE, 0.16)
+        profile = (np.sin(phase) + 0.35 * np.sin(2.0 * phase + 0.8)) * (1.0 / 1.2)
+        amp = smoothstep(-0.7, 0.9, field(_L_RIPPLE_AMP, 0.32))
+        return amp, profile
+
+    def _fine_ripples(self, field, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+        """A regular ripple train at the scale of a speed token (little irregularity): (R, C) float32."""
+        p = self.params
+        ca, sa = np.cos(p.fine_ripple_azimuth_rad), np.sin(p.fine_ripple_azimuth_rad)
+        phase = (2.0 * np.pi / p.fine_ripple_wavelength_m) * (xs * ca + ys * sa)
+        phase = phase + 0.5 * field(_L_FINE_RIPPLE, 0.3)
+        return (p.fine_ripple_strength * (np.sin(phase) + 0.25 * np.sin(2.0 * phase))).astype(np.float32)
+
+    def _draw_coral(self, img: np.ndarray, field, xs: np.ndarray, ys: np.ndarray, fine: np.ndarray) -> None:
+        """Coral patches: corallites on a slowly warped hexagonal lattice, bright branch ridges between them.
+
+        The lattice repeats every ``coral_spacing_m``: a 16 px token sees several identical
+        cells, so a correlation peak one cell away is almost as high as the true one.
+        """
+        p = self.params
+        patch = smoothstep(-0.3, 0.3, field(_L_CORAL, p.coral_scale_m) - float(ndtri(1.0 - p.coral_cover)))
+        if not patch.any():
+            return
+        s = p.coral_spacing_m
+        wx = xs + 0.8 * s * field(_L_CORAL_WARP_X, 0.3)  # the lattice bends slowly, as a colony grows
+        wy = ys + 0.8 * s * field(_L_CORAL_WARP_Y, 0.3)
+        k = 4.0 * np.pi / (np.sqrt(3.0) * s)
+        g = sum(np.cos(k * (wx * np.cos(a) + wy * np.sin(a))) for a in (0.0, np.pi / 3.0, 2.0 * np.pi / 3.0))
+        wall = smoothstep(-0.2, 1.0, g) * smoothstep(2.7, 1.9, g)  # a ring around each cell's centre
+        pit = smoothstep(2.0, 2.8, g)  # the dark mouth of the corallite
+        branch = smoothstep(0.8, 0.97, 1.0 - np.abs(field(_L_CORAL_BRANCH, 0.01)))
+        lum = (0.55 + 0.6 * wall - 0.4 * pit + 0.12 * branch + 0.05 * fine).astype(np.float32)
+        coral = lum[..., None] * np.asarray(p.coral_rgb, dtype=np.float32)
+        img += patch.astype(np.float32)[..., None] * (coral - img)
 
     def _light_vector(self) -> tuple[float, float, float]:
         p = self.params
@@ -275,12 +325,27 @@ class ProceduralSeabed:
             return 0.20, p.stone_density_per_m2, p.stone_radius_mm * 1e-3, 4.5 * p.stone_radius_mm * 1e-3
         if kind == _K_SHELL:
             return 0.08, p.shell_density_per_m2, p.shell_radius_mm * 1e-3, 3.0 * p.shell_radius_mm * 1e-3
+        if kind == _K_BOULDER:
+            return 0.5, p.boulder_density_per_m2, p.boulder_radius_mm * 1e-3, 3.0 * p.boulder_radius_mm * 1e-3
+        if kind == _K_URCHIN:
+            return 0.12, p.urchin_density_per_m2, p.urchin_radius_mm * 1e-3, 2.2 * p.urchin_radius_mm * 1e-3
         return 0.15, p.burrow_density_per_m2, p.burrow_radius_mm * 1e-3, 6.0 * p.burrow_radius_mm * 1e-3
 
-    def _objects(self, kind: int, x0: float, y0: float, n: int) -> _Objects:
-        """All objects of ``kind`` whose cells can reach the chunk at (x0, y0), in global order."""
+    def stones_near(self, x0: float, y0: float, extent_m: float) -> tuple[_Objects, ...]:
+        """Stones and boulders that can reach the square ``[x0, x0 + extent_m) x [y0, y0 + extent_m)`` (m).
+
+        (For the relief, which raises the stones drawn on the texture.)
+        """
+        kinds = (_K_STONE, _K_BOULDER) if self.params.boulder_density_per_m2 > 0 else (_K_STONE,)
+        return tuple(self._objects(k, x0, y0, 0, extent_m) for k in kinds)
+
+    def _objects(self, kind: int, x0: float, y0: float, n: int, extent_m: float | None = None) -> _Objects:
+        """All objects of ``kind`` whose cells can reach the chunk at (x0, y0), in global order.
+
+        The chunk is ``n`` texels square, or ``extent_m`` metres when given.
+        """
         cell, density, median, reach = self._kind_setup(kind)
-        extent = n * self._texel_m
+        extent = n * self._texel_m if extent_m is None else extent_m
         i_lo, i_hi = int(np.floor((x0 - reach) / cell)), int(np.floor((x0 + extent + reach) / cell))
         j_lo, j_hi = int(np.floor((y0 - reach) / cell)), int(np.floor((y0 + extent + reach) / cell))
         ii, jj = np.meshgrid(np.arange(i_lo, i_hi + 1), np.arange(j_lo, j_hi + 1), indexing="ij")
@@ -298,7 +363,8 @@ class ProceduralSeabed:
                 continue
             x = (ci + rng.random(k)) * cell
             y = (cj + rng.random(k)) * cell
-            a = median * np.exp(0.5 * rng.standard_normal(k))
+            spread = 0.12 if kind == _K_URCHIN else 0.5  # urchins: all much the same size (look-alike blobs)
+            a = median * np.exp(spread * rng.standard_normal(k))
             a = np.minimum(a, reach / _EXTENT[kind])
             angle = rng.uniform(0.0, np.pi * 2.0, k)
             if kind == _K_SHELL:
@@ -405,6 +471,28 @@ class ProceduralSeabed:
             body = shade[..., None] * obj.rgb[k]
             patch += (0.95 * alpha)[..., None] * (body - patch)
 
+    def _draw_urchins(self, img, obj: _Objects, x0, y0, n) -> None:
+        """Sea urchins: dark round tests with radial spines, all much alike (look-alike blobs)."""
+        t = self._texel_m
+        for k in range(len(obj.x_m)):
+            a = float(obj.a_m[k])
+            box = self._box(obj.x_m[k], obj.y_m[k], _EXTENT[_K_URCHIN] * a, x0, y0, n)
+            if box is None:
+                continue
+            rs, cs, dx, dy = box
+            r = np.sqrt(dx * dx + dy * dy) / a
+            phi = np.arctan2(dy, dx) + float(obj.angle_rad[k])
+            spines = 14 + int(obj.extra[k] * 8.0)
+            reach = 1.0 + 0.55 * np.abs(np.cos(0.5 * spines * phi)) ** 6  # spines reach further than the test
+            body = np.clip((0.62 - r) * (a / t) + 0.5, 0.0, 1.0)
+            spine = np.clip((reach - r) * (a / t) * 0.6 + 0.5, 0.0, 1.0) * (r > 0.55)
+            alpha = np.maximum(body, 0.85 * spine)
+            if not alpha.any():
+                continue
+            colour = np.array([0.13, 0.09, 0.11], dtype=np.float32) * (0.8 + 0.4 * float(obj.extra[k]))
+            patch = img[rs, cs]
+            patch += alpha[..., None] * (colour - patch)
+
     def _draw_burrows(self, img, x0, y0, n, fine) -> None:
         """Burrow openings: a dark hole with a lighter raised rim of worked sand."""
         obj = self._objects(_K_BURROW, x0, y0, n)
@@ -462,14 +550,19 @@ class ImageSeabed:
     def texel_m(self) -> float:
         return self._texel_m
 
+    @property
+    def origin_px(self) -> tuple[int, int]:
+        """The image pixel (row, column) at the world origin."""
+        return self._r0, self._c0
+
     def region(self, row0: int, col0: int, n_rows: int, n_cols: int) -> np.ndarray:
         h, w = self.image.shape[:2]
-        rows = _mirror(self._r0 - (row0 + np.arange(n_rows)), h)  # world +x is image up
-        cols = _mirror(self._c0 + col0 + np.arange(n_cols), w)
+        rows = mirror_indices(self._r0 - (row0 + np.arange(n_rows)), h)  # world +x is image up
+        cols = mirror_indices(self._c0 + col0 + np.arange(n_cols), w)
         return self.image[rows[:, None], cols[None, :]]
 
 
-def _mirror(idx: np.ndarray, size: int) -> np.ndarray:
+def mirror_indices(idx: np.ndarray, size: int) -> np.ndarray:
     """Indices mirrored at the borders (edge texel repeated), period 2 * size."""
     m = np.mod(idx, 2 * size)
     return np.where(m >= size, 2 * size - 1 - m, m)

@@ -10,6 +10,11 @@ sideways until the cross-track term brings it back. Heading is held constant, or
 (rate-limited) to face each long leg. Altitude is a set point with slow swings and
 control noise; roll and pitch are small random motions.
 
+Waves and the tether (all off by default): an irregular swell (three sinusoids around
+``wave_period_s`` with random phases) adds surge and sway velocity, yaw and heave that the
+controller does not anticipate; the tether adds random velocity jerks (an
+Ornstein-Uhlenbeck process with a short correlation time).
+
 Sensors: a compass (true heading + noise + bias + slow drift), a sonar altimeter (true
 altitude + noise), an attitude sensor (true roll / pitch + small noise + slow drift). Every random draw comes from
 generators seeded by the seed and a fixed stream number.
@@ -111,20 +116,37 @@ class VehicleParams:
     attitude_sigma_rad: float = 0.0  # roll and pitch, OU standard deviation
     attitude_tau_s: float = 3.0
     substeps: int = 4  # control steps per frame
+    wave_period_s: float = 7.0  # dominant period of the swell
+    wave_surge_mps: float = 0.0  # amplitude of the swell's surge velocity
+    wave_sway_mps: float = 0.0
+    wave_yaw_rad: float = 0.0  # amplitude of the yaw oscillation
+    wave_heave_m: float = 0.0  # amplitude of the altitude oscillation
+    tether_jerk_mps: float = 0.0  # OU standard deviation of the tether's pull (each horizontal component)
+    tether_tau_s: float = 2.5
 
     def __post_init__(self) -> None:
         if self.heading_mode not in ("constant", "legs"):
             raise SimulationError(f"VehicleParams.heading_mode must be 'constant' or 'legs', got {self.heading_mode!r}")
         for name in ("cruise_speed_mps", "accel_limit_mps2", "waypoint_tolerance_m", "altitude_m",
                      "yaw_rate_limit_radps", "current_tau_s", "current_estimate_tau_s", "altitude_noise_tau_s",
-                     "attitude_tau_s", "heading_wander_tau_s", "altitude_swing_period_s"):
+                     "attitude_tau_s", "heading_wander_tau_s", "altitude_swing_period_s", "wave_period_s",
+                     "tether_tau_s"):
             if not (getattr(self, name) > 0):
                 raise SimulationError(f"VehicleParams.{name} must be > 0, got {getattr(self, name)}")
-        if self.altitude_swing_m + 4 * self.altitude_noise_m >= self.altitude_m - 0.2:
+        for name in ("wave_surge_mps", "wave_sway_mps", "wave_yaw_rad", "wave_heave_m", "tether_jerk_mps"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise SimulationError(f"VehicleParams.{name} must be a finite number >= 0, got {getattr(self, name)}")
+        if self.altitude_swing_m + 1.5 * self.wave_heave_m + 4 * self.altitude_noise_m >= self.altitude_m - 0.2:
             raise SimulationError(
-                f"VehicleParams: altitude swings ({self.altitude_swing_m} m) and noise would reach the seabed "
+                f"VehicleParams: altitude swings ({self.altitude_swing_m} m), heave and noise would reach the seabed "
                 f"from {self.altitude_m} m; lower them"
             )
+
+    @property
+    def has_waves(self) -> bool:
+        """Whether the swell or the tether move the vehicle."""
+        return (self.wave_surge_mps > 0 or self.wave_sway_mps > 0 or self.wave_yaw_rad > 0
+                or self.tether_jerk_mps > 0)
         if self.substeps < 1:
             raise SimulationError(f"VehicleParams.substeps must be >= 1, got {self.substeps}")
 
@@ -145,6 +167,7 @@ class NavSensorParams:
     compass_drift_tau_s: float = 120.0
     sonar: bool = True  # write sonar_altitude_m (else the column is empty)
     sonar_sigma_m: float = 0.025
+    sonar_beam_half_angle_rad: float = float(np.deg2rad(3.0))  # over relief: the first echo within this cone
     attitude_sigma_rad: float = float(np.deg2rad(0.01))  # AHRS roll / pitch, white
     attitude_drift_rad: float = float(np.deg2rad(0.1))
     attitude_drift_tau_s: float = 60.0
@@ -204,6 +227,17 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
+def swell(rng: np.random.Generator, t_s: np.ndarray, period_s: float) -> np.ndarray:
+    """An irregular unit swell at times ``t_s``: three sinusoids at 0.8, 1 and 1.3 x ``period_s``, random phases.
+
+    Amplitudes 0.35, 1, 0.5 (the dominant one has amplitude 1).
+    """
+    out = np.zeros(len(t_s))
+    for scale, amp in ((0.8, 0.35), (1.0, 1.0), (1.3, 0.5)):
+        out += amp * np.sin(2.0 * np.pi * t_s / (scale * period_s) + rng.uniform(0.0, 2.0 * np.pi))
+    return out
+
+
 def simulate_trajectory(
     vehicle: VehicleParams, grid: GridPattern, n_frames: int, frame_rate_hz: float, seed: int
 ) -> Trajectory:
@@ -228,6 +262,13 @@ def simulate_trajectory(
     cur_y = v.current_mean_mps * math.sin(cur_dir) + ou_process(rng(2), n_steps, dt, v.current_tau_s,
                                                                 v.current_wander_mps)
     wander = ou_process(rng(3), n_steps, dt, v.heading_wander_tau_s, v.heading_wander_rad)
+    if v.has_waves:  # swell and tether, body-frame velocity (surge, sway) and yaw per control step
+        t_steps = np.arange(n_steps) * dt
+        wave_u = (v.wave_surge_mps * swell(rng(8), t_steps, v.wave_period_s)
+                  + ou_process(rng(11), n_steps, dt, v.tether_tau_s, v.tether_jerk_mps))
+        wave_v = (v.wave_sway_mps * swell(rng(9), t_steps, v.wave_period_s)
+                  + ou_process(rng(12), n_steps, dt, v.tether_tau_s, v.tether_jerk_mps))
+        wander = wander + v.wave_yaw_rad * swell(rng(10), t_steps, v.wave_period_s)
 
     reps = 0
     waypoints = grid.repetition(0)
@@ -283,6 +324,10 @@ def simulate_trajectory(
         wx, wy = wx + dwx, wy + dwy
         cx, cy = float(cur_x[i]), float(cur_y[i])
         vx, vy = wx + cx, wy + cy
+        if v.has_waves:
+            cw, sw = math.cos(psi_true), math.sin(psi_true)
+            vx += cw * float(wave_u[i]) - sw * float(wave_v[i])
+            vy += sw * float(wave_u[i]) + cw * float(wave_v[i])
         if i % sub == 0:
             k = i // sub
             c, sn = math.cos(psi_true), math.sin(psi_true)
@@ -295,6 +340,8 @@ def simulate_trajectory(
     alt = (v.altitude_m
            + v.altitude_swing_m * np.sin(2.0 * np.pi * t / v.altitude_swing_period_s + rng(4).uniform(0, 2 * np.pi))
            + ou_process(rng(5), n_frames, dt_frame, v.altitude_noise_tau_s, v.altitude_noise_m))
+    if v.wave_heave_m > 0:
+        alt = alt + v.wave_heave_m * swell(rng(13), t, v.wave_period_s)
     roll = ou_process(rng(6), n_frames, dt_frame, v.attitude_tau_s, v.attitude_sigma_rad)
     pitch = ou_process(rng(7), n_frames, dt_frame, v.attitude_tau_s, v.attitude_sigma_rad)
     return Trajectory(
@@ -303,8 +350,14 @@ def simulate_trajectory(
     )
 
 
-def read_sensors(traj: Trajectory, params: NavSensorParams, seed: int) -> NavReadings:
-    """Compass, sonar and attitude readings for a trajectory (noise from the seed's sensor streams)."""
+def read_sensors(
+    traj: Trajectory, params: NavSensorParams, seed: int, sonar_range_m: np.ndarray | None = None
+) -> NavReadings:
+    """Compass, sonar and attitude readings for a trajectory (noise from the seed's sensor streams).
+
+    ``sonar_range_m`` (N,) is what the altimeter sees over a relief (see
+    :func:`rovslam.sim.relief.sonar_first_return_m`); None: the altitude above the flat seabed.
+    """
     n = len(traj)
     dt = float(traj.t_s[1] - traj.t_s[0]) if n > 1 else 1.0
 
@@ -316,7 +369,8 @@ def read_sensors(traj: Trajectory, params: NavSensorParams, seed: int) -> NavRea
     heading = (traj.heading_rad + p.compass_bias_rad + p.compass_sigma_rad * rng(0).standard_normal(n)
                + ou_process(rng(4), n, dt, p.compass_drift_tau_s, p.compass_drift_rad))
     heading = (heading + np.pi) % (2.0 * np.pi) - np.pi
-    sonar = np.round(traj.altitude_m + p.sonar_sigma_m * rng(1).standard_normal(n), 3) if p.sonar else None
+    true_range = traj.altitude_m if sonar_range_m is None else np.asarray(sonar_range_m, dtype=np.float64)
+    sonar = np.round(true_range + p.sonar_sigma_m * rng(1).standard_normal(n), 3) if p.sonar else None
     roll = (traj.roll_rad + p.attitude_sigma_rad * rng(2).standard_normal(n)
             + ou_process(rng(5), n, dt, p.attitude_drift_tau_s, p.attitude_drift_rad))
     pitch = (traj.pitch_rad + p.attitude_sigma_rad * rng(3).standard_normal(n)

@@ -1,4 +1,4 @@
-"""Augmented-state EKF-SLAM: state ``[x, y, (eps,) X1, Y1, ..., XN, YN]`` (metres, world frame).
+"""Augmented-state EKF-SLAM: state ``[x, y, (eps,) (b,) X1, Y1, (h1,) ..., XN, YN, (hN)]`` (metres, world frame).
 
 ``eps`` (radians, present when ``heading_bias_sigma_rad > 0``) is the slow error of the heading
 input, beyond the paper: the true heading is ``psi - eps``, ``eps`` an Ornstein-Uhlenbeck
@@ -7,16 +7,32 @@ mapped under one error and seen again under another turn the map. With ``eps`` i
 the re-observations estimate the change; its absolute value (a rotation of the whole map)
 stays unobservable and its variance says so.
 
+``h_i`` (metres, present when ``landmark_height_sigma_m > 0``) is landmark i's height above
+the seabed the altitude Z refers to, beyond the paper, whose (3) assumes a flat seabed: a
+landmark on a 5 cm stone seen from 1.31 m moves 4 % faster across the image than the plane
+says, so seen again from another place in the image it is 1 to 7 px off. Its depth is then
+``Z - h_i`` in (3) and (4); the parallax of its re-observations estimates ``h_i``.
+
+``b`` (metres, present when ``altitude_bias_sigma_m > 0``) is the offset of the measured
+altitude from the seabed level the heights refer to: the lasers range to the relief under
+their few spots, which differs from the mean seabed by a few centimetres and changes as the
+relief passes (an Ornstein-Uhlenbeck process of correlation time ``altitude_bias_tau_s``). The
+true depth of landmark i is ``Z + b - h_i``, and the tokens' speed, measured at depth Z, is
+really ``(Z + b) / Z`` times larger: one state ties the odometry's scale and every landmark's
+depth together, so their errors, correlated from frame to frame, are not averaged as if white.
+
 * Prediction (1), (2) (:mod:`rovslam.slam.motion`): ``[x, y] += R(psi) [u, v] dt``; the speed covariance Q is projected
   through ``R(psi) dt``, an optional heading noise through ``dR/dpsi [u, v] dt``; landmarks
   are static with an optional process noise per step.
-* Update (3) (:mod:`rovslam.slam.observation`): ``[m, n] = f/Z R(psi)^T (X_i - x)``. H is non-zero only in the vehicle's and the
+* Update (3) (:mod:`rovslam.slam.observation`): ``[m, n] = f/(Z - h_i) R(psi)^T (X_i - x)``. H is non-zero only in the vehicle's and the
   landmark's columns, so the Joseph-form covariance update
   ``P' = (I - K H) P (I - K H)^T + K R K^T = P - K M^T - M K^T + K S K^T`` (``M = P H^T``)
   is a rank-4 correction ``P -= [K W] [W K]^T`` with ``W = M - K S / 2``, applied in place
   with one BLAS ``dgemm``: O(N^2) memory traffic, no dense (2N+2)^3 product, no inverse
   bigger than 2x2. An innovation (chi-square) test rejects matches inconsistent with the
-  prediction before anything changes.
+  prediction before anything changes. A tentative landmark's update may move only the
+  landmark (``landmark_only``: the gain's other rows are zero; the Joseph form stays exact).
+  Landmarks seen in the same frame are checked together first (:meth:`EkfSlam.joint_nis`).
 * Augmentation (4): full cross-covariances (``augmentation = "full"``) or the paper's
   diagonal block ``P_Xi = P_x + (Z/f)^2 R R_m R^T`` with no cross terms (``"paper"``).
 * Gate (5) and new-landmark test (6): :mod:`rovslam.slam.gating`, vectorised over landmarks.
@@ -144,13 +160,18 @@ class EkfSlam:
             cov = np.eye(2) * config.initial_position_sigma_m**2
         else:
             cov = _cov2("initial_cov_m2", initial_cov_m2)
-        self._v = 3 if config.heading_bias_sigma_rad > 0 else 2  # vehicle block: x, y (, eps)
+        self._eps = 2 if config.heading_bias_sigma_rad > 0 else None  # state row of eps
+        self._b = (2 + (self._eps is not None)) if config.altitude_bias_sigma_m > 0 else None  # state row of b
+        self._v = 2 + (self._eps is not None) + (self._b is not None)  # vehicle block: x, y (, eps) (, b)
+        self._lm = 3 if config.landmark_height_sigma_m > 0 else 2  # landmark block: X, Y (, h)
         self._n = self._v
-        self._alloc(self._v + 2 * max(int(initial_capacity), 1))
+        self._alloc(self._v + self._lm * max(int(initial_capacity), 1))
         self._x[:2] = xy
         self._P[:2, :2] = cov
-        if self._v == 3:
-            self._P[2, 2] = config.heading_bias_sigma_rad**2
+        if self._eps is not None:
+            self._P[self._eps, self._eps] = config.heading_bias_sigma_rad**2
+        if self._b is not None:
+            self._P[self._b, self._b] = config.altitude_bias_sigma_m**2
 
     # ------------------------------------------------------------------ storage
     def _alloc(self, cap: int) -> None:
@@ -172,21 +193,34 @@ class EkfSlam:
     # ------------------------------------------------------------------ accessors
     @property
     def state_dim(self) -> int:
-        """2 + 2N, or 3 + 2N with the heading-bias state."""
+        """2 (+1 with the heading-bias state) + 2N (3N with the landmark heights)."""
         return self._n
 
     @property
     def n_landmarks(self) -> int:
-        return (self._n - self._v) // 2
+        return (self._n - self._v) // self._lm
+
+    @property
+    def has_landmark_heights(self) -> bool:
+        return self._lm == 3
 
     @property
     def heading_bias_rad(self) -> float:
         """Estimated slow heading error eps (true heading = input - eps); 0 without the state."""
-        return float(self._x[2]) if self._v == 3 else 0.0
+        return float(self._x[self._eps]) if self._eps is not None else 0.0
 
     @property
     def heading_bias_sigma_rad(self) -> float:
-        return float(np.sqrt(max(self._P[2, 2], 0.0))) if self._v == 3 else 0.0
+        return float(np.sqrt(max(self._P[self._eps, self._eps], 0.0))) if self._eps is not None else 0.0
+
+    @property
+    def altitude_bias_m(self) -> float:
+        """Estimated offset b of the measured altitude from the seabed datum (true depth = Z + b); 0 without the state."""
+        return float(self._x[self._b]) if self._b is not None else 0.0
+
+    @property
+    def altitude_bias_sigma_m(self) -> float:
+        return float(np.sqrt(max(self._P[self._b, self._b], 0.0))) if self._b is not None else 0.0
 
     def map_heading_rad(self, heading_rad: float) -> float:
         """The heading the filter believes for a heading input: ``psi - eps`` (the input without its slow bias)."""
@@ -234,7 +268,16 @@ class EkfSlam:
                 f"no landmark {k}: the map holds ids 0..{self.n_landmarks - 1}" if self.n_landmarks
                 else f"no landmark {k}: the map is empty; augment() first"
             )
-        return self._v + 2 * k
+        return self._v + self._lm * k
+
+    def landmark_height_m(self, i: int) -> float:
+        """Landmark i's height above the seabed Z refers to (0 without the height state)."""
+        r = self._index(i)
+        return float(self._x[r + 2]) if self._lm == 3 else 0.0
+
+    def landmark_height_sigma_m(self, i: int) -> float:
+        r = self._index(i)
+        return float(np.sqrt(max(self._P[r + 2, r + 2], 0.0))) if self._lm == 3 else 0.0
 
     def landmark_xy_m(self, i: int) -> np.ndarray:
         """(2,) position of landmark i."""
@@ -248,11 +291,11 @@ class EkfSlam:
 
     def landmarks_xy_m(self) -> np.ndarray:
         """(N, 2) all landmark positions."""
-        return self._x[self._v : self._n].reshape(-1, 2).copy()
+        return self._x[self._v : self._n].reshape(-1, self._lm)[:, :2].copy()
 
     def landmarks_cov_m2(self) -> np.ndarray:
         """(N, 2, 2) the landmarks' diagonal covariance blocks (O(N))."""
-        r = np.arange(self._v, self._n, 2)
+        r = np.arange(self._v, self._n, self._lm)
         p = self._P
         out = np.empty((len(r), 2, 2))
         out[:, 0, 0] = p[r, r]
@@ -263,7 +306,7 @@ class EkfSlam:
 
     def vehicle_landmark_cov_m2(self) -> np.ndarray:
         """(N, 2, 2) cross-covariances ``C_i = cov(x, X_i)`` (vehicle rows, landmark columns)."""
-        return self._P[0:2, self._v : self._n].reshape(2, -1, 2).transpose(1, 0, 2).copy()
+        return self._P[0:2, self._v : self._n].reshape(2, -1, self._lm)[:, :, :2].transpose(1, 0, 2).copy()
 
     # ------------------------------------------------------------------ (1), (2)
     def predict(
@@ -274,6 +317,8 @@ class EkfSlam:
         heading_rad: float,
         dt_s: float,
         heading_sigma_rad: float | None = None,
+        altitude_m: float | None = None,
+        altitude_bias_sigma_m: float | None = None,
     ) -> None:
         """Prediction by (1) and (2) with the measured body speed and heading as inputs.
 
@@ -283,6 +328,10 @@ class EkfSlam:
             heading_rad: heading psi over the step.
             dt_s: real time step (> 0).
             heading_sigma_rad: heading noise; default ``config.heading_sigma_rad``.
+            altitude_m: the altitude Z the speed was measured at; with the altitude-bias state the
+                step is scaled by ``(Z + b) / Z``. None: no such coupling.
+            altitude_bias_sigma_m: the bias's stationary sigma over this step (the relief under
+                the lasers may be rougher here); default ``config.altitude_bias_sigma_m``.
 
         Raises:
             InvalidMeasurementError: NaN/inf or invalid input; the state is unchanged.
@@ -295,21 +344,40 @@ class EkfSlam:
         s_psi = self.config.heading_sigma_rad if heading_sigma_rad is None else heading_sigma_rad
         s_psi = _finite("heading_sigma_rad", s_psi, nonnegative=True)
 
+        z = None if altitude_m is None else _finite("altitude_m", altitude_m, positive=True)
+        sb = self.config.altitude_bias_sigma_m if altitude_bias_sigma_m is None else altitude_bias_sigma_m
+        sb = _finite("altitude_bias_sigma_m", sb, nonnegative=True)
+
         theta = self.map_heading_rad(psi)
         speed = np.array([u, v])
-        g, j = motion_jacobians(speed, theta, dt)  # d(position) / d(speed), d(position) / d(psi)
-        self._x[:2] += motion_step_m(speed, theta, dt)  # (1)
+        scale = 1.0 if (self._b is None or z is None) else (z + self.altitude_bias_m) / z  # the true depth's share
+        g, j = motion_jacobians(speed * scale, theta, dt)  # d(position) / d(speed), d(position) / d(psi)
+        g = g * scale
+        step = motion_step_m(speed * scale, theta, dt)
+        self._x[:2] += step  # (1)
         n = self._n
-        if self._v == 3:
-            # F = I except d(position)/d(eps) = -j: P <- F P F^T as two O(N) rank-1 steps.
-            p = self._P
-            p[0:2, :n] -= np.outer(j, p[2, :n])
-            p[:n, 0:2] -= np.outer(p[:n, 2], j)
-            a = np.exp(-dt / self.config.heading_bias_tau_s)  # eps: Ornstein-Uhlenbeck
-            self._x[2] *= a
-            p[2, :n] *= a
-            p[:n, 2] *= a
-            p[2, 2] += self.config.heading_bias_sigma_rad**2 * (1.0 - a * a)
+        p = self._P
+        # F = I except d(position)/d(eps) = -j and d(position)/d(b) = step / (Z + b): P <- F P F^T.
+        cols, coef = [], []
+        if self._eps is not None:
+            cols.append(self._eps)
+            coef.append(-j)
+        if self._b is not None and z is not None:
+            cols.append(self._b)
+            coef.append(step / (z * scale))
+        if cols:
+            e = np.column_stack(coef)  # (2, k)
+            p[0:2, :n] += e @ p[cols, :n]
+            p[:n, 0:2] += p[:n, cols] @ e.T
+        for row, tau, sigma in ((self._eps, self.config.heading_bias_tau_s, self.config.heading_bias_sigma_rad),
+                                (self._b, self.config.altitude_bias_tau_s, sb)):
+            if row is None:
+                continue
+            a = np.exp(-dt / tau)  # Ornstein-Uhlenbeck
+            self._x[row] *= a
+            p[row, :n] *= a
+            p[:n, row] *= a
+            p[row, row] += sigma**2 * (1.0 - a * a)
         add = g @ q @ g.T
         if s_psi > 0.0:
             add += s_psi**2 * np.outer(j, j)
@@ -321,14 +389,29 @@ class EkfSlam:
             diag += s_l**2
 
     # ------------------------------------------------------------------ (3)
+    def _depth(self, k: int, z: float) -> float:
+        """Depth of the landmark at state row k under a camera at measured altitude z: ``Z + b - h``."""
+        depth = z + self.altitude_bias_m - (float(self._x[k + 2]) if self._lm == 3 else 0.0)
+        if self._lm == 2 and self._b is None:
+            return z
+        if not depth > 0.05 * z:
+            raise FilterInconsistencyError(
+                f"FILTER INCONSISTENT: landmark at state row {k} is estimated {self._x[k + 2]:.3f} m high, "
+                f"above the camera's altitude {z:.3f} m"
+            )
+        return depth
+
     def _observation_terms(self, k: int, psi: float, z: float, f: float):
-        """h (2,) by (3), the non-zero columns of H (2, 4 or 5), their state indices, of landmark row k."""
+        """h (2,) by (3), the non-zero columns of H (2, 4 to 6), their state indices, and the depth, of landmark row k."""
         theta = self.map_heading_rad(psi)
-        h = observe_mn(self._x[k : k + 2], self._x[:2], theta, z, f)[0]
-        a, j_psi = observation_jacobians(h, theta, z, f)
-        if self._v == 3:  # d h / d eps = -d h / d psi
-            return h, np.hstack([-a, -j_psi.T, a]), np.array([0, 1, 2, k, k + 1])
-        return h, np.hstack([-a, a]), np.array([0, 1, k, k + 1])
+        depth = self._depth(k, z)
+        h = observe_mn(self._x[k : k + 2], self._x[:2], theta, depth, f)[0]
+        a, j_psi = observation_jacobians(h, theta, depth, f)
+        # d h / d eps = -d h / d psi; d h / d b = -h / depth; d h / d h_i = h / depth.
+        cols = ([-a] + ([-j_psi.T] if self._eps is not None else []) + ([-h[:, None] / depth] if self._b is not None else [])
+                + [a] + ([h[:, None] / depth] if self._lm == 3 else []))
+        idx = list(range(self._v)) + list(range(k, k + self._lm))
+        return h, np.hstack(cols), np.array(idx), depth
 
     def _noise_args(self, pixel_sigma_px, altitude_sigma_m, heading_sigma_rad):
         sp = self.config.pixel_sigma_px if pixel_sigma_px is None else pixel_sigma_px
@@ -354,8 +437,8 @@ class EkfSlam:
         z = _finite("altitude_m", altitude_m, positive=True)
         f = _finite("focal_px", focal_px, positive=True)
         sp, sz, sh = self._noise_args(pixel_sigma_px, altitude_sigma_m, heading_sigma_rad)
-        h, hs, idx = self._observation_terms(k, psi, z, f)
-        s = self._innovation_cov(hs, idx, observation_noise_px2(h, sp, z, sz, sh))
+        h, hs, idx, depth = self._observation_terms(k, psi, z, f)
+        s = self._innovation_cov(hs, idx, observation_noise_px2(h, sp, depth, sz, sh))
         return h, s
 
     def predict_observations(
@@ -373,27 +456,31 @@ class EkfSlam:
         so the pipeline moves the vehicle by the last speed. Returns the predicted [m, n]
         (K, 2) and the innovation covariances S (K, 2, 2) with the pixel noise only, in O(K).
         """
-        idx = np.asarray(ids, dtype=np.intp).reshape(-1)
-        for i in idx:
-            self._index(i)
+        ids = np.asarray(ids, dtype=np.intp).reshape(-1)
+        rows = np.array([self._index(i) for i in ids], dtype=np.intp).reshape(-1)  # (K,) first state row
         psi = _finite("heading_rad", heading_rad)
         z = _finite("altitude_m", altitude_m, positive=True)
         f = _finite("focal_px", focal_px, positive=True)
         sp, _, _ = self._noise_args(pixel_sigma_px, 0.0, 0.0)
         offset = _vector2("vehicle_offset_m", vehicle_offset_m)
         theta = self.map_heading_rad(psi)
-        rows = self._v + 2 * idx  # (K,) first state row of each landmark
-        h = observe_mn(self._x[np.stack([rows, rows + 1], axis=1)], self._x[:2] + offset, theta, z, f)
-        a, j_psi = observation_jacobians(h, theta, z, f)
+        depth = np.array([self._depth(int(r), z) for r in rows]) if len(rows) else np.zeros(0)
+        lm_rows = rows[:, None] + np.arange(self._lm)[None, :]  # (K, lm)
+        x = self._x
+        h = observe_mn(x[lm_rows[:, :2]], x[:2] + offset, theta, depth[:, None], f)  # (3), one depth per landmark
+        a, j_psi = observation_jacobians(h, theta, depth[:, None, None], f)  # (K, 2, 2), (K, 2)
+        # H_v (K, 2, v) and H_l (K, 2, lm), as in _observation_terms.
+        hv = ([-a] + ([-j_psi[:, :, None]] if self._eps is not None else [])
+              + ([-(h / depth[:, None])[:, :, None]] if self._b is not None else []))
+        hl = [a] + ([(h / depth[:, None])[:, :, None]] if self._lm == 3 else [])
+        hv_m, hl_m = np.concatenate(hv, axis=2), np.concatenate(hl, axis=2)
         p = self._P
-        c = p[0:2][:, np.stack([rows, rows + 1], axis=1)].transpose(1, 0, 2)  # (K, 2, 2) cov(x, X_i)
-        p_ll = p[rows[:, None, None] + np.arange(2)[None, :, None], rows[:, None, None] + np.arange(2)[None, None, :]]
-        cov_d = p_ll + p[0:2, 0:2] - c - np.swapaxes(c, 1, 2)  # cov(X_i - x)
-        s = a @ cov_d @ a.T
-        if self._v == 3:  # d h / d eps = -J_psi
-            e = -j_psi  # (K, 2)
-            q = (p[2, np.stack([rows, rows + 1], axis=1)] - p[2, 0:2]) @ a.T  # (K, 2) A (cov(eps, X_i) - cov(eps, x))
-            s = s + e[:, :, None] * q[:, None, :] + q[:, :, None] * e[:, None, :] + p[2, 2] * e[:, :, None] * e[:, None, :]
+        v = self._v
+        p_vv = p[:v, :v]
+        p_vl = p[:v][:, lm_rows].transpose(1, 0, 2)  # (K, v, lm)
+        p_ll = p[lm_rows[:, :, None], lm_rows[:, None, :]]  # (K, lm, lm)
+        cross = hv_m @ p_vl @ np.swapaxes(hl_m, 1, 2)
+        s = hv_m @ p_vv @ np.swapaxes(hv_m, 1, 2) + cross + np.swapaxes(cross, 1, 2) + hl_m @ p_ll @ np.swapaxes(hl_m, 1, 2)
         s = s + np.eye(2) * sp**2
         return h, 0.5 * (s + np.swapaxes(s, 1, 2))
 
@@ -401,6 +488,18 @@ class EkfSlam:
         p = self._P[np.ix_(idx, idx)]
         s = hs @ p @ hs.T + r_m
         return 0.5 * (s + s.T)
+
+    def _innovation(self, i, mn_px, heading_rad, altitude_m, focal_px, pixel_sigma_px, altitude_sigma_m,
+                    heading_sigma_rad):
+        """(nu (2,), H columns, state indices, R_m) of one observation, its inputs checked."""
+        k = self._index(i)
+        mn = _vector2("mn_px", mn_px)
+        psi = _finite("heading_rad", heading_rad)
+        z = _finite("altitude_m", altitude_m, positive=True)
+        f = _finite("focal_px", focal_px, positive=True)
+        sp, sz, sh = self._noise_args(pixel_sigma_px, altitude_sigma_m, heading_sigma_rad)
+        h, hs, idx, depth = self._observation_terms(k, psi, z, f)
+        return mn - h, hs, idx, observation_noise_px2(h, sp, depth, sz, sh), k
 
     def update(
         self,
@@ -412,36 +511,36 @@ class EkfSlam:
         pixel_sigma_px: float | None = None,
         altitude_sigma_m: float = 0.0,
         heading_sigma_rad: float | None = None,
+        landmark_only: bool = False,
+        gate: float | None = None,
     ) -> UpdateResult:
         """Kalman update with one observation (3) of landmark i.
 
         Args:
             i: landmark id.
             mn_px: (2,) observed level-equivalent [m, n] (see :func:`rovslam.slam.observation.pixels_to_mn`).
-            heading_rad, altitude_m, focal_px: psi, Z, f of (3).
+            heading_rad, altitude_m, focal_px: psi, Z, f of (3) (the filter subtracts the
+                landmark's height from Z).
             pixel_sigma_px: template localisation noise; default ``config.pixel_sigma_px``.
-            altitude_sigma_m: sigma of Z, enters R_m as ``mn * sigma_Z / Z``.
+            altitude_sigma_m: sigma of Z, enters R_m as ``mn * sigma_Z / (Z - h)``.
             heading_sigma_rad: heading noise, enters R_m; default ``config.heading_sigma_rad``.
+            landmark_only: update only landmark i's own entries (a tentative landmark: it
+                learns where it is, and its height, without moving the vehicle or the map).
+            gate: the innovation test's threshold; default ``config.innovation_gate``
+                (``inf``: no test, e.g. a re-admission after a recovery).
 
         Returns:
             :class:`UpdateResult`; ``accepted=False`` (state untouched) when the NIS exceeds
-            ``config.innovation_gate``.
+            the gate.
 
         Raises:
             InvalidMeasurementError: NaN/inf or invalid input, unknown id; the state is unchanged.
             FilterInconsistencyError: the covariance lost positive semi-definiteness.
         """
-        k = self._index(i)
-        mn = _vector2("mn_px", mn_px)
-        psi = _finite("heading_rad", heading_rad)
-        z = _finite("altitude_m", altitude_m, positive=True)
-        f = _finite("focal_px", focal_px, positive=True)
-        sp, sz, sh = self._noise_args(pixel_sigma_px, altitude_sigma_m, heading_sigma_rad)
-
+        nu, hs, idx, r_m, k = self._innovation(i, mn_px, heading_rad, altitude_m, focal_px, pixel_sigma_px,
+                                               altitude_sigma_m, heading_sigma_rad)
         n = self._n
-        h, hs, idx = self._observation_terms(k, psi, z, f)
-        r_m = observation_noise_px2(h, sp, z, sz, sh)
-        rows = self._P[idx, :n]  # (4 or 5, n) = P[:, idx]^T (P symmetric), contiguous
+        rows = self._P[idx, :n]  # (v + lm, n) = P[:, idx]^T (P symmetric), contiguous
         s = hs @ rows[:, idx] @ hs.T + r_m
         s = 0.5 * (s + s.T)
         det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
@@ -451,17 +550,19 @@ class EkfSlam:
                 f"(S = {s.tolist()}); the covariance has lost positive semi-definiteness"
             )
         s_inv = np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
-        nu = mn - h
         nis = float(nu @ s_inv @ nu)
-        if nis > self.config.innovation_gate:
-            return UpdateResult(
-                False, nis, nu, f"innovation test: NIS {nis:.1f} > {self.config.innovation_gate:g}", s
-            )
+        limit = self.config.innovation_gate if gate is None else float(gate)
+        if nis > limit:
+            return UpdateResult(False, nis, nu, f"innovation test: NIS {nis:.1f} > {limit:g}", s)
 
         m = rows.T @ hs.T  # (n, 2) M = P H^T
         gain = m @ s_inv  # (n, 2) K
+        if landmark_only:  # any K keeps the Joseph form exact: zero the rows outside the landmark
+            keep = np.zeros(n, dtype=bool)
+            keep[k : k + self._lm] = True
+            gain[~keep] = 0.0
         self._x[:n] += gain @ nu  # (3) state update
-        # Joseph form, rank 4: P -= K W^T + W K^T, W = M - K S / 2.
+        # Joseph form, rank 4: P -= K W^T + W K^T, W = M - K S / 2 (valid for any gain K).
         w = m - 0.5 * (gain @ s)
         u4 = np.empty((n, 4), order="F")
         u4[:, :2] = gain
@@ -474,8 +575,33 @@ class EkfSlam:
         if out is not block_t:  # BLAS wrapper made a copy (should not happen): write back
             block_t[...] = out
         self._symmetrise_rows(idx)
-        self._check_blocks(idx, f"update of landmark {i}")
+        self._check_blocks(k, f"update of landmark {i}")
         return UpdateResult(True, nis, nu, "", s)
+
+    def joint_nis(self, observations) -> tuple[float, np.ndarray]:
+        """Joint compatibility of several landmarks seen in the same frame.
+
+        ``observations``: a sequence of ``(i, mn_px, heading_rad, altitude_m, focal_px,
+        pixel_sigma_px, altitude_sigma_m, heading_sigma_rad)``. The innovations share the
+        vehicle's error, so they are tested together: returns the joint NIS
+        ``nu^T S^-1 nu`` (chi-square with 2K degrees of freedom) and (K,) each observation's
+        share of it (``nu_j^T (S^-1 nu)_j``), which points at the one that does not fit.
+        """
+        terms = [self._innovation(*ob) for ob in observations]
+        if not terms:
+            return 0.0, np.zeros(0)
+        idx = np.unique(np.concatenate([t[2] for t in terms]))
+        col = {int(c): j for j, c in enumerate(idx)}
+        h_full = np.zeros((2 * len(terms), len(idx)))
+        r_full = np.zeros((2 * len(terms), 2 * len(terms)))
+        nu = np.concatenate([t[0] for t in terms])
+        for j, (_, hs, ix, r_m, _) in enumerate(terms):
+            h_full[2 * j : 2 * j + 2, [col[int(c)] for c in ix]] = hs
+            r_full[2 * j : 2 * j + 2, 2 * j : 2 * j + 2] = r_m
+        s = h_full @ self._P[np.ix_(idx, idx)] @ h_full.T + r_full
+        w = np.linalg.solve(0.5 * (s + s.T), nu)
+        share = (nu * w).reshape(-1, 2).sum(axis=1)
+        return float(nu @ w), share
 
     def _symmetrise_rows(self, idx: np.ndarray) -> None:
         """Cheap O(N) symmetrisation of the rows/columns the next update reads."""
@@ -484,8 +610,8 @@ class EkfSlam:
         self._P[idx, :n] = avg
         self._P[:n, idx] = avg.T
 
-    def _check_blocks(self, idx: np.ndarray, where: str) -> None:
-        """Cheap health check: every variance >= 0, the touched 2x2 blocks PSD."""
+    def _check_blocks(self, k: int, where: str) -> None:
+        """Cheap health check: every variance >= 0, the vehicle's and landmark row k's 2x2 blocks PSD."""
         n = self._n
         diag = np.diagonal(self._P)[:n]
         dmax = float(np.max(diag))
@@ -498,7 +624,7 @@ class EkfSlam:
                 f"(negative or not finite); the covariance is no longer positive semi-definite. "
                 "Check the noise figures (Q, pixel sigma) and the inputs fed to the filter."
             )
-        for r in (idx[0], idx[-2]):  # the vehicle's and the landmark's 2x2 blocks
+        for r in (0, k):  # the vehicle's and the landmark's 2x2 blocks
             b = self._P[r : r + 2, r : r + 2]
             if b[0, 0] * b[1, 1] - b[0, 1] * b[1, 0] < -tol * tol:
                 raise FilterInconsistencyError(
@@ -519,7 +645,8 @@ class EkfSlam:
     ) -> int:
         """Add a landmark observed at [m, n] by (4); returns its id.
 
-        ``X = x + Z/f R(psi) [m, n]``. With ``config.augmentation == "full"`` the new rows carry
+        ``X = x + Z/f R(psi) [m, n]`` (with a landmark height state, ``h = 0`` with variance
+        ``landmark_height_sigma_m^2``, and X moves with h). With ``config.augmentation == "full"`` the new rows carry
         the cross-covariances ``cov(X, .) = cov(x, .)`` with the vehicle and the whole map
         (the correct form); with ``"paper"`` only the diagonal block
         ``P_X = P_x + (Z/f)^2 R R_m R^T`` is set and the cross terms are zero.
@@ -533,35 +660,48 @@ class EkfSlam:
         f = _finite("focal_px", focal_px, positive=True)
         sp, sz, sh = self._noise_args(pixel_sigma_px, altitude_sigma_m, heading_sigma_rad)
 
-        self._reserve(2)
+        lm = self._lm
+        self._reserve(lm)
         n = self._n
         theta = self.map_heading_rad(psi)
-        g, j_psi = landmark_jacobians(mn, theta, z, f)  # d X / d [m, n], d X / d psi
-        r_m = observation_noise_px2(mn, sp, z, sz, sh)
+        depth = z + self.altitude_bias_m  # the new landmark's height starts at 0
+        g, j_psi = landmark_jacobians(mn, theta, depth, f)  # d X / d [m, n], d X / d psi
+        r_m = observation_noise_px2(mn, sp, depth, sz, sh)
         p = self._P
-        self._x[n : n + 2] = landmark_from_mn(mn, self._x[:2], theta, z, f)[0]  # (4)
-        # cov(X, .) = cov(x, .) [+ d X / d eps cov(eps, .)]: the rows of J = [I (, je)].
-        cross = p[0:2, :n].copy()
-        if self._v == 3:
-            je = -j_psi[0]  # d X / d eps = -d X / d psi
-            cross += np.outer(je, p[2, :n])
-            block = cross[:, 0:2] + np.outer(cross[:, 2], je) + g @ r_m @ g.T
-        else:
-            block = cross[:, 0:2] + g @ r_m @ g.T
+        self._x[n : n + 2] = landmark_from_mn(mn, self._x[:2], theta, depth, f)[0]  # (4)
+        # cov(X, .) = J cov(vehicle, .), J = [I (, d X / d eps = -d X / d psi) (, d X / d b = R [m, n] / f)].
+        v = self._v
+        jv = np.zeros((2, v))
+        jv[:, :2] = np.eye(2)
+        if self._eps is not None:
+            jv[:, self._eps] = -j_psi[0]
+        if self._b is not None:
+            jv[:, self._b] = (g @ mn) / depth
+        cross = jv @ p[:v, :n]
+        block = cross[:, :v] @ jv.T + g @ r_m @ g.T
         if self.config.augmentation == "full":
             p[n : n + 2, :n] = cross
             p[:n, n : n + 2] = cross.T
         else:
             p[n : n + 2, :n] = 0.0
             p[:n, n : n + 2] = 0.0
+        if lm == 3:  # the height: a prior of zero, independent of the rest; X moves with it by -R [m, n] / f
+            var_h = self.config.landmark_height_sigma_m**2
+            jh = -(g @ mn) / depth  # d X / d h
+            block = block + var_h * np.outer(jh, jh)
+            self._x[n + 2] = 0.0
+            p[n + 2, : n + 2] = 0.0
+            p[: n + 2, n + 2] = 0.0
+            p[n : n + 2, n + 2] = p[n + 2, n : n + 2] = var_h * jh
+            p[n + 2, n + 2] = var_h
         p[n : n + 2, n : n + 2] = 0.5 * (block + block.T)
-        self._n = n + 2
-        return (n - self._v) // 2
+        self._n = n + lm
+        return (n - self._v) // lm
 
     # ------------------------------------------------------------------ (5), (6)
     def _gate_inputs(self):
         cross = self.vehicle_landmark_cov_m2() if self.config.gate_covariance == "relative" else None
-        return self._x[self._v : self._n].reshape(-1, 2), self.landmarks_cov_m2(), self._x[:2], self._P[:2, :2], cross
+        return self.landmarks_xy_m(), self.landmarks_cov_m2(), self._x[:2], self._P[:2, :2], cross
 
     def _footprint(self, heading_rad, altitude_m, focal_px, width_px, height_px) -> np.ndarray:
         """D of (5) at the map heading, the inputs checked."""
@@ -639,4 +779,4 @@ class EkfSlam:
 
     def __repr__(self) -> str:
         x, y = self._x[:2]
-        return f"EkfSlam(vehicle=({x:.3f}, {y:.3f}) m, landmarks={self.n_landmarks}, capacity={(self._cap - self._v) // 2})"
+        return f"EkfSlam(vehicle=({x:.3f}, {y:.3f}) m, landmarks={self.n_landmarks}, capacity={(self._cap - self._v) // self._lm})"

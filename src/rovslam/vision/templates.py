@@ -43,6 +43,7 @@ class Template:
     centre_uv_px: np.ndarray
     patch: np.ndarray
     local_variance: float
+    self_similarity: float = float("nan")  # :func:`self_similarity` when extraction tested it
 
     @property
     def size_px(self) -> int:
@@ -276,18 +277,19 @@ def extract_templates(
         if not best >= threshold:
             break
         u0, v0 = u - half, v - half
-        if max_self_similarity is not None and refused < 4 * max_count and (
-            self_similarity(img, (u0, v0), size, similarity_radius_px) > max_self_similarity
-        ):
-            refused += 1  # ambiguous: its neighbours look the same; so would the ones next to it
-            q = max(1, size // 4)
-            score[max(0, v - q) : v + q + 1, max(0, u - q) : u + q + 1] = -1.0
-            continue
+        similarity = float("nan")
+        if max_self_similarity is not None and refused < 4 * max_count:
+            similarity = self_similarity(img, (u0, v0), size, similarity_radius_px)
+            if similarity > max_self_similarity:
+                refused += 1  # ambiguous: its neighbours look the same; so would the ones next to it
+                q = max(1, size // 4)
+                score[max(0, v - q) : v + q + 1, max(0, u - q) : u + q + 1] = -1.0
+                continue
         patch = np.array(img[v0 : v0 + size, u0 : u0 + size], dtype=np.float32)
         patch.setflags(write=False)
         centre = np.array([u0 + 0.5 * (size - 1), v0 + 0.5 * (size - 1)])
         centre.setflags(write=False)
-        templates.append(Template(centre_uv_px=centre, patch=patch, local_variance=float(best)))
+        templates.append(Template(centre_uv_px=centre, patch=patch, local_variance=float(best), self_similarity=similarity))
         # Non-overlap: suppress anchors within one template size (or the spacing) in both axes.
         score[max(0, v - spacing + 1) : v + spacing, max(0, u - spacing + 1) : u + spacing] = -1.0
     return templates

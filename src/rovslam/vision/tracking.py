@@ -373,8 +373,11 @@ class TokenTracker:
         """
         cfg = self.speed_config
         img = np.array(track_img, dtype=np.float32)  # own copy: the caller may reuse its buffer
-        self._tokens = extract_templates(img, local_var, cfg.size_px, cfg.max_count,
-                                         cfg.min_local_variance, cfg.border_px, inhibit, cfg.min_spacing_px)
+        self._tokens = extract_templates(
+            img, local_var, cfg.size_px, cfg.max_count, cfg.min_local_variance, cfg.border_px, inhibit,
+            cfg.min_spacing_px, cfg.max_self_similarity if cfg.max_self_similarity < 1.0 else None,
+            cfg.search_radius_px + 2,
+        )
         self._prev_img = img
         self._prev_small = reduce_image(img, global_scale(img.shape)) if self.tracker_config.global_search else None
         return len(self._tokens)
