@@ -165,3 +165,45 @@ def test_despeckled_channel_refuses_what_template_channel_refuses():
         despeckled_channel(np.zeros((8, 8, 3), np.float32), "grey", 3)
     with pytest.raises(InvalidArgumentError, match="shape"):
         despeckled_channel(np.zeros((8, 8, 4), np.uint8), "grey", 3)
+
+
+@pytest.mark.parametrize("scale", [0.0, 0.3, 40.0])
+def test_contrast_std_is_numpys_std_up_to_float32_rounding(scale):
+    from rovslam.vision.filters import contrast_std
+
+    rng = np.random.default_rng(6)
+    img = (rng.standard_normal((272, 360)) * scale).astype(np.float32)
+    ref = float(img.astype(np.float64).std())
+    assert contrast_std(img) == pytest.approx(ref, rel=1e-9, abs=1e-12)
+    assert contrast_std(img) == pytest.approx(float(img.std()), rel=1e-5, abs=1e-7)
+
+
+def test_self_similarity_flat_and_textured_windows():
+    from rovslam.vision.templates import self_similarity
+
+    rng = np.random.default_rng(7)
+    flat = np.full((80, 80), 3.0, np.float32)
+    assert self_similarity(flat, (30, 30), 16, 8) == 1.0  # cannot be correlated: as ambiguous as it gets
+    noise = rng.standard_normal((80, 80)).astype(np.float32)
+    assert self_similarity(noise, (30, 30), 16, 8) < 0.6  # white noise: no look-alike neighbour
+    tiled = np.tile(noise[:10, :10], (8, 8))  # period 10 px: the neighbour 10 px away is the window itself
+    assert self_similarity(tiled, (30, 30), 16, 12) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_extract_reuses_the_reduction_track_made_of_the_same_image():
+    from rovslam.config import SpeedTemplateConfig, TrackerConfig
+    from rovslam.vision.tracking import TokenTracker, global_scale, reduce_image
+
+    rng = np.random.default_rng(8)
+    frames = [cv2.GaussianBlur(rng.standard_normal((272, 360)).astype(np.float32) * 20, (0, 0), 1.5) for _ in range(3)]
+    lv = [local_variance(f, 16) for f in frames]
+    tr = TokenTracker(SpeedTemplateConfig(), TrackerConfig())
+    tr.extract(frames[0], lv[0])
+    for f, v in zip(frames[1:], lv[1:]):
+        tr.track(f, None)
+        tr.extract(f, v)
+        np.testing.assert_array_equal(tr._prev_small, reduce_image(f, global_scale(f.shape)))
+    other = frames[0] + 1.0  # a different image than the one tracked: reduced afresh, not reused
+    tr.track(frames[1], None)
+    tr.extract(other, lv[0])
+    np.testing.assert_array_equal(tr._prev_small, reduce_image(other, global_scale(other.shape)))
