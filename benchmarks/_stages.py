@@ -24,8 +24,9 @@ from typing import Any
 # (label, targets); a target is "module:Attr.path". Order = the order of the table.
 STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("decode", ("rovslam.io.sequence:Sequence._load",)),
-    ("channel and despeckle", ("rovslam.pipeline:template_channel", "rovslam.pipeline:remove_specks")),
-    ("band-pass (+ texture check)", ("rovslam.pipeline:bandpass", "rovslam.pipeline:SlamPipeline._tracking_image")),
+    ("channel and despeckle", ("rovslam.pipeline:despeckled_channel",)),
+    ("band-pass (+ texture check)", ("rovslam.pipeline:bandpass", "rovslam.pipeline:contrast_std",
+                                     "rovslam.pipeline:SlamPipeline._tracking_image")),
     ("local variance", ("rovslam.pipeline:local_variance",)),
     ("laser (spots, altitude, inhibition)", ("rovslam.pipeline:SlamPipeline._measure_altitude",
                                              "rovslam.pipeline:SlamPipeline._inhibit_laser_spots")),

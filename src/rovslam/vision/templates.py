@@ -271,7 +271,7 @@ def extract_templates(
         kernel = np.ones((size, size), np.uint8)
         touched = cv2.dilate(inhibit.view(np.uint8), kernel, anchor=(half, half),
                              borderType=cv2.BORDER_CONSTANT, borderValue=0)
-        score[touched.view(bool)] = -1.0
+        np.copyto(score, np.float32(-1.0), where=touched.view(bool))  # = score[touched] = -1, without the gather
     threshold = max(float(min_local_variance), np.finfo(np.float32).tiny)
 
     templates: list[Template] = []
