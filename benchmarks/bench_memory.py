@@ -71,10 +71,10 @@ def worker(spec: dict) -> dict:
                             "landmarks": res.n_landmarks, "map_mib": _map_bytes(holder["pipe"]) / MIB})
 
     runner.SlamPipeline.__init__ = keep
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     with tempfile.TemporaryDirectory() as tmp, source_override(src):
         s = runner.run_sequence(spec["folder"], Path(tmp) / "out", on_frame=on_frame)
-    return {"frames": s.frames, "wall_s": time.perf_counter() - t0, "samples": samples,
+    return {"frames": s.frames, "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0, "samples": samples,
             "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
@@ -107,13 +107,13 @@ def main() -> int:
         print(f"running {times} x {args.frames} frames ...", flush=True)
         results["runs"][str(times)] = _spawn({"folder": str(folder), "times": times})
     print(f"\npeak memory of rovslam run (360x272, {args.format}); RSS and map sampled every tenth of the run")
-    head = f"{'length':>16}{'wall s':>9}{'peak MiB':>10}{'landmarks':>11}{'map MiB':>9}{'RSS - map, MiB at 10 % ... 100 % of the run':>50}"
+    head = f"{'length':>16}{'wall s':>9}{'CPU s':>8}{'peak MiB':>10}{'landmarks':>11}{'map MiB':>9}{'RSS - map, MiB at 10 % ... 100 % of the run':>50}"
     print(head)
     print("-" * len(head))
     for times, r in results["runs"].items():
         last = r["samples"][-1]
         flat = " ".join(f"{s['rss_mib'] - s['map_mib']:.0f}" for s in r["samples"])
-        print(f"{times + ' x ' + str(args.frames):>16}{r['wall_s']:9.0f}{r['peak_mib']:10.0f}{last['landmarks']:11d}"
+        print(f"{times + ' x ' + str(args.frames):>16}{r['wall_s']:9.0f}{r.get('cpu_s', float('nan')):8.0f}{r['peak_mib']:10.0f}{last['landmarks']:11d}"
               f"{last['map_mib']:9.1f}   {flat}")
     path = write_json("memory", results, args.json)
     print(f"\nwrote {path}")
