@@ -205,7 +205,7 @@ def test_covariance_matches_the_scatter_of_the_estimate():
 
 def test_estimator_holds_the_last_speed_and_grows_the_covariance():
     rng = np.random.default_rng(13)
-    est = SpeedEstimator(OdometryConfig(gap_speed_sigma_mps=0.02, initial_speed_sigma_mps=0.2))
+    est = SpeedEstimator(OdometryConfig(held_speed_drift_mps2=0.02, initial_speed_sigma_mps=0.2))
     empty = np.zeros((0, 2))
     first = est.measure(CAM, empty, empty, Z, Z, DT)
     assert (first.ok, first.surge_mps, first.sway_mps) == (False, 0.0, 0.0)
@@ -233,7 +233,7 @@ def test_a_held_speed_covers_the_position_error_it_causes():
     position variance the filter accumulates from the per-step Q equals that of the correlated sum."""
     rng = np.random.default_rng(5)
     g, b_sigma = 0.02, 0.004
-    est = SpeedEstimator(OdometryConfig(gap_speed_sigma_mps=g))
+    est = SpeedEstimator(OdometryConfig(held_speed_drift_mps2=g))
     uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, -0.004])
     good = est.measure(CAM, uv0, uv1, Z, Z, DT)
     b = np.eye(2) * b_sigma**2
@@ -302,7 +302,7 @@ def test_held_speed_drives_the_filter_through_a_gap():
     from rovslam.slam import EkfSlam
 
     rng = np.random.default_rng(18)
-    est = SpeedEstimator(OdometryConfig(gap_speed_sigma_mps=0.02))
+    est = SpeedEstimator(OdometryConfig(held_speed_drift_mps2=0.02))
     ekf = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0, landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0))
     empty = np.zeros((0, 2))
     uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])

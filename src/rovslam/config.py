@@ -221,7 +221,8 @@ class OdometryConfig(_Checked):
     min_speed_sigma_mps: float = _num(0.0005, gt=0)  # floor of the speed standard deviation
     token_sigma_px: float = _num(0.15, gt=0)  # one token's displacement noise (floor)
     common_sigma_px: float = _num(0.15, ge=0)  # an error all tokens of a step share (compression, lighting): not / n
-    gap_speed_sigma_mps: float = _num(0.02, ge=0)  # added per second without tokens
+    gap_speed_sigma_mps: float = _num(0.02, ge=0)  # landmark search: the speed may change by this per second
+    held_speed_drift_mps2: float = _num(0.1, ge=0)  # a held speed's error grows by this per second (a manoeuvre)
     initial_speed_sigma_mps: float = _num(0.2, gt=0)  # speed sigma held before the first good measurement
     max_accel_mps2: float = _num(0.0, ge=0)  # > 0: a speed changing faster than this (+3 sigma) is a wrong consensus (0: off)
     max_speed_mps: float = _num(3.0, gt=0)  # a measured speed above this is not a vehicle's: refused

@@ -512,7 +512,8 @@ class SpeedEstimator:
 
         The held speed's error is the same in every step of the gap: the last good speed's
         error ``e0`` (covariance ``B``) plus a drift growing with the time ``T_k`` since then
-        (``g = gap_speed_sigma_mps`` per second, an unknown acceleration ``a``), so step ``k``
+        (``g = held_speed_drift_mps2``, an unknown acceleration ``a``: the vehicle may be
+        manoeuvring, a lane end, while the tokens fail), so step ``k``
         moves the position by ``(e0 + a T_k) dt_k`` too much. Those errors are correlated, but
         the filter adds each step's Q as if independent, so Q is chosen to give the position,
         after every step, the variance of the correlated sum::
@@ -531,7 +532,7 @@ class SpeedEstimator:
         t_prev, s_prev = self._gap_s, self._gap_sum_s2
         self._gap_s += dt
         self._gap_sum_s2 += self._gap_s * dt
-        g2 = self.config.gap_speed_sigma_mps**2
+        g2 = self.config.held_speed_drift_mps2**2
         grow = g2 * (self._gap_sum_s2**2 - s_prev**2) / dt**2 if dt > 0 else g2 * self._gap_s**2
         if self._last is None:
             surge = sway = 0.0
