@@ -9,6 +9,7 @@ appended to ``OUT/runs.jsonl`` (a second call skips the runs already there).
 
     python scripts/nav_closing_note.py --out nav-note                      # the closing note (long)
     python scripts/nav_closing_note.py --out nav-quick --survey-s 120 --seeds 1 --presets portofino-relief
+    python scripts/nav_closing_note.py --out nav-note --table-only            # the table of the runs done so far
 """
 
 from __future__ import annotations
@@ -55,16 +56,21 @@ def one_run(args: tuple) -> dict:
 
 
 def table(runs: list[dict]) -> str:
-    lines = ["| preset | estimator | seeds | points reached | mean true arrival error | worst | mean hold RMS (true) |",
-             "| --- | --- | --- | ---: | ---: | ---: | ---: |"]
+    lines = ["| preset | estimator | seeds | points reached | mean true arrival error | worst | mean hold RMS (true) | "
+             "mean / slam's |",
+             "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: |"]
+    slam_mean = {p: np.mean([e for r in runs if r["preset"] == p and r["estimator"] == "slam" for e in r["true_err_m"]])
+                 for p in {r["preset"] for r in runs if r["estimator"] == "slam" and r["true_err_m"]}}
     keys = sorted({(r["preset"], r["estimator"]) for r in runs}, key=lambda k: (k[0], k[1] != "slam"))
     for preset, est in keys:
         rs = [r for r in runs if r["preset"] == preset and r["estimator"] == est]
         errs = [e for r in rs for e in r["true_err_m"]]
         holds = [h for r in rs for h in r["hold_rms_true_m"] if h == h]
         seeds = ",".join(str(r["seed"]) for r in sorted(rs, key=lambda r: r["seed"]))
+        ratio = f"{np.mean(errs) / slam_mean[preset]:.1f}" if preset in slam_mean and errs else ""
         lines.append(f"| {preset} | {est} | {seeds} | {sum(r['reached'] for r in rs)}/{sum(r['points'] for r in rs)} | "
-                     f"{1e3 * np.mean(errs):.1f} mm | {1e3 * np.max(errs):.1f} mm | {1e3 * np.mean(holds):.1f} mm |")
+                     f"{1e3 * np.mean(errs):.1f} mm | {1e3 * np.max(errs):.1f} mm | {1e3 * np.mean(holds):.1f} mm | "
+                     f"{ratio} |")
     return "\n".join(lines)
 
 
@@ -79,13 +85,14 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=10)
     ap.add_argument("--span-m", type=float, default=2.0)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--table-only", action="store_true", help="only tabulate the runs already in OUT/runs.jsonl")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     log = a.out / "runs.jsonl"
     done = [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
     have = {(r["preset"], r["seed"], r["estimator"], r["survey_s"]) for r in done}
     todo = [(p, s, e, a.survey_s, a.hold_s, a.points, a.span_m, str(a.out)) for s in a.seeds for p in a.presets
-            for e in a.estimators if (p, s, e, a.survey_s) not in have]
+            for e in a.estimators if (p, s, e, a.survey_s) not in have and not a.table_only]
     with ProcessPoolExecutor(max_workers=a.workers) as pool:
         for res in pool.map(one_run, todo):
             done.append(res)

@@ -16,6 +16,7 @@ and closes every file complete, ``summary.json`` saying ``"interrupted"``.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import signal
 import time
@@ -28,7 +29,7 @@ import numpy as np
 from rovslam import __version__
 from rovslam.config import RunConfig, to_dict
 from rovslam.errors import InvalidArgumentError, OutputError
-from rovslam.io.results import ResultWriter, atomic_write_text, json_text, output_errors, prepare_output_folder
+from rovslam.io.results import ResultWriter, atomic_write_text, output_errors, prepare_output_folder
 from rovslam.nav.closed_loop import ARRIVAL_COLUMNS, ArrivalBook, ClosedLoop, LoopStep
 from rovslam.nav.estimate import check_estimator
 from rovslam.nav.guidance import Goal, GuidanceConfig
@@ -42,6 +43,7 @@ NAVIGATION_COLUMNS = (
     "true_x_m", "true_y_m", "true_heading_rad", "true_current_x_mps", "true_current_y_mps",
 )
 GROUNDTRUTH_COLUMNS = ("t_s", "x_m", "y_m", "altitude_m", "heading_rad")
+FLUSH_EVERY = 50
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,7 @@ class _NavFiles:
 
     def __init__(self, out: Path) -> None:
         self.out = out
+        self._n = 0
         self._fhs = {}
         self._w = {}
         for name, cols in (("navigation.csv", NAVIGATION_COLUMNS), ("groundtruth.csv", GROUNDTRUTH_COLUMNS)):
@@ -92,21 +95,24 @@ class _NavFiles:
                 tr.x_m, tr.y_m, tr.heading_rad, float(s.current_true_mps[0]), float(s.current_true_mps[1]))])
         with output_errors(self.out / "groundtruth.csv"):
             self._w["groundtruth.csv"].writerow([_f(v) for v in (tr.t_s, tr.x_m, tr.y_m, tr.altitude_m, tr.heading_rad)])
+        self._n += 1
+        if self._n % FLUSH_EVERY == 0:  # as ResultWriter: complete lines on disk as the run goes
+            for name, fh in self._fhs.items():
+                with output_errors(self.out / name):
+                    fh.flush()
 
     def write_arrivals(self, rows: list[dict]) -> None:
-        lines = [",".join(ARRIVAL_COLUMNS)]
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(ARRIVAL_COLUMNS)
         for r in rows:
-            lines.append(",".join(_csv_cell(_f(r.get(c))) for c in ARRIVAL_COLUMNS))
-        atomic_write_text(self.out / "arrivals.csv", "\n".join(lines) + "\n")
+            w.writerow([_f(r.get(c)) for c in ARRIVAL_COLUMNS])
+        atomic_write_text(self.out / "arrivals.csv", buf.getvalue())
 
     def close(self) -> None:
         for name, fh in self._fhs.items():
             with output_errors(self.out / name):
                 fh.close()
-
-
-def _csv_cell(text: str) -> str:
-    return f'"{text.replace(chr(34), chr(34) * 2)}"' if any(c in text for c in ',"\n') else text
 
 
 def navigate(
@@ -136,10 +142,10 @@ def navigate(
     if not (isinstance(hold_s, (int, float)) and math.isfinite(hold_s) and hold_s >= 0):
         raise InvalidArgumentError(f"--hold-s must be a number of seconds >= 0, got {hold_s!r}")
     gcfg = guidance if guidance is not None else GuidanceConfig(hold_s=float(hold_s))
-    loop = ClosedLoop(scenario, pois, estimator, seed, survey_s, gcfg, config=config, max_s=max_s)
-    pipe = loop.navigator.pipeline
     with StopRequest() as stop:
         out = prepare_output_folder(out_dir, overwrite)
+        loop = ClosedLoop(scenario, pois, estimator, seed, survey_s, gcfg, config=config, max_s=max_s)
+        pipe = loop.navigator.pipeline
         writer = ResultWriter(out)
         files = _NavFiles(out)
         book = ArrivalBook(pois)
@@ -206,18 +212,12 @@ def navigate(
                    "reason": None if error is None else str(error) or type(error).__name__,
                    "frames_processed": n, "landmarks": landmarks, "wall_time_s": wall, "arrivals": book.table(),
                    "navigation_start_frame": nav_start}
-        writer.write_summary(json_safe(summary))
+        writer.write_summary(summary)
         if error is not None:
             raise error
         return NavigateSummary(n, book.table(), status, wall, out, landmarks,
                                signal=stop.name if status == "interrupted" else None,
                                signum=stop.signum if status == "interrupted" else None)
-
-
-def json_safe(d: dict) -> dict:
-    import json
-
-    return json.loads(json_text(d))
 
 
 def _row_xy(book: ArrivalBook, name: str) -> np.ndarray:
