@@ -79,7 +79,8 @@ def test_the_mission_writes_the_usual_results_and_its_own(acceptance):
     assert d == pytest.approx(float(arr[0]["true_err_m"]), abs=1e-8)
     assert (out / "navigation.png").stat().st_size > 10_000
     s = json.loads((out / "summary.json").read_text())
-    assert s["status"] == "complete" and s["estimator"] == "slam" and s["navigation_start_frame"] == 600
+    # frame 600 (t = 120 s) ends the survey: its command is the first towards a point, frame 601 the first flown so
+    assert s["status"] == "complete" and s["estimator"] == "slam" and s["navigation_start_frame"] == 601
     assert len(rows(out / "landmarks.csv")) == summary.landmarks > 10
 
 
