@@ -163,6 +163,8 @@ class AssociationConfig(_Checked):
     recovery: bool = True
     strong_correlation: float = _num(0.95, gt=0, le=1)
     recovery_after_frames: int = _num(3, ge=1)
+    recovery_min_landmarks: int = _num(2, ge=1)  # different landmarks that must speak against the estimate
+    recovery_memory_s: float = _num(10.0, ge=0)  # how long a refused match's told offset counts as evidence
     recovery_offset_agreement_m: float = _num(0.01, gt=0)  # the refused matches' vehicle offsets agree within this
     wide_search_after_frames: int = _num(5, ge=1)
     wide_search_radius_px: int = _num(150, ge=1)
