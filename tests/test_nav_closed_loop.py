@@ -22,7 +22,9 @@ from rovslam.sim.scenarios import frame_pose
 from rovslam.sim.vehicle import simulate_trajectory
 
 CORNERS_AND_CENTRE = [("ne", 0.5, 0.5), ("nw", 0.5, -0.5), ("sw", -0.5, -0.5), ("se", -0.5, 0.5), ("centre", 0.0, 0.0)]
-MEASURED_DR_OVER_SLAM = 2.36  # mean true arrival error, dead reckoning / slam, measured on this mission
+# Mean true arrival error, dead reckoning / slam, measured on this mission: 5.72 mm / 3.89 mm (2.36 before the
+# consistency work of issue 10 made the held speed's covariance and the relief weighting better: dead reckoning improved).
+MEASURED_DR_OVER_SLAM = 1.47
 
 
 def rows(path):
@@ -56,7 +58,7 @@ def test_slam_reaches_every_point_within_2_cm_of_the_truth(acceptance):
 def test_dead_reckoning_arrives_farther_from_the_points(acceptance):
     slam = np.mean([r["true_err_m"] for r in acceptance["slam"][0].arrivals])
     dr = np.mean([r["true_err_m"] for r in acceptance["dead-reckoning"][0].arrivals])
-    assert dr / slam > 0.85 * MEASURED_DR_OVER_SLAM, (dr, slam)
+    assert dr / slam > 0.88 * MEASURED_DR_OVER_SLAM, (dr, slam)  # > 1.29
 
 
 def test_the_mission_writes_the_usual_results_and_its_own(acceptance):
