@@ -350,6 +350,8 @@ class TokenTracker:
         self._tokens: list[Template] = []
         self._prev_img: np.ndarray | None = None
         self._prev_small: np.ndarray | None = None  # the previous image reduced for the global shift
+        # (image given to track, its reduction): extract reuses it for the same image (computed once a frame)
+        self._reduced: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def tokens(self) -> tuple[Template, ...]:
@@ -361,6 +363,7 @@ class TokenTracker:
         self._tokens = []
         self._prev_img = None
         self._prev_small = None
+        self._reduced = None
 
     def extract(self, track_img: np.ndarray, local_var: np.ndarray, inhibit: np.ndarray | None = None) -> int:
         """Extract fresh tokens for the next frame (paper step 8); returns how many.
@@ -379,7 +382,11 @@ class TokenTracker:
             cfg.search_radius_px + 2,
         )
         self._prev_img = img
-        self._prev_small = reduce_image(img, global_scale(img.shape)) if self.tracker_config.global_search else None
+        self._prev_small = None
+        if self.tracker_config.global_search:
+            reduced, self._reduced = self._reduced, None
+            self._prev_small = reduced[1] if reduced is not None and reduced[0] is track_img else (
+                reduce_image(img, global_scale(img.shape)))
         return len(self._tokens)
 
     def track(
@@ -456,6 +463,8 @@ class TokenTracker:
         if cfg.global_search and self._prev_small is not None:
             scale = global_scale(img.shape)
             small = reduce_image(img, scale)
+            if scale < 1.0:  # a new array (at scale 1 it is the caller's image): the same frame's extract() reuses it
+                self._reduced = (track_img, small)
             if small.shape == self._prev_small.shape:
                 g_small, g_conf = global_shift(self._prev_small, small)
                 g_shift = g_small / scale
