@@ -32,6 +32,7 @@ NEVER = {
     "eval": ["rovslam.cli", "rovslam.viz"],
     "viz": ["rovslam.slam.ekf", "rovslam.slam.gating", "rovslam.cli"],
     "nav": ["rovslam.vision", "rovslam.io", "rovslam.viz", "rovslam.cli"],
+    "navigate": ["rovslam.cli", "rovslam.batch"],
 }
 
 

@@ -61,6 +61,10 @@ class ClusterError(RovslamError):
     """A Dask cluster for ``rovslam batch`` cannot be reached, or is asked for in a way that cannot be."""
 
 
+class PoiFormatError(RovslamError):
+    """A points-of-interest file (``rovslam navigate --poi``): a missing column, a bad or duplicate row."""
+
+
 class SimulationError(RovslamError):
     """A simulation request is invalid (unknown scenario, bad frame count, bad texture)."""
 

@@ -175,7 +175,9 @@ RESULT_FILES = frozenset(
     {"trajectory.csv", "trajectory.tum", "observations.csv", "landmarks.csv", "summary.json", "config.toml",
      "eval.json", "tokens.csv", "run.rrd", "mosaic.png", "mosaic.pgw", "mosaic_truth.png", "mosaic_truth.pgw",
      "measurements.csv", "landmark_measurements.csv", "trajectory_smoothed.tum", "trajectory_smoothed.csv",
-     "landmarks_smoothed.csv"}
+     "landmarks_smoothed.csv",
+     # rovslam navigate
+     "groundtruth.csv", "navigation.csv", "arrivals.csv", "navigation.png"}
 )
 # Folders rovslam writes, with the pattern of their files' paths relative to the folder.
 RESULT_DIRS = {

@@ -1,0 +1,226 @@
+"""``rovslam navigate``: a closed-loop mission in the simulator, written as a results folder (the edge to disk).
+
+``OUT/`` gets what ``rovslam run`` writes (``trajectory.csv`` with ``dr_x_m, dr_y_m``,
+``trajectory.tum``, ``observations.csv``, ``landmarks.csv`` and templates, ``config.toml``,
+``summary.json``) and:
+
+``OUT/groundtruth.csv``  the simulated vehicle's true state per frame (``rovslam eval`` reads it)
+``OUT/navigation.csv``   per frame: the goal, the estimate steered by, the command, the current estimate, the truth
+``OUT/arrivals.csv``     per point: ``name,x_m,y_m,arrival_t_s,est_err_m,true_err_m,hold_rms_true_m`` (and more)
+``OUT/navigation.png``   true and estimated paths with the points, and the arrival errors
+
+Rows are written as the run goes; Ctrl-C (or SIGTERM, SIGHUP) finishes the frame in hand
+and closes every file complete, ``summary.json`` saying ``"interrupted"``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rovslam import __version__
+from rovslam.config import RunConfig, to_dict
+from rovslam.errors import InvalidArgumentError, OutputError
+from rovslam.io.results import ResultWriter, atomic_write_text, output_errors, prepare_output_folder
+from rovslam.nav.closed_loop import ARRIVAL_COLUMNS, ArrivalBook, ClosedLoop, LoopStep
+from rovslam.nav.estimate import check_estimator
+from rovslam.nav.guidance import Goal, GuidanceConfig
+from rovslam.runner import StopRequest
+
+__all__ = ["NAVIGATION_COLUMNS", "NavigateSummary", "navigate"]
+
+NAVIGATION_COLUMNS = (
+    "t_s", "phase", "goal", "target_x_m", "target_y_m", "nav_x_m", "nav_y_m", "nav_var_x_m2", "nav_cov_xy_m2",
+    "nav_var_y_m2", "cmd_surge_mps", "cmd_sway_mps", "cmd_yaw_rate_radps", "current_x_mps", "current_y_mps",
+    "true_x_m", "true_y_m", "true_heading_rad", "true_current_x_mps", "true_current_y_mps",
+)
+GROUNDTRUTH_COLUMNS = ("t_s", "x_m", "y_m", "altitude_m", "heading_rad")
+FLUSH_EVERY = 50
+
+
+@dataclass(frozen=True)
+class NavigateSummary:
+    """What :func:`navigate` did."""
+
+    frames: int
+    arrivals: list[dict]
+    status: str  # "complete" | "interrupted" | "timeout"
+    wall_s: float
+    out_dir: Path
+    landmarks: int
+    signal: str | None = None
+    signum: int | None = None
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum if self.signum is not None else 0
+
+
+def _f(v) -> str:
+    return "" if v is None or (isinstance(v, float) and math.isnan(v)) else (f"{v:.9g}" if isinstance(v, float) else str(v))
+
+
+class _NavFiles:
+    """navigation.csv and groundtruth.csv, streamed; arrivals.csv rewritten whole (atomically) as rows complete."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        self._n = 0
+        self._fhs = {}
+        self._w = {}
+        for name, cols in (("navigation.csv", NAVIGATION_COLUMNS), ("groundtruth.csv", GROUNDTRUTH_COLUMNS)):
+            with output_errors(out / name, "cannot create"):
+                fh = (out / name).open("x", newline="", encoding="utf-8")
+                self._fhs[name] = fh
+                self._w[name] = csv.writer(fh, lineterminator="\n")
+                self._w[name].writerow(cols)
+        self.write_arrivals([])
+
+    def write_step(self, s: LoopStep) -> None:
+        n, est, tr = s.nav, s.nav.estimate, s.truth
+        tgt = n.target_xy_m if n.target_xy_m is not None else (math.nan, math.nan)
+        with output_errors(self.out / "navigation.csv"):
+            self._w["navigation.csv"].writerow([_f(v) for v in (
+                tr.t_s, n.phase, n.goal_index, float(tgt[0]), float(tgt[1]), float(est.xy_m[0]), float(est.xy_m[1]),
+                float(est.cov_m2[0, 0]), float(est.cov_m2[0, 1]), float(est.cov_m2[1, 1]), n.command.surge_mps,
+                n.command.sway_mps, n.command.yaw_rate_radps, float(n.current_mps[0]), float(n.current_mps[1]),
+                tr.x_m, tr.y_m, tr.heading_rad, float(s.current_true_mps[0]), float(s.current_true_mps[1]))])
+        with output_errors(self.out / "groundtruth.csv"):
+            self._w["groundtruth.csv"].writerow([_f(v) for v in (tr.t_s, tr.x_m, tr.y_m, tr.altitude_m, tr.heading_rad)])
+        self._n += 1
+        if self._n % FLUSH_EVERY == 0:  # as ResultWriter: complete lines on disk as the run goes
+            for name, fh in self._fhs.items():
+                with output_errors(self.out / name):
+                    fh.flush()
+
+    def write_arrivals(self, rows: list[dict]) -> None:
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(ARRIVAL_COLUMNS)
+        for r in rows:
+            w.writerow([_f(r.get(c)) for c in ARRIVAL_COLUMNS])
+        atomic_write_text(self.out / "arrivals.csv", buf.getvalue())
+
+    def close(self) -> None:
+        for name, fh in self._fhs.items():
+            with output_errors(self.out / name):
+                fh.close()
+
+
+def navigate(
+    scenario: str,
+    pois: list[Goal],
+    out_dir: str | Path,
+    estimator: str = "slam",
+    survey_s: float = 0.0,
+    hold_s: float = 10.0,
+    seed: int = 0,
+    config: RunConfig = RunConfig(),
+    guidance: GuidanceConfig | None = None,
+    max_s: float | None = None,
+    overwrite: bool = False,
+    on_start: Callable[[float], None] | None = None,
+    on_step: Callable[[LoopStep, int], None] | None = None,
+    plot: bool = True,
+) -> NavigateSummary:
+    """Fly the mission in closed loop and write ``out_dir`` (see the module notes).
+
+    ``on_start(expected_s)`` is called once with a rough duration (survey plus points);
+    ``on_step(step, arrivals_done)`` after every frame.
+    """
+    check_estimator(estimator)
+    if not pois:
+        raise InvalidArgumentError("no point of interest to visit")
+    if not (isinstance(hold_s, (int, float)) and math.isfinite(hold_s) and hold_s >= 0):
+        raise InvalidArgumentError(f"--hold-s must be a number of seconds >= 0, got {hold_s!r}")
+    gcfg = guidance if guidance is not None else GuidanceConfig(hold_s=float(hold_s))
+    with StopRequest() as stop:
+        out = prepare_output_folder(out_dir, overwrite)
+        loop = ClosedLoop(scenario, pois, estimator, seed, survey_s, gcfg, config=config, max_s=max_s)
+        pipe = loop.navigator.pipeline
+        writer = ResultWriter(out)
+        files = _NavFiles(out)
+        book = ArrivalBook(pois)
+        base = {"software": {"name": "rovslam", "version": __version__}, "command": "navigate", "scenario": scenario,
+                "seed": int(seed), "estimator": estimator, "survey_s": float(survey_s), "hold_s": float(hold_s),
+                "guidance": {k: getattr(gcfg, k) for k in gcfg.__dataclass_fields__}, "config": to_dict(config)}
+        writer.write_config(config)
+        writer.write_summary({**base, "status": "running"})
+        true_xy, est_xy, nav_start, n, landmarks = [], [], None, 0, 0
+        status, error, steps = "running", None, None
+        t0 = time.perf_counter()
+        if on_start is not None:
+            on_start(survey_s + sum(60.0 + (hold_s if p.hold_s is None else p.hold_s) for p in pois))
+        try:
+            steps = iter(loop)
+            for step in steps:
+                res = step.nav.result
+                writer.write_frame(res)
+                files.write_step(step)
+                if res.new_landmark_id is not None:
+                    writer.write_landmark_template(res.new_landmark_id, pipe.landmarks[res.new_landmark_id].patch)
+                if book.feed(step):
+                    files.write_arrivals(book.table())
+                true_xy.append((step.truth.x_m, step.truth.y_m))
+                est_xy.append(tuple(step.nav.estimate.xy_m))
+                if nav_start is None and not step.surveying:
+                    nav_start = n
+                n += 1
+                landmarks = res.n_landmarks
+                if on_step is not None:
+                    on_step(step, len(book.table()))
+                if stop.signum is not None:
+                    break
+        except KeyboardInterrupt:
+            stop.request(signal.SIGINT)
+        except BaseException as exc:  # an output error, or a bug: the files still get finished
+            error = exc
+        finally:
+            if steps is not None:
+                steps.close()
+        wall = time.perf_counter() - t0
+        if error is not None:
+            status = "failed"
+        elif stop.signum is not None:
+            status = "interrupted"
+        else:
+            status = "complete" if len(book.table()) == len(pois) else "timeout"
+        try:
+            writer.close(quiet=error is not None)
+            files.close()
+            files.write_arrivals(book.table())
+            writer.write_landmarks(pipe.landmark_rows())
+            if plot and n:
+                from rovslam.viz.navigation import plot_navigation
+
+                pts = np.array([p.xy_m if p.xy_m is not None else _row_xy(book, p.name) for p in pois])
+                plot_navigation(out / "navigation.png", np.array(true_xy), np.array(est_xy), pts,
+                                [p.name for p in pois], nav_start or 0, book.table(), estimator)
+        except OutputError as exc:
+            error = error or exc
+            status = "failed"
+        summary = {**base, "status": status, "complete": status == "complete", "interrupted": status == "interrupted",
+                   "signal": stop.name if status == "interrupted" else None,
+                   "reason": None if error is None else str(error) or type(error).__name__,
+                   "frames_processed": n, "landmarks": landmarks, "wall_time_s": wall, "arrivals": book.table(),
+                   "navigation_start_frame": nav_start}
+        writer.write_summary(summary)
+        if error is not None:
+            raise error
+        return NavigateSummary(n, book.table(), status, wall, out, landmarks,
+                               signal=stop.name if status == "interrupted" else None,
+                               signum=stop.signum if status == "interrupted" else None)
+
+
+def _row_xy(book: ArrivalBook, name: str) -> np.ndarray:
+    row = book.rows.get(name)
+    return np.array([row["x_m"], row["y_m"]]) if row else np.array([math.nan, math.nan])
+

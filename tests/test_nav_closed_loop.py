@@ -1,0 +1,128 @@
+"""The closed loop in the simulator: frames rendered from the true state, the vehicle steered by the estimate.
+
+The acceptance test of issue 16 (a short survey, then 5 points over 1 m x 1 m, slam against
+dead reckoning) runs two missions of about 1,600 and 2,000 frames (about a minute of CPU).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+
+from rovslam.io.sequence import open_sequence
+from rovslam.nav import Goal
+from rovslam.navigate import navigate
+from rovslam.sim import SCENARIOS, simulate
+from rovslam.sim.live import LiveSimulator, TrueState
+from rovslam.sim.scenarios import frame_pose
+from rovslam.sim.vehicle import simulate_trajectory
+
+CORNERS_AND_CENTRE = [("ne", 0.5, 0.5), ("nw", 0.5, -0.5), ("sw", -0.5, -0.5), ("se", -0.5, 0.5), ("centre", 0.0, 0.0)]
+# Mean true arrival error, dead reckoning / slam, measured on this mission: 5.72 mm / 3.89 mm (2.36 before the
+# consistency work of issue 10 made the held speed's covariance and the relief weighting better: dead reckoning improved).
+MEASURED_DR_OVER_SLAM = 1.47
+
+
+def rows(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def acceptance(tmp_path_factory):
+    """portofino, seed 1: a 120 s survey, then the 4 corners and the centre of a 1 m square, 5 s holds."""
+    base = tmp_path_factory.mktemp("nav")
+    pois = [Goal(n, np.array([x, y])) for n, x, y in CORNERS_AND_CENTRE]
+    out = {}
+    for est in ("slam", "dead-reckoning"):
+        s = navigate("portofino", pois, base / est, est, survey_s=120.0, hold_s=5.0, seed=1)
+        out[est] = (s, base / est)
+    return out
+
+
+def test_slam_reaches_every_point_within_2_cm_of_the_truth(acceptance):
+    summary, _ = acceptance["slam"]
+    assert summary.status == "complete" and len(summary.arrivals) == 5
+    errs = [r["true_err_m"] for r in summary.arrivals]
+    assert all(r["reached"] == 1 for r in summary.arrivals)
+    assert max(errs) < 0.02, errs
+    assert all(r["hold_rms_true_m"] < 0.02 for r in summary.arrivals)
+    # the controller stopped on its estimate: within the arrival radius of the point
+    assert all(r["est_err_m"] <= 0.005 for r in summary.arrivals)
+
+
+def test_dead_reckoning_arrives_farther_from_the_points(acceptance):
+    slam = np.mean([r["true_err_m"] for r in acceptance["slam"][0].arrivals])
+    dr = np.mean([r["true_err_m"] for r in acceptance["dead-reckoning"][0].arrivals])
+    assert dr / slam > 0.88 * MEASURED_DR_OVER_SLAM, (dr, slam)  # > 1.29
+
+
+def test_the_mission_writes_the_usual_results_and_its_own(acceptance):
+    summary, out = acceptance["slam"]
+    arr = rows(out / "arrivals.csv")
+    with open(out / "arrivals.csv") as fh:
+        header = fh.readline().strip().split(",")
+    assert header[:7] == ["name", "x_m", "y_m", "arrival_t_s", "est_err_m", "true_err_m", "hold_rms_true_m"]
+    assert [r["name"] for r in arr] == [n for n, _, _ in CORNERS_AND_CENTRE]
+    assert [float(r["true_err_m"]) for r in arr] == pytest.approx([r["true_err_m"] for r in summary.arrivals], rel=1e-8)
+    traj = rows(out / "trajectory.csv")
+    truth = rows(out / "groundtruth.csv")
+    nav = rows(out / "navigation.csv")
+    assert len(traj) == len(truth) == len(nav) == summary.frames
+    assert "dr_x_m" in traj[0] and float(truth[0]["x_m"]) == 0.0 and float(truth[0]["y_m"]) == 0.0
+    # arrival error from the files: the truth at the arrival time against the point
+    t_arr = float(arr[0]["arrival_t_s"])
+    k = next(i for i, r in enumerate(truth) if abs(float(r["t_s"]) - t_arr) < 1e-6)
+    d = math.hypot(float(truth[k]["x_m"]) - 0.5, float(truth[k]["y_m"]) - 0.5)
+    assert d == pytest.approx(float(arr[0]["true_err_m"]), abs=1e-8)
+    assert (out / "navigation.png").stat().st_size > 10_000
+    s = json.loads((out / "summary.json").read_text())
+    # frame 600 (t = 120 s) ends the survey: its command is the first towards a point, frame 601 the first flown so
+    assert s["status"] == "complete" and s["estimator"] == "slam" and s["navigation_start_frame"] == 601
+    assert len(rows(out / "landmarks.csv")) == summary.landmarks > 10
+
+
+def test_ctrl_c_keeps_what_is_written(tmp_path):
+    def stop(step, _done):
+        if step.k == 29:
+            raise KeyboardInterrupt
+
+    s = navigate("portofino", [Goal("a", np.array([0.3, 0.0]))], tmp_path / "o", on_step=stop, seed=2)
+    assert s.status == "interrupted" and s.frames == 30 and s.exit_code == 130
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["interrupted"] and summary["signal"] == "SIGINT" and summary["frames_processed"] == 30
+    assert len(rows(tmp_path / "o" / "trajectory.csv")) == 30 == len(rows(tmp_path / "o" / "navigation.csv"))
+    assert rows(tmp_path / "o" / "arrivals.csv") == []
+
+
+def test_back_to_landmark_0_after_a_short_survey(tmp_path):
+    pois = [Goal("away", np.array([0.25, 0.2]), hold_s=1.0), Goal("landmark 0", None, landmark_id=0, hold_s=2.0)]
+    s = navigate("portofino", pois, tmp_path / "o", survey_s=20.0, seed=3)
+    assert s.status == "complete"
+    back = s.arrivals[1]
+    assert back["reached"] == 1 and back["landmark_id"] == 0
+    lm0 = rows(tmp_path / "o" / "landmarks.csv")[0]
+    # the point is the landmark's map position (at the arrival; the map moves little after it)
+    assert (back["x_m"], back["y_m"]) == pytest.approx((float(lm0["x_m"]), float(lm0["y_m"])), abs=2e-3)
+    assert back["true_err_m"] < 0.01
+
+
+def test_a_live_frame_is_the_frame_simulate_writes_for_the_same_pose(tmp_path):
+    """The closed loop sees exactly the simulator's images (relief, lamps, noise by frame index)."""
+    sc = SCENARIOS["portofino-relief"]
+    simulate("portofino-relief", tmp_path / "seq", frames=3, seed=4)
+    written = list(open_sequence(tmp_path / "seq").frames())
+    traj = simulate_trajectory(sc.vehicle, sc.grid, 3, sc.frame_rate_hz, 4)
+    live = LiveSimulator("portofino-relief", 4, area_m=(-1.0, 1.0, -1.0, 1.0))
+    for k in (0, 2):
+        p = frame_pose(traj, k)
+        state = TrueState(float(traj.t_s[k]), p.x_m, p.y_m, p.altitude_m, p.heading_rad, p.roll_rad, p.pitch_rad,
+                          float(traj.surge_mps[k]), float(traj.sway_mps[k]))
+        np.testing.assert_array_equal(live.render(k, state), written[k].image)
+    frame = live.capture(2, state)
+    assert frame.index == 2 and frame.sonar_altitude_m == pytest.approx(state.altitude_m, abs=0.2)
+    assert abs(frame.heading_rad - state.heading_rad) < math.radians(3)
