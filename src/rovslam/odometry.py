@@ -425,11 +425,17 @@ class SpeedEstimator:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the held speed and the relief seen (as at the start of a sequence)."""
+        """Forget the held speed and the relief seen (as at the start of a sequence).
+
+        The relief average starts from a prior (``relief_prior_sigma``, worth ``relief_prior_s``
+        seconds of measurements): before the tokens have seen the seabed, its relief is not known
+        to be flat, and the first steps' Q must not say it is.
+        """
         self._last: SpeedMeasurement | None = None
         self._gap_s = 0.0
-        self._relief_num = 0.0
-        self._relief_den = 0.0
+        w0 = 1.0 - math.exp(-self.config.relief_prior_s / RELIEF_TAU_S)
+        self._relief_num = w0 * self.config.relief_prior_sigma**2
+        self._relief_den = w0
 
     @property
     def relief_var(self) -> float:
