@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 from pathlib import Path
 
@@ -235,9 +236,12 @@ def test_the_first_steps_q_carries_the_relief_not_yet_measured():
     expected = 2.0**2 * relief_var * (1.0 / 8 + 1.0) * speed**2
     assert first.cov_mps2[0, 0] - first_flat.cov_mps2[0, 0] == pytest.approx(expected, rel=1e-6)
     assert np.sqrt(first.cov_mps2[0, 0]) > 2.0 * np.sqrt(first_flat.cov_mps2[0, 0])
-    for _ in range(150):  # 30 s of a flat seabed: the measured relief takes over
+    for _ in range(9):  # with the first, 2 s (relief_prior_s) of a flat seabed: the prior's share is down to 1/e
+        est.measure(cam, uv0, uv1, Z_M, Z_M, 0.2)
+    assert est.relief_var == pytest.approx(math.exp(-1.0) * relief_var, rel=1e-6)
+    for _ in range(140):  # 30 s: the measured relief has taken over
         last = est.measure(cam, uv0, uv1, Z_M, Z_M, 0.2)
-    assert est.relief_var < 0.01 * relief_var
+    assert est.relief_var < 1e-6 * relief_var
     assert last.cov_mps2[0, 0] == pytest.approx(first_flat.cov_mps2[0, 0], rel=0.05)
 
 

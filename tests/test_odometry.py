@@ -216,13 +216,45 @@ def test_estimator_holds_the_last_speed_and_grows_the_covariance():
     held = est.measure(CAM, empty, empty, Z, Z, DT)
     assert (held.ok, held.reason) == (False, "no tokens")
     assert (held.surge_mps, held.sway_mps) == (good.surge_mps, good.sway_mps)
-    np.testing.assert_allclose(held.cov_mps2, good.cov_mps2 + np.eye(2) * (0.02 * 0.2) ** 2)
-    # A longer gap (two dropped frames: 0.6 s) grows it for 0.8 s in total.
+    # The good speed's error now moves the position twice: Var = (2 dt)^2 B, of which dt^2 B
+    # was added at its own step; plus the drift of 0.2 s.
+    np.testing.assert_allclose(held.cov_mps2, 3.0 * good.cov_mps2 + np.eye(2) * (0.02 * 0.2) ** 2)
+    # A longer gap (two dropped frames: 0.6 s), T from 0.2 to 0.8 s, S = 0.04 + 0.8 x 0.6 s^2.
     held2 = est.measure(CAM, empty, empty, Z, Z, 0.6)
-    np.testing.assert_allclose(held2.cov_mps2, good.cov_mps2 + np.eye(2) * (0.02 * 0.8) ** 2)
+    base = good.cov_mps2 * ((0.2 + 0.8) ** 2 - (0.2 + 0.2) ** 2) / 0.6**2
+    np.testing.assert_allclose(held2.cov_mps2, base + np.eye(2) * 0.02**2 * (0.52**2 - 0.04**2) / 0.6**2)
     assert est.gap_s == pytest.approx(0.8)
     again = est.measure(CAM, uv0, uv1, Z, Z, DT)
     assert again.ok and est.gap_s == 0.0
+
+
+def test_a_held_speed_covers_the_position_error_it_causes():
+    """Monte Carlo: a held speed is wrong by the same e0 + a T_k at every step of the gap; the
+    position variance the filter accumulates from the per-step Q equals that of the correlated sum."""
+    rng = np.random.default_rng(5)
+    g, b_sigma = 0.02, 0.004
+    est = SpeedEstimator(OdometryConfig(gap_speed_sigma_mps=g))
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, -0.004])
+    good = est.measure(CAM, uv0, uv1, Z, Z, DT)
+    b = np.eye(2) * b_sigma**2
+    est._last = dataclasses.replace(good, cov_mps2=b)  # a known error covariance for the check
+    steps = [DT] * 6 + [0.6] + [DT] * 5
+    empty = np.zeros((0, 2))
+    var_filter = DT**2 * b  # the good speed's own step
+    for dt in steps:
+        var_filter = var_filter + dt**2 * est.measure(CAM, empty, empty, Z, Z, dt).cov_mps2
+    n = 200_000
+    e0 = rng.normal(0.0, b_sigma, (n, 2))
+    acc = rng.normal(0.0, g, (n, 2))
+    pos = e0 * DT
+    t_gap = 0.0
+    for dt in steps:
+        t_gap += dt
+        pos = pos + (e0 + acc * t_gap) * dt
+    np.testing.assert_allclose(np.var(pos, axis=0), var_filter.diagonal(), rtol=0.02)
+    # An independent Q (the old model) would have given a third of it here.
+    assert var_filter[0, 0] > 2.5 * (DT**2 * b_sigma**2 + sum(dt**2 * (b_sigma**2 + (g * t) ** 2)
+                                                          for dt, t in zip(steps, np.cumsum(steps))))
 
 
 @pytest.mark.parametrize(
@@ -282,9 +314,10 @@ def test_held_speed_drives_the_filter_through_a_gap():
         growth.append(ekf.vehicle_cov_m2 - before)
     # The filter keeps moving at the held 0.1 m/s through the gap...
     np.testing.assert_allclose(ekf.vehicle_xy_m, [0.06, 0.0], atol=1e-12)
-    # ...with a variance that grows by (dt * 0.02 * gap)^2 more at each dropped step.
-    np.testing.assert_allclose(growth[1] - growth[0], np.eye(2) * (DT * 0.02 * 0.2) ** 2, atol=1e-18)
-    np.testing.assert_allclose(growth[2] - growth[0], np.eye(2) * (DT * 0.02 * 0.4) ** 2, atol=1e-18)
+    # ...with a variance that grows as the held error's, counted again at every step
+    # (3 then 5 times the good step's), plus the drift (S = dt^2, then 3 dt^2).
+    np.testing.assert_allclose(growth[1] - 3 * growth[0], np.eye(2) * (DT * 0.02 * 0.2) ** 2, atol=1e-18)
+    np.testing.assert_allclose(growth[2] - 5 * growth[0], np.eye(2) * 8 * (DT * 0.02 * 0.2) ** 2, atol=1e-18)
 
 
 def test_token_rotation_replaces_a_noisy_compass_difference():

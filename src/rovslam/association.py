@@ -24,8 +24,9 @@ import numpy as np
 from scipy.stats import chi2
 
 from rovslam.config import AssociationConfig
+from rovslam.errors import InvalidArgumentError
 
-__all__ = ["RecoveryEvent", "RecoveryMonitor", "jointly_compatible"]
+__all__ = ["RecoveryEvent", "RecoveryMonitor", "ToldOffset", "jointly_compatible"]
 
 REASON_GATE = "innovation test"
 REASON_JOINT = "joint compatibility"
@@ -62,57 +63,99 @@ class RecoveryEvent:
     cause: str  # "refused matches" | "landmarks lost"
 
 
+@dataclass(frozen=True)
+class ToldOffset:
+    """One strong, confirmed match refused by the innovation test: the vehicle offset that would explain it."""
+
+    t_s: float
+    landmark_id: int
+    offset_m: np.ndarray  # (2,) world frame
+
+
 @dataclass
 class RecoveryMonitor:
     """Counts, frame by frame, the evidence that the filter (not the matches) is wrong."""
 
     config: AssociationConfig
-    refused_streak: int = 0
+    refused_streak: int = 0  # frames in a row with a strong refused match
     missed: dict[int, int] = field(default_factory=dict)  # confirmed landmark -> frames in a row expected, not found
-    offsets: list[np.ndarray] = field(default_factory=list)  # vehicle offsets told during the streak
+    told: list[ToldOffset] = field(default_factory=list)  # offsets told over the last ``recovery_memory_s``
+    expected: set[int] = field(default_factory=set)  # confirmed landmarks expected in view this frame
     events: list[RecoveryEvent] = field(default_factory=list)
 
     # At most this many landmarks are searched in the wide window per frame (it costs a millisecond each).
     MAX_WIDE_PER_FRAME = 2
 
     def wide_candidates(self, ids) -> set[int]:
-        """Of the confirmed landmarks expected in view, those to search in the wide window this frame."""
+        """Of the confirmed landmarks expected in view this frame (``ids``), those to search in the wide window."""
+        ids = [int(i) for i in ids]
+        self.expected = set(ids)
         if not self.config.recovery:
             return set()
-        lost = [i for i in ids if self.missed.get(int(i), 0) >= self.config.wide_search_after_frames]
-        lost.sort(key=lambda i: -self.missed[int(i)])
-        return {int(i) for i in lost[: self.MAX_WIDE_PER_FRAME]}
+        lost = [i for i in ids if self.missed.get(i, 0) >= self.config.wide_search_after_frames]
+        lost.sort(key=lambda i: -self.missed[i])
+        return set(lost[: self.MAX_WIDE_PER_FRAME])
 
     def searched(self, landmark_id: int, accepted: bool) -> None:
         """A confirmed landmark expected in view (gate (5), inside the image) was accepted, or not (lost or refused)."""
         self.missed[landmark_id] = 0 if accepted else self.missed.get(landmark_id, 0) + 1
 
-    def refusals(self, offsets_m: list[np.ndarray], accepted_older: bool) -> np.ndarray | None:
-        """Step 6: the vehicle offsets (world, metres) told by this frame's strong refused matches.
+    def refusals(
+        self, t_s: float, offsets_m: list[np.ndarray], landmark_ids: list[int], accepted_older: bool
+    ) -> np.ndarray | None:
+        """Step 6: the vehicle offsets (world, metres) told at ``t_s`` by this frame's strong refused matches.
 
-        Returns the offset to recover by when the evidence is enough (``recovery_after_frames``
-        frames in a row, or two landmarks agreeing now, all within
-        ``recovery_offset_agreement_m``), else None. ``accepted_older``: a landmark older than
-        the refused ones was accepted, so the estimate agrees with an older part of the map
-        and the refused matches are the suspects: the streak ends. (Landmarks mapped since
-        the estimate went wrong agree with it by construction: they are no evidence.)
+        ``landmark_ids[k]`` is the landmark that told ``offsets_m[k]``. Returns the offset to
+        recover by when the evidence is enough, else None. Enough means all of:
+
+        * the offsets of the current streak agree within ``recovery_offset_agreement_m``;
+        * they were told ``recovery_after_frames`` frames in a row, or by two landmarks now;
+        * at least ``recovery_min_landmarks`` different landmarks speak against the estimate:
+          by telling that offset within the last ``recovery_memory_s`` (not necessarily in a
+          row), or by being lost (expected in view now, not found for
+          ``wide_search_after_frames`` frames). One landmark alone may be a look-alike,
+          however long it persists.
+
+        ``accepted_older``: a landmark older than the refused ones was accepted, so the estimate
+        agrees with an older part of the map and the refused matches are the suspects: the
+        evidence is dropped. (Landmarks mapped since the estimate went wrong agree with it by
+        construction: they are no evidence.)
         """
         cfg = self.config
-        if not cfg.recovery or accepted_older or not offsets_m:
+        if len(landmark_ids) != len(offsets_m):
+            raise InvalidArgumentError(f"refusals: {len(offsets_m)} offsets but {len(landmark_ids)} landmark ids")
+        if not cfg.recovery or accepted_older:
+            self._forget()
+            return None
+        self.told = [o for o in self.told if o.t_s >= t_s - cfg.recovery_memory_s]
+        if not offsets_m:
             self.refused_streak = 0
-            self.offsets.clear()
             return None
         self.refused_streak += 1
-        self.offsets.extend(np.asarray(o, dtype=np.float64) for o in offsets_m)
-        window = np.array(self.offsets[-(cfg.recovery_after_frames * 4) :])
-        centre = np.median(window, axis=0)
-        agree = bool(np.all(np.linalg.norm(window - centre, axis=1) <= cfg.recovery_offset_agreement_m))
-        if agree and (self.refused_streak >= cfg.recovery_after_frames or len(offsets_m) >= 2):
-            return centre
-        return None
+        self.told.extend(ToldOffset(t_s, int(i), np.asarray(o, dtype=np.float64)) for i, o in zip(landmark_ids, offsets_m))
+        streak = np.array([o.offset_m for o in self._streak_told()][-cfg.recovery_after_frames * 4 :])
+        centre = np.median(streak, axis=0)
+        tol = cfg.recovery_offset_agreement_m
+        if not np.all(np.linalg.norm(streak - centre, axis=1) <= tol):
+            return None
+        if self.refused_streak < cfg.recovery_after_frames and len(offsets_m) < 2:
+            return None
+        witnesses = {o.landmark_id for o in self.told if np.linalg.norm(o.offset_m - centre) <= tol}
+        lost = {i for i in self.expected if self.missed.get(i, 0) >= cfg.wide_search_after_frames}
+        if len(witnesses | lost) < cfg.recovery_min_landmarks:
+            return None
+        return centre
+
+    def _streak_told(self) -> list[ToldOffset]:
+        """The offsets told during the current streak (the last ``refused_streak`` frames that told one)."""
+        times = sorted({o.t_s for o in self.told}, reverse=True)[: self.refused_streak]
+        return [o for o in self.told if times and o.t_s >= times[-1]]
+
+    def _forget(self) -> None:
+        self.refused_streak = 0
+        self.told.clear()
 
     def recovered(self, event: RecoveryEvent) -> None:
         self.events.append(event)
-        self.refused_streak = 0
         self.missed.clear()
-        self.offsets.clear()
+        self._forget()

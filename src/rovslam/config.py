@@ -208,6 +208,8 @@ class AssociationConfig(_Checked):
     recovery: bool = True
     strong_correlation: float = _num(0.95, gt=0, le=1)
     recovery_after_frames: int = _num(3, ge=1)
+    recovery_min_landmarks: int = _num(2, ge=1)  # different landmarks that must speak against the estimate
+    recovery_memory_s: float = _num(10.0, ge=0)  # how long a refused match's told offset counts as evidence
     recovery_offset_agreement_m: float = _num(0.01, gt=0)  # the refused matches' vehicle offsets agree within this
     wide_search_after_frames: int = _num(5, ge=1)
     wide_search_radius_px: int = _num(150, ge=1)
@@ -271,7 +273,7 @@ class OdometryConfig(_Checked):
     survey_speed_mps: float = _num(0.15, gt=0)  # speed bound for the landmark search before any speed is measured
     relief_scale_gain: float = _num(2.0, ge=0)  # relief parallax scale error: x its one-step estimate (step correlation)
     relief_prior_sigma: float = _num(0.02, ge=0)  # relief height spread / altitude assumed before the tokens measured it
-    relief_prior_s: float = _num(2.0, ge=0)  # ... worth this many seconds of measurements (0: no prior, start as flat)
+    relief_prior_s: float = _num(2.0, ge=0)  # ... its share fades as exp(-seconds measured / this) (0: no prior, start as flat)
     compass_sigma_rad: float = _num(0.0087, ge=0)  # compass white noise (0.5 deg); 0 uses the compass as it is (paper)
     compass_drift_sigma_rad: float = _num(0.0087, ge=0)  # slow compass error no smoothing removes (magnetic disturbance)
     attitude_sigma_rad: float = _num(0.0035, ge=0)  # AHRS roll / pitch accuracy (0.2 deg), when frames.csv has them

@@ -415,9 +415,8 @@ class SpeedEstimator:
     """Stateful wrapper of :func:`speed_from_tokens` that bridges frames without tokens.
 
     When a step gives no usable speed, :meth:`measure` returns ``ok=False`` with the last good
-    speed and its covariance grown by ``(gap_speed_sigma_mps * gap_s)**2 I``, ``gap_s`` being
-    the time since the last good measurement (the real time steps, so dropped frames count).
-    Before any good measurement the held speed is zero with ``initial_speed_sigma_mps``.
+    speed held (see :meth:`hold` for its covariance). Before any good measurement the held
+    speed is zero with ``initial_speed_sigma_mps``.
     """
 
     def __init__(self, config: OdometryConfig = OdometryConfig()):
@@ -427,28 +426,44 @@ class SpeedEstimator:
     def reset(self) -> None:
         """Forget the held speed and the relief seen (as at the start of a sequence).
 
-        The relief average starts from a prior (``relief_prior_sigma``, worth ``relief_prior_s``
-        seconds of measurements): before the tokens have seen the seabed, its relief is not known
-        to be flat, and the first steps' Q must not say it is.
+        The relief average starts from a prior (``relief_prior_sigma``) that fades with the
+        seconds of measurements (time constant ``relief_prior_s``, :attr:`relief_var`): before the
+        tokens have seen the seabed, its relief is not known to be flat, and the first steps' Q
+        must not say it is.
         """
         self._last: SpeedMeasurement | None = None
-        self._gap_s = 0.0
-        w0 = 1.0 - math.exp(-self.config.relief_prior_s / RELIEF_TAU_S)
-        self._relief_num = w0 * self.config.relief_prior_sigma**2
-        self._relief_den = w0
+        self._last_dt_s = 0.0  # the step of the last good speed
+        self._gap_s = 0.0  # seconds since the last good speed (T)
+        self._gap_sum_s2 = 0.0  # sum over the gap's steps of T_k dt_k (S)
+        self._relief_num = 0.0
+        self._relief_den = 0.0
+        self._relief_seen_s = 0.0  # seconds of relief samples since the start: the prior fades with them
 
     @property
     def relief_var(self) -> float:
         """The relief's relative height variance under the tokens, averaged over the last seconds (>= 0)."""
-        return max(self._relief_num / self._relief_den, 0.0) if self._relief_den > 0 else 0.0
+        data = max(self._relief_num / self._relief_den, 0.0) if self._relief_den > 0 else 0.0
+        cfg = self.config
+        if cfg.relief_prior_s <= 0.0 or cfg.relief_prior_sigma <= 0.0:
+            return data
+        prior = math.exp(-self._relief_seen_s / cfg.relief_prior_s)  # the prior's share: 1 at the start
+        return prior * cfg.relief_prior_sigma**2 + (1.0 - prior) * data
 
-    def _learn_relief(self, sample: float, dt_s: float) -> None:
-        """Exponential average of :func:`relief_sample` over ``RELIEF_TAU_S`` seconds (bias-corrected at the start)."""
-        if not math.isfinite(sample):
+    def _learn_relief(self, sample: float, dt_s: float, step_m2: float) -> None:
+        """Exponential average of :func:`relief_sample` over ``RELIEF_TAU_S`` seconds (bias-corrected at the start).
+
+        Each sample is weighted by its step's ``|d|^4`` (``step_m2`` is ``|d|^2``): the sample is a
+        residual variance over ``|d|^4``, so a short step (the start, a hover, a turn on the spot)
+        divides matching noise by almost nothing; weighted so, the average is the ratio of the
+        summed residual variances to the summed ``|d|^4``, which a short step cannot swing.
+        """
+        if not (math.isfinite(sample) and step_m2 > 0.0):
             return
-        w = 1.0 - math.exp(-dt_s / RELIEF_TAU_S)
-        self._relief_num = (1.0 - w) * self._relief_num + w * sample
-        self._relief_den = (1.0 - w) * self._relief_den + w
+        self._relief_seen_s += dt_s
+        w = (1.0 - math.exp(-dt_s / RELIEF_TAU_S)) * step_m2 * step_m2
+        a = math.exp(-dt_s / RELIEF_TAU_S)
+        self._relief_num = a * self._relief_num + w * sample
+        self._relief_den = a * self._relief_den + w
 
     @property
     def last_good(self) -> SpeedMeasurement | None:
@@ -496,27 +511,48 @@ class SpeedEstimator:
             self.relief_var, attitude_noise_rad,
         )
         if m.ok:
-            self._learn_relief(m.relief_sample, float(dt_s))
+            self._learn_relief(m.relief_sample, float(dt_s), float(np.sum((m.speed_mps * dt_s) ** 2)))
         if m.ok and self._plausible(m, float(dt_s)):
-            self._last = m
-            self._gap_s = 0.0
+            self._last, self._last_dt_s = m, float(dt_s)
+            self._gap_s = self._gap_sum_s2 = 0.0
             return m
         return self.hold(dt_s, "implausible acceleration" if m.ok else m.reason, m.n_tokens, m.inlier_mask)
 
     def hold(
         self, dt_s: float, reason: str = "no tokens", n_tokens: int = 0, inlier_mask: np.ndarray | None = None
     ) -> SpeedMeasurement:
-        """A step without a usable speed: the last good speed, its covariance grown by the gap (``ok=False``)."""
+        """A step without a usable speed: the last good speed held (``ok=False``).
+
+        The held speed's error is the same in every step of the gap: the last good speed's
+        error ``e0`` (covariance ``B``) plus a drift growing with the time ``T_k`` since then
+        (``g = gap_speed_sigma_mps`` per second, an unknown acceleration ``a``), so step ``k``
+        moves the position by ``(e0 + a T_k) dt_k`` too much. Those errors are correlated, but
+        the filter adds each step's Q as if independent, so Q is chosen to give the position,
+        after every step, the variance of the correlated sum::
+
+            V(T) = (dt_0 + T)^2 B + g^2 S^2,   S = sum_k T_k dt_k,   Q = (V(T) - V(T_prev)) / dt^2
+
+        ``dt_0`` being the last good step (``e0`` already moved the position once there). With
+        equal steps that is ``Q = (2n + 1) B + g^2 dt^2 n^3`` at the n-th step of the gap,
+        where an independent Q would give ``B + g^2 dt^2 n^2``: a vehicle slowing down at a lane
+        end while the tokens fail is then inside its covariance. Before any good speed, ``B``
+        is ``initial_speed_sigma_mps^2 I`` and ``dt_0 = 0``.
+        """
         if inlier_mask is None:
             inlier_mask = np.zeros(n_tokens, dtype=bool)
-        self._gap_s += float(dt_s)
-        grow = (self.config.gap_speed_sigma_mps * self._gap_s) ** 2
+        dt = float(dt_s)
+        t_prev, s_prev = self._gap_s, self._gap_sum_s2
+        self._gap_s += dt
+        self._gap_sum_s2 += self._gap_s * dt
+        g2 = self.config.gap_speed_sigma_mps**2
+        grow = g2 * (self._gap_sum_s2**2 - s_prev**2) / dt**2 if dt > 0 else g2 * self._gap_s**2
         if self._last is None:
             surge = sway = 0.0
-            base = np.eye(2) * self.config.initial_speed_sigma_mps**2
+            b, dt0 = np.eye(2) * self.config.initial_speed_sigma_mps**2, 0.0
         else:
             surge, sway = self._last.surge_mps, self._last.sway_mps
-            base = self._last.cov_mps2
+            b, dt0 = self._last.cov_mps2, self._last_dt_s
+        base = b * (((dt0 + self._gap_s) ** 2 - (dt0 + t_prev) ** 2) / dt**2 if dt > 0 else 1.0)
         cov = base + grow * np.eye(2)
         cov.setflags(write=False)
         return SpeedMeasurement(False, surge, sway, cov, n_tokens, 0, inlier_mask, reason)

@@ -439,7 +439,7 @@ class SlamPipeline:
             tentative = not t.record.confirmed
             if id(t) not in refused or reason == REASON_JOINT:
                 t.record.observed(accepted, frame.t_s, assoc.confirm_observations)
-            if t.record.confirmed:  # found and refused still counts as missing: it keeps the wide window
+            if t.record.confirmed and reason != REASON_LASER:  # found and refused still counts as missing
                 self.recovery.searched(t.record.id, accepted)
             nis = res.nis if res is not None else math.nan
             observations.append(Observation(t.record.id, "track", t.uv_px, t.mn_px, t.score, nis, accepted, reason,
@@ -469,7 +469,7 @@ class SlamPipeline:
         for t in strong:
             depth = alt.altitude_m - self.ekf.landmark_height_m(t.record.id)
             offsets.append(-(depth / self.focal_px) * (rot2(theta) @ results[id(t)].innovation_px))
-        offset = self.recovery.refusals(offsets, accepted_older)
+        offset = self.recovery.refusals(frame.t_s, offsets, [t.record.id for t in strong], accepted_older)
         if offset is None:
             return
         self.ekf.inflate_vehicle_covariance(4.0 * np.outer(offset, offset) + np.eye(2) * (0.25 * float(offset @ offset)))

@@ -220,7 +220,8 @@ def extract_templates(
     min_spacing_px: least distance (in u or v) between two template anchors; >= size.
     max_self_similarity: refuse a candidate whose :func:`self_similarity` within
         ``similarity_radius_px`` (where the tracker will look for it) exceeds this: it is
-        ambiguous. None: no test (the paper). At most ``4 max_count`` candidates are refused.
+        ambiguous. None: no test (the paper). After ``4 max_count`` refused candidates the
+        search stops (fewer templates, never an untested one).
 
     Returns
     -------
@@ -278,11 +279,13 @@ def extract_templates(
             break
         u0, v0 = u - half, v - half
         similarity = float("nan")
-        if max_self_similarity is not None and refused < 4 * max_count:
+        if max_self_similarity is not None:
+            if refused >= 4 * max_count:
+                break  # a repetitive scene: what is left is no better, and an untested window may be ambiguous
             similarity = self_similarity(img, (u0, v0), size, similarity_radius_px)
             if similarity > max_self_similarity:
                 refused += 1  # ambiguous: its neighbours look the same; so would the ones next to it
-                q = max(1, size // 4)
+                q = max(1, size // 2)
                 score[max(0, v - q) : v + q + 1, max(0, u - q) : u + q + 1] = -1.0
                 continue
         patch = np.array(img[v0 : v0 + size, u0 : u0 + size], dtype=np.float32)
