@@ -144,6 +144,10 @@ class SlamPipeline:
             self.smoother = Isam2Smoother(config.smoother)
         self.landmarks: list[LandmarkRecord] = []
         self.recovery = RecoveryMonitor(config.association)
+        # A landmark lost for several frames: a wider window, and only clear, unambiguous matches.
+        self._strict_tracker = dataclasses.replace(
+            config.tracker, min_correlation=config.association.strong_correlation,
+            max_second_peak_ratio=min(config.tracker.max_second_peak_ratio, 0.9))
         self.skipped: list[tuple[int, float, str]] = []
         self._prev_t_s: float | None = None
         self._prev_altitude_m: float | None = None
@@ -262,9 +266,7 @@ class SlamPipeline:
         assoc = self.config.association
         inside = [k for k, uv in enumerate(uv_pred) if not self.landmarks[int(visible[k])].dead and self._inside(uv, half - 2)]
         wide = self.recovery.wide_candidates(int(visible[k]) for k in inside if self.landmarks[int(visible[k])].confirmed)
-        # A landmark lost for several frames: a wider window, and only clear, unambiguous matches.
-        strict = dataclasses.replace(self.config.tracker, min_correlation=assoc.strong_correlation,
-                                     max_second_peak_ratio=min(self.config.tracker.max_second_peak_ratio, 0.9))
+        strict = self._strict_tracker
         tracked = []
         for k in inside:
             i, uv, s = int(visible[k]), uv_pred[k], s_pred[k]

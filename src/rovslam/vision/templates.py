@@ -168,7 +168,7 @@ def self_similarity(track_img: np.ndarray, top_left_uv: tuple[int, int], size_px
     patch = img[v0 : v0 + size_px, u0 : u0 + size_px]
     su0, sv0 = max(0, u0 - radius_px), max(0, v0 - radius_px)
     su1, sv1 = min(w, u0 + size_px + radius_px), min(h, v0 + size_px + radius_px)
-    if patch.shape != (size_px, size_px) or float(patch.std()) <= 1e-6:
+    if patch.shape != (size_px, size_px) or float(patch.max()) - float(patch.min()) <= 1e-6:
         return 1.0  # a window that cannot be correlated is as ambiguous as it gets
     corr = cv2.matchTemplate(img[sv0:sv1, su0:su1], patch, cv2.TM_CCOEFF_NORMED)
     is_max = corr >= cv2.dilate(corr, np.ones((3, 3), np.uint8))
