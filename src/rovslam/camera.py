@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -96,8 +97,8 @@ class Camera:
     def dist_coeffs(self) -> np.ndarray:
         return np.asarray(self.distortion, dtype=np.float64)
 
-    @property
-    def has_distortion(self) -> bool:
+    @cached_property
+    def has_distortion(self) -> bool:  # cached: asked several times a frame, and the camera is frozen
         return bool(np.any(np.asarray(self.distortion) != 0.0))
 
     @property

@@ -40,7 +40,14 @@ from rovslam.slam import EkfSlam
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 from rovslam.slam.motion import motion_step_m
 from rovslam.slam.observation import observation_noise_px2, pixels_to_mn
-from rovslam.vision.filters import bandpass, local_variance, remove_specks, template_channel
+from rovslam.vision.filters import (
+    bandpass,
+    contrast_std,
+    despeckled_channel,
+    local_variance,
+    remove_specks,
+    template_channel,
+)
 from rovslam.vision.laser import AltitudeEstimate, LaserAltimeter
 from rovslam.vision.scale import processing_scale
 from rovslam.vision.templates import Template, extract_templates, inhibit_boxes, inhibition_mask
@@ -144,10 +151,6 @@ class SlamPipeline:
             self.smoother = Isam2Smoother(config.smoother)
         self.landmarks: list[LandmarkRecord] = []
         self.recovery = RecoveryMonitor(config.association)
-        # A landmark lost for several frames: a wider window, and only clear, unambiguous matches.
-        self._strict_tracker = dataclasses.replace(
-            config.tracker, min_correlation=config.association.strong_correlation,
-            max_second_peak_ratio=min(config.tracker.max_second_peak_ratio, 0.9))
         self.skipped: list[tuple[int, float, str]] = []
         self._prev_t_s: float | None = None
         self._prev_altitude_m: float | None = None
@@ -155,6 +158,10 @@ class SlamPipeline:
         self._last_speed_mps: np.ndarray | None = None  # (surge, sway) of the last good step
         self._dr = np.zeros(2)
         self._n = 0  # frames processed (not skipped)
+        # The tracker settings of a wide search (built once: a checked dataclass costs 50 us to build)
+        self._strict_tracker = dataclasses.replace(
+            config.tracker, min_correlation=config.association.strong_correlation,
+            max_second_peak_ratio=min(config.tracker.max_second_peak_ratio, 0.9))
 
     @property
     def altimeter_fallback(self) -> float:
@@ -209,9 +216,12 @@ class SlamPipeline:
         if frame.image is None or frame.error is not None:
             return None, frame.error or "no image"
         cfg = self.config.bandpass
-        chan = remove_specks(self.scale.reduce(template_channel(frame.image, cfg.channel)), cfg.despeckle_px)
+        if self.scale.identity:
+            chan = despeckled_channel(frame.image, cfg.channel, cfg.despeckle_px)
+        else:  # the channel reduced to the processing scale (area average on floats), then despeckled
+            chan = remove_specks(self.scale.reduce(template_channel(frame.image, cfg.channel)), cfg.despeckle_px)
         img = bandpass(chan, cfg.sigma_fine_px, cfg.sigma_coarse_px)
-        if float(img.std()) < MIN_TEXTURE_STD:
+        if contrast_std(img) < MIN_TEXTURE_STD:
             return None, "no texture (black, saturated or flat frame)"
         return img, None
 
@@ -266,6 +276,7 @@ class SlamPipeline:
         assoc = self.config.association
         inside = [k for k, uv in enumerate(uv_pred) if not self.landmarks[int(visible[k])].dead and self._inside(uv, half - 2)]
         wide = self.recovery.wide_candidates(int(visible[k]) for k in inside if self.landmarks[int(visible[k])].confirmed)
+        # A landmark lost for several frames: a wider window, and only clear, unambiguous matches.
         strict = self._strict_tracker
         tracked = []
         for k in inside:

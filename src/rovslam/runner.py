@@ -257,6 +257,32 @@ def implausible_result(res: FrameResult, max_distance_m: float) -> str | None:
     return None
 
 
+FREED_MEMORY_KEPT_BYTES = 64 * 2**20
+
+
+def keep_freed_memory(pad_bytes: int = FREED_MEMORY_KEPT_BYTES) -> bool:
+    """Ask the C allocator (glibc) to keep ``pad_bytes`` of freed memory for reuse; False where it cannot.
+
+    Every frame allocates and frees a few image-sized arrays (OpenCV and NumPy results: 0.4 MB
+    each at 360x272, 8 MB at 1920x1080). By default glibc gives freed memory at the top of its
+    heap back to the system as soon as 128 KiB of it is free, so the next frame's arrays are
+    fresh pages and every first touch is a page fault: about 330 faults per 360x272 frame, a
+    tenth of them once the memory is kept (``M_TOP_PAD``). The peak memory of a run does not
+    change; between frames up to ``pad_bytes`` stay resident. A no-op off glibc.
+    """
+    import ctypes
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return False
+    m_top_pad = -2  # <malloc.h> M_TOP_PAD
+    return bool(mallopt(ctypes.c_int(m_top_pad), ctypes.c_int(int(pad_bytes))))
+
+
 def run_sequence(
     sequence_dir: str | Path,
     out_dir: str | Path,
@@ -284,6 +310,7 @@ def run_sequence(
     min_usable_fraction = config.run.min_usable_fraction if min_usable_fraction is None else min_usable_fraction
     max_distance_m = config.run.max_distance_m if max_distance_m is None else max_distance_m
     check_run_arguments(max_frames, min_usable_fraction, max_distance_m)
+    keep_freed_memory()
     with StopRequest() as stop:
         opts = inputs or InputOptions()
         if camera_file is not None and opts.camera_file is None:

@@ -294,7 +294,8 @@ class ResultWriter:
     def write_frame(self, r: Any) -> None:
         """Append one :class:`rovslam.pipeline.FrameResult`."""
         cov = r.cov_xy_m2
-        with output_errors(self._paths["trajectory.csv"]):
+        name = "trajectory.csv"
+        try:  # one try for the three files (an OSError names the one being written)
             self._traj.writerow(
                 [
                     _f(r.t_s), _f(r.x_m), _f(r.y_m), _f(cov[0, 0]), _f(cov[0, 1]), _f(cov[1, 1]),
@@ -305,16 +306,19 @@ class ResultWriter:
                     r.tokens_inliers, int(getattr(r, "recovery", None) is not None),
                 ]
             )
-        q = heading_quaternion(r.heading_rad)
-        with output_errors(self._paths["trajectory.tum"]):
-            self._fhs["trajectory.tum"].write(" ".join(_f(v) for v in (r.t_s, r.x_m, r.y_m, r.altitude_m, *q)) + "\n")
-        with output_errors(self._paths["observations.csv"]):
-            for ob in r.observations:
-                self._obs.writerow(
+            name = "trajectory.tum"
+            q = heading_quaternion(r.heading_rad)
+            self._fhs[name].write(" ".join(_f(v) for v in (r.t_s, r.x_m, r.y_m, r.altitude_m, *q)) + "\n")
+            name = "observations.csv"
+            if r.observations:
+                self._obs.writerows(
                     [_f(r.t_s), r.index, ob.landmark_id, ob.kind, _f(ob.uv_px[0]), _f(ob.uv_px[1]),
                      _f(ob.score), _f(ob.nis), int(ob.accepted), getattr(ob, "reason", ""),
                      int(getattr(ob, "tentative", False))]
+                    for ob in r.observations
                 )
+        except OSError as exc:
+            raise OutputError(f"{self._paths[name]}: cannot write: {describe_os_error(exc)}.") from None
         self._n += 1
         if self._n % self.flush_every == 0:
             self.flush()
@@ -396,8 +400,9 @@ class GalleryWriter:
     def write_frame(self, image: np.ndarray | None, r: Any) -> None:
         """Record one frame: ``image`` (H, W, 3) uint8 RGB (None when unreadable), ``r`` its FrameResult."""
         t = _f(r.t_s)
-        for u, v in np.asarray(getattr(r, "token_uv_px", np.zeros((0, 2)))).reshape(-1, 2):
-            self._w.writerow([t, r.index, _f(u), _f(v)])
+        uv = np.asarray(getattr(r, "token_uv_px", np.zeros((0, 2)))).reshape(-1, 2).tolist()  # Python floats: faster to format
+        if uv:
+            self._w.writerows([t, r.index, _f(u), _f(v)] for u, v in uv)
         for ob in r.observations:
             if not ob.accepted:
                 continue

@@ -495,19 +495,24 @@ def decode_image(data: bytes, where: str, camera: Camera | None = None, bit_dept
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
     if img is None:
         raise ImageReadError(f"{where}: not a readable PNG/JPEG/TIFF image (corrupt or truncated?).")
-    return to_rgb(img, where, camera, bit_depth, camera_source)
+    return to_rgb(img, where, camera, bit_depth, camera_source, owned=True)
 
 
 def to_rgb(img: np.ndarray, where: str, camera: Camera | None = None, bit_depth: int | None = None,
-           camera_source: str = "the camera file") -> np.ndarray:
-    """``(H, W, 3) uint8`` RGB from OpenCV's decoded grey, BGR or BGRA, 8 or 16 bits (see :func:`to_uint8`)."""
+           camera_source: str = "the camera file", owned: bool = False) -> np.ndarray:
+    """``(H, W, 3) uint8`` RGB from OpenCV's decoded grey, BGR or BGRA, 8 or 16 bits (see :func:`to_uint8`).
+
+    ``owned``: ``img`` belongs to the caller alone (freshly decoded), so BGR is turned into RGB in
+    place instead of into a new image (one image-sized allocation fewer per frame).
+    """
     import cv2
 
+    owned = owned or img.dtype != np.uint8  # to_uint8 returns a new array then
     img = to_uint8(img, bit_depth, where)
     if img.ndim == 2:
         img = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
     elif img.ndim == 3 and img.shape[2] == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB, dst=img if owned and img.flags.writeable else None)
     elif img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
     else:

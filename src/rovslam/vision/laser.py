@@ -154,9 +154,8 @@ def red_excess(image_rgb: np.ndarray) -> np.ndarray:
         raise InvalidArgumentError(
             f"laser spots need an (H, W, 3) uint8 RGB image, got shape {img.shape} dtype {img.dtype}"
         )
-    r = np.ascontiguousarray(img[:, :, 0])
-    gb = cv2.max(np.ascontiguousarray(img[:, :, 1]), np.ascontiguousarray(img[:, :, 2]))
-    return cv2.subtract(r, gb)
+    r, g, b = cv2.split(np.ascontiguousarray(img))  # a crop is copied first: 3x faster than split on its view
+    return cv2.subtract(r, cv2.max(g, b, dst=g), dst=r)
 
 
 def _spot_candidates(
@@ -187,13 +186,20 @@ def _spot_candidates(
     _, mask = cv2.threshold(excess, thr - 1, 1, cv2.THRESH_BINARY)
     if cv2.countNonZero(mask) == 0:
         return np.zeros((0, 2)), np.zeros(0)
+    # The blobs are grouped only within the bounding box of the red pixels grown by the 1 px the
+    # dilation reaches: the same blobs, labelled in the same (raster) order, as over the whole
+    # window, on a fraction of its pixels.
+    bu, bv, bw, bh = cv2.boundingRect(mask)
+    bu0, bv0 = max(0, bu - 1), max(0, bv - 1)
+    bu1, bv1 = min(mask.shape[1], bu + bw + 1), min(mask.shape[0], bv + bh + 1)
+    mask = mask[bv0:bv1, bu0:bu1]
     # Close 1-px gaps of the speckle so one spot is one blob; the weights use the raw mask.
     grown = cv2.dilate(mask, _ONES3)
     n, labels = cv2.connectedComponents(grown, connectivity=8)
     # Only the pixels above the threshold carry weight: sums per blob over them alone.
     pix = cv2.findNonZero(mask).reshape(-1, 2)
-    us, vs = pix[:, 0], pix[:, 1]
-    lab = labels[vs, us]
+    lab = labels[pix[:, 1], pix[:, 0]]
+    us, vs = pix[:, 0] + bu0, pix[:, 1] + bv0  # in the window's pixels, as the sums have always been
     weight = excess[vs, us].astype(np.float64)
     area = np.bincount(lab, minlength=n)  # pixels above the threshold
     total = np.bincount(lab, weight, minlength=n)
@@ -397,6 +403,13 @@ def _fit_plane(points: np.ndarray, sigmas: np.ndarray) -> tuple[float, float, tu
     return float(coef[0]), float(np.sqrt(cov[0, 0])), (float(np.arctan(coef[1])), float(np.arctan(coef[2])))
 
 
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of a few numbers (one per laser), without its overhead; the same value."""
+    v = sorted(values.tolist())
+    n = len(v)
+    return float(v[n // 2]) if n % 2 else float(np.mean([v[n // 2 - 1], v[n // 2]]))
+
+
 def _consistent(alts: np.ndarray, valid: np.ndarray, sonar: float | None, rel: float) -> np.ndarray:
     """Inlier mask: spots within ``rel`` (relative) of the others' median (or of the sonar)."""
     idx = np.flatnonzero(valid)
@@ -404,7 +417,7 @@ def _consistent(alts: np.ndarray, valid: np.ndarray, sonar: float | None, rel: f
     if len(idx) == 0:
         return inl
     if len(idx) >= 3:
-        ref = float(np.median(alts[idx]))
+        ref = _median(alts[idx])
     elif sonar is not None:
         ref = sonar
     elif len(idx) == 2:

@@ -355,6 +355,8 @@ class TokenTracker:
         self._last_shift: np.ndarray | None = None  # median motion of the last tracked tokens (u, v) px
         self._prior_for: np.ndarray | None = None  # the image the cached global shift was measured on
         self._prior: tuple[np.ndarray | None, float] = (None, float("nan"))
+        # (image given to track, its reduction): extract reuses it for the same image (computed once a frame)
+        self._reduced: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def tokens(self) -> tuple[Template, ...]:
@@ -370,6 +372,7 @@ class TokenTracker:
         self._last_shift = None
         self._prior_for = None
         self._prior = (None, float("nan"))
+        self._reduced = None
 
     def extract(self, track_img: np.ndarray, local_var: np.ndarray, inhibit: np.ndarray | None = None,
                 expected_shift_uv_px: np.ndarray | None = None) -> int:
@@ -392,7 +395,11 @@ class TokenTracker:
         shift = self._last_shift if expected_shift_uv_px is None else np.asarray(expected_shift_uv_px, np.float64)
         self._tokens = self._choose(img, local_var, inhibit, shift, _NEXT_SHIFT_SLACK)
         self._prev_img = img
-        self._prev_small = reduce_image(img, global_scale(img.shape)) if self.tracker_config.global_search else None
+        self._prev_small = None
+        if self.tracker_config.global_search:
+            reduced, self._reduced = self._reduced, None
+            self._prev_small = reduced[1] if reduced is not None and reduced[0] is track_img else (
+                reduce_image(img, global_scale(img.shape)))
         self._prev_inhibit = None if inhibit is None else np.array(inhibit, dtype=bool)
         self._prior_for = None
         return len(self._tokens)
@@ -432,6 +439,8 @@ class TokenTracker:
         if self.tracker_config.global_search and self._prev_small is not None:
             scale = global_scale(img.shape)
             small = reduce_image(img.astype(np.float32, copy=False), scale)
+            if scale < 1.0:  # a new array (at scale 1 it is the caller's image): the same frame's extract() reuses it
+                self._reduced = (track_img, small)
             if small.shape == self._prev_small.shape:
                 g_small, g_conf = global_shift(self._prev_small, small)
                 prior = (g_small / scale, g_conf)

@@ -1,0 +1,81 @@
+"""Check that a speed-only change left every result of ``rovslam run`` bit-identical.
+
+Run: ``python -m benchmarks.check_identical --against SRC`` where SRC is the ``src`` folder of
+the build to compare with, e.g.::
+
+    git archive <before> src | tar -x -C /tmp/before
+    python -m benchmarks.check_identical --against /tmp/before/src
+
+Both builds run the same simulated sequence (``portofino-short``, 600 frames, seed 0, PNG; add
+``--texture photo`` for the real seabed photo) and every result file is compared byte for byte
+(``summary.json`` only without its timing fields). Exits 1 and names the files that differ.
+"""
+
+from __future__ import annotations
+
+import argparse
+import filecmp
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks._harness import Case, sequence_folder  # noqa: E402
+
+TIMING_KEYS = {"wall_time_s", "frames_per_second"}
+
+
+def _run(seq: Path, out: Path, src: Path | None) -> None:
+    env = dict(os.environ)
+    if src is not None:
+        env["PYTHONPATH"] = str(src)
+    subprocess.run([sys.executable, "-m", "rovslam", "run", str(seq), "--out", str(out), "-q"], check=True, env=env)
+
+
+def _summary(path: Path) -> dict:
+    data = json.loads(path.read_text())
+    return {k: v for k, v in data.items() if k not in TIMING_KEYS}
+
+
+def compare(a: Path, b: Path) -> list[str]:
+    """Relative paths of the files that differ (or exist on one side only)."""
+    files_a = {p.relative_to(a) for p in a.rglob("*") if p.is_file()}
+    files_b = {p.relative_to(b) for p in b.rglob("*") if p.is_file()}
+    bad = sorted(str(p) + " (only in one)" for p in files_a ^ files_b)
+    for rel in sorted(files_a & files_b):
+        if rel.name == "summary.json":
+            same = _summary(a / rel) == _summary(b / rel)
+        else:
+            same = filecmp.cmp(a / rel, b / rel, shallow=False)
+        if not same:
+            bad.append(str(rel))
+    return bad
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--against", type=Path, required=True, metavar="SRC")
+    ap.add_argument("--frames", type=int, default=600)
+    ap.add_argument("--texture", choices=("sim", "photo"), default="sim")
+    args = ap.parse_args()
+    seq = sequence_folder(Case("360x272", args.texture, "png", args.frames))
+    with tempfile.TemporaryDirectory() as tmp:
+        this, other = Path(tmp) / "this", Path(tmp) / "against"
+        _run(seq, this, None)
+        _run(seq, other, args.against.resolve())
+        bad = compare(this, other)
+        n = sum(1 for p in this.rglob("*") if p.is_file())
+    if bad:
+        print(f"results differ from {args.against}: {', '.join(bad)}")
+        return 1
+    print(f"all {n} result files bit-identical to those of {args.against} ({args.frames} frames, {args.texture} seabed)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
