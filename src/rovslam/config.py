@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
+import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +33,7 @@ Subpixel = Literal["parabolic", "gaussian", "none"]
 Augmentation = Literal["full", "paper"]
 GateCovariance = Literal["relative", "paper"]
 Backend = Literal["ekf", "isam2"]
+Auto = Literal["auto"]
 
 
 def _num(default: float | int, *, gt: float | None = None, ge: float | None = None, le: float | None = None):
@@ -59,6 +61,19 @@ class _Checked:
 
 def _check_value(table: str, key: str, value: Any, tp: Any, meta: typing.Mapping[str, Any]) -> None:
     where = f"[{table}] {key} = {value!r}"
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):  # e.g. float | "auto": the first that fits
+        options = typing.get_args(tp)
+        errors = []
+        for option in options:
+            try:
+                _check_value(table, key, value, option, meta)
+                return
+            except ConfigError as exc:
+                errors.append(exc)
+        if isinstance(value, str):
+            allowed = [repr(a) for o in options if typing.get_origin(o) is Literal for a in typing.get_args(o)]
+            raise ConfigError(f"{where}: must be a number or one of {', '.join(allowed)}")
+        raise errors[0]
     if typing.get_origin(tp) is Literal:
         allowed = typing.get_args(tp)
         if value not in allowed:
@@ -106,6 +121,36 @@ class BandpassConfig(_Checked):
             self._fail("sigma_coarse_px", f"must be larger than sigma_fine_px = {self.sigma_fine_px!r}")
         if self.despeckle_px == 1:
             self._fail("despeckle_px", "must be 0 (off) or >= 2 px")
+
+
+@dataclass(frozen=True)
+class ProcessingConfig(_Checked):
+    """The resolution the vision runs at: any camera is brought near the paper's pixels (:mod:`rovslam.vision.scale`).
+
+    Every pixel figure of the other tables (band-pass sigmas, template sizes, search radii,
+    inhibition radii, thresholds in pixels) is in *processing* pixels. The frame is reduced
+    by ``scale`` (area average) before the template channel is filtered; the laser spots are
+    found in the full frame with their pixel figures divided by ``scale``; every pixel the
+    results report (laser spots, tokens, landmark observations) is converted back to the
+    full-resolution image, with the intrinsics scaled to match (distortion is in normalised
+    coordinates: unchanged).
+
+    * ``scale = "auto"`` (default): the largest reduction that keeps the image's long side at
+      most ``max_side_px`` and its ground resolution at the expected altitude (``[vehicle]
+      altitude_m``, else ``[laser] assumed_altitude_m``) at least ``min_px_per_m``; never
+      enlarged. The paper's 360x272 camera and the Sparus 384x288 are processed as they are;
+      1920x1080 at 0.25 (480x270).
+    * ``scale = 0.5`` (a number in (0, 1]): that reduction whatever the camera.
+    """
+
+    TABLE: ClassVar[str] = "processing"
+    scale: float | Auto = "auto"
+    max_side_px: int = _num(480, ge=64)  # auto: the long side of the processed image at most this
+    min_px_per_m: float = _num(500.0, ge=0)  # auto: ground pixels per metre kept at least (0: no limit)
+
+    def _check_relations(self) -> None:
+        if not isinstance(self.scale, str) and not 0.0 < self.scale <= 1.0:
+            self._fail("scale", 'must be "auto" or a number in (0, 1] (a reduction; 1 = full resolution)')
 
 
 @dataclass(frozen=True)
@@ -228,6 +273,8 @@ class OdometryConfig(_Checked):
     max_speed_mps: float = _num(3.0, gt=0)  # a measured speed above this is not a vehicle's: refused
     survey_speed_mps: float = _num(0.15, gt=0)  # speed bound for the landmark search before any speed is measured
     relief_scale_gain: float = _num(2.0, ge=0)  # relief parallax scale error: x its one-step estimate (step correlation)
+    relief_prior_sigma: float = _num(0.02, ge=0)  # relief height spread / altitude assumed before the tokens measured it
+    relief_prior_s: float = _num(2.0, ge=0)  # ... its share fades as exp(-seconds measured / this) (0: no prior, start as flat)
     compass_sigma_rad: float = _num(0.0087, ge=0)  # compass white noise (0.5 deg); 0 uses the compass as it is (paper)
     compass_drift_sigma_rad: float = _num(0.0087, ge=0)  # slow compass error no smoothing removes (magnetic disturbance)
     attitude_sigma_rad: float = _num(0.0035, ge=0)  # AHRS roll / pitch accuracy (0.2 deg), when frames.csv has them
@@ -321,6 +368,7 @@ class RunConfig:
     """Everything a run needs besides the sequence."""
 
     bandpass: BandpassConfig = field(default_factory=BandpassConfig)
+    processing: ProcessingConfig = field(default_factory=ProcessingConfig)
     speed_templates: SpeedTemplateConfig = field(default_factory=SpeedTemplateConfig)
     landmark_templates: LandmarkTemplateConfig = field(default_factory=LandmarkTemplateConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
@@ -337,6 +385,10 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
     origin = typing.get_origin(tp)
     if origin is Literal:
         return value  # checked against the allowed values by the dataclass
+    if origin in (typing.Union, types.UnionType):  # a number or a word ("auto"): numbers become floats
+        if float in typing.get_args(tp) and isinstance(value, int) and not isinstance(value, bool):
+            return float(value)
+        return value  # checked by the dataclass
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}")

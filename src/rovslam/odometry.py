@@ -424,18 +424,30 @@ class SpeedEstimator:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the held speed and the relief seen (as at the start of a sequence)."""
+        """Forget the held speed and the relief seen (as at the start of a sequence).
+
+        The relief average starts from a prior (``relief_prior_sigma``) that fades with the
+        seconds of measurements (time constant ``relief_prior_s``, :attr:`relief_var`): before the
+        tokens have seen the seabed, its relief is not known to be flat, and the first steps' Q
+        must not say it is.
+        """
         self._last: SpeedMeasurement | None = None
         self._last_dt_s = 0.0  # the step of the last good speed
         self._gap_s = 0.0  # seconds since the last good speed (T)
         self._gap_sum_s2 = 0.0  # sum over the gap's steps of T_k dt_k (S)
         self._relief_num = 0.0
         self._relief_den = 0.0
+        self._relief_seen_s = 0.0  # seconds of relief samples since the start: the prior fades with them
 
     @property
     def relief_var(self) -> float:
         """The relief's relative height variance under the tokens, averaged over the last seconds (>= 0)."""
-        return max(self._relief_num / self._relief_den, 0.0) if self._relief_den > 0 else 0.0
+        data = max(self._relief_num / self._relief_den, 0.0) if self._relief_den > 0 else 0.0
+        cfg = self.config
+        if cfg.relief_prior_s <= 0.0 or cfg.relief_prior_sigma <= 0.0:
+            return data
+        prior = math.exp(-self._relief_seen_s / cfg.relief_prior_s)  # the prior's share: 1 at the start
+        return prior * cfg.relief_prior_sigma**2 + (1.0 - prior) * data
 
     def _learn_relief(self, sample: float, dt_s: float, step_m2: float) -> None:
         """Exponential average of :func:`relief_sample` over ``RELIEF_TAU_S`` seconds (bias-corrected at the start).
@@ -447,6 +459,7 @@ class SpeedEstimator:
         """
         if not (math.isfinite(sample) and step_m2 > 0.0):
             return
+        self._relief_seen_s += dt_s
         w = (1.0 - math.exp(-dt_s / RELIEF_TAU_S)) * step_m2 * step_m2
         a = math.exp(-dt_s / RELIEF_TAU_S)
         self._relief_num = a * self._relief_num + w * sample

@@ -40,8 +40,16 @@ from rovslam.slam import EkfSlam
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 from rovslam.slam.motion import motion_step_m
 from rovslam.slam.observation import observation_noise_px2, pixels_to_mn
-from rovslam.vision.filters import bandpass, contrast_std, despeckled_channel, local_variance
+from rovslam.vision.filters import (
+    bandpass,
+    contrast_std,
+    despeckled_channel,
+    local_variance,
+    remove_specks,
+    template_channel,
+)
 from rovslam.vision.laser import AltitudeEstimate, LaserAltimeter
+from rovslam.vision.scale import processing_scale
 from rovslam.vision.templates import Template, extract_templates, inhibit_boxes, inhibition_mask
 from rovslam.vision.tracking import TokenTracker, TokenTracks, match_template
 
@@ -123,9 +131,14 @@ class SlamPipeline:
     def __init__(self, info: SequenceInfo, config: RunConfig = RunConfig()):
         self.info = info
         self.config = config
-        self.camera = info.camera
-        self.focal_px = info.camera.focal_px
-        self.altimeter = LaserAltimeter(info.camera, info.lasers, config.laser, self.altimeter_fallback)
+        # Any camera runs near the paper's pixels: the vision sees the frame reduced by the processing
+        # scale (self.camera, self.focal_px are the processed camera's); the lasers are found in the full
+        # frame; the results report full-resolution pixels (rovslam.vision.scale).
+        self.scale = processing_scale(info.camera, config.processing, self.altimeter_fallback)
+        self.camera = self.scale.camera
+        self.focal_px = self.camera.focal_px
+        self.altimeter = LaserAltimeter(info.camera, info.lasers, self.scale.laser_config(config.laser),
+                                        self.altimeter_fallback)
         self.altitude = AltitudeFilter(config.laser.altitude_accel_sigma_mps2)
         self.tokens = TokenTracker(config.speed_templates, config.tracker)
         self.speed = SpeedEstimator(config.odometry)
@@ -203,7 +216,10 @@ class SlamPipeline:
         if frame.image is None or frame.error is not None:
             return None, frame.error or "no image"
         cfg = self.config.bandpass
-        chan = despeckled_channel(frame.image, cfg.channel, cfg.despeckle_px)
+        if self.scale.identity:
+            chan = despeckled_channel(frame.image, cfg.channel, cfg.despeckle_px)
+        else:  # the channel reduced to the processing scale (area average on floats), then despeckled
+            chan = remove_specks(self.scale.reduce(template_channel(frame.image, cfg.channel)), cfg.despeckle_px)
         img = bandpass(chan, cfg.sigma_fine_px, cfg.sigma_coarse_px)
         if contrast_std(img) < MIN_TEXTURE_STD:
             return None, "no texture (black, saturated or flat frame)"
@@ -230,7 +246,8 @@ class SlamPipeline:
     # ------------------------------------------------------------------ step 2
     def _inhibit_laser_spots(self, alt: AltitudeEstimate) -> np.ndarray:
         """Step 2: ``(H, W) bool`` mask of the pixels near the laser spots (no template there)."""
-        return inhibition_mask(self.camera.shape, alt.spots_uv_px, self.config.laser.inhibit_radius_px)
+        return inhibition_mask(self.camera.shape, self.scale.to_processed_px(alt.spots_uv_px),
+                               self.config.laser.inhibit_radius_px)
 
     # ------------------------------------------------------------------ step 3
     def _track_landmarks(
@@ -274,7 +291,7 @@ class SlamPipeline:
                 if rec.confirmed:
                     self.recovery.searched(i, False)
                 continue
-            refused = REASON_LASER if self._covers_laser_spot(m.uv_px, alt.spots_uv_px) else ""
+            refused = REASON_LASER if self._covers_laser_spot(m.uv_px, self.scale.to_processed_px(alt.spots_uv_px)) else ""
             tracked.append(TrackedLandmark(rec, m.uv_px, pixels_to_mn(self.camera, m.uv_px, z, *att)[0], m.score, refused))
         return visible, tracked
 
@@ -333,6 +350,8 @@ class SlamPipeline:
     ) -> tuple[TokenTracks, SpeedMeasurement | None]:
         """Step 5: track the previous frame's tokens (their windows follow the turn) -> surge, sway, turn."""
         common, offsets = self._token_predictions(prior.step_rad, att, dt_s)
+        if self.tokens.reselect_for_motion(self._motion_hint(track_img, common, offsets)):
+            common, offsets = self._token_predictions(prior.step_rad, att, dt_s)  # the tokens changed
         tracks = self.tokens.track(track_img, common, mask, offsets)
         if self._prev_t_s is None:
             return tracks, None
@@ -344,6 +363,17 @@ class SlamPipeline:
             attitude_noise_rad=self.config.odometry.attitude_noise_sigma_rad if has_attitude else 0.0,
         )
         return tracks, speed
+
+    def _motion_hint(self, track_img: np.ndarray, common: np.ndarray | None, offsets: np.ndarray | None) -> np.ndarray:
+        """The image motion the tokens should survive: the phase correlation's when confident, else the predicted one.
+
+        Returns ``(2,)`` pixels (NaN when neither is known); the mean per-token offset (turn, tilt) is included.
+        """
+        g_shift, g_conf = self.tokens.motion_prior(track_img)
+        mean_offset = np.zeros(2) if offsets is None else np.mean(offsets, axis=0)
+        if g_shift is not None and (common is None or g_conf >= self.config.tracker.min_global_confidence):
+            return g_shift
+        return np.full(2, np.nan) if common is None else common + mean_offset
 
     def _token_predictions(
         self, dpsi_rad: float, att: tuple[float, float], dt_s: float
@@ -515,7 +545,11 @@ class SlamPipeline:
         observations: tuple[Observation, ...] = (), new_id: int | None = None, skipped_reason: str | None = None,
         recovery: RecoveryEvent | None = None,
     ) -> FrameResult:
-        """The one place a :class:`FrameResult` is built (processed and skipped frames alike)."""
+        """The one place a :class:`FrameResult` is built (processed and skipped frames alike).
+
+        Pixels are reported in the full-resolution frame (:meth:`_full_res`), whatever the processing scale.
+        """
+        observations = tuple(self._full_res(o) for o in observations)
         meas = self._measurements(frame, dt_s, heading, altitude_m, altitude, speed, observations)
         xy, cov, heading_map = self.ekf.vehicle_xy_m, self.ekf.vehicle_cov_m2, self.ekf.map_heading_rad(heading.heading_rad)
         if self.smoother is not None:
@@ -536,7 +570,7 @@ class SlamPipeline:
             landmarks_visible=visible, landmarks_tracked=sum(o.accepted for o in observations if o.kind == "track"),
             n_landmarks=self.ekf.n_landmarks, observations=observations, new_landmark_id=new_id,
             dr_x_m=float(self._dr[0]), dr_y_m=float(self._dr[1]), skipped_reason=skipped_reason,
-            token_uv_px=tracks.uv_curr_px if tracks else _NO_POINTS, measurements=meas, recovery=recovery,
+            token_uv_px=self.scale.to_full_px(tracks.uv_curr_px) if tracks else _NO_POINTS, measurements=meas, recovery=recovery,
         )
 
     def _measurements(
@@ -556,7 +590,7 @@ class SlamPipeline:
             compass_rad=frame.heading_rad, compass_sigma_rad=self.config.odometry.compass_sigma_rad,
             heading_step_rad=speed.dpsi_rad if turn else math.nan,
             heading_step_sigma_rad=speed.dpsi_sigma_rad if turn else math.nan,
-            altitude_m=altitude_m, altitude_sigma_m=sigma_z, focal_px=self.focal_px, landmarks=landmarks,
+            altitude_m=altitude_m, altitude_sigma_m=sigma_z, focal_px=self.scale.full.focal_px, landmarks=landmarks,
         )
 
     def _landmark_measurement(self, o: Observation, altitude_m: float, sigma_z: float) -> LandmarkMeasurement:
@@ -567,8 +601,14 @@ class SlamPipeline:
         """
         depth = altitude_m - self.ekf.landmark_height_m(o.landmark_id)
         scale = depth / altitude_m
-        noise = observation_noise_px2(o.mn_px, self.config.slam.pixel_sigma_px, depth, sigma_z)
+        noise = observation_noise_px2(o.mn_px, self.config.slam.pixel_sigma_px * self.scale.focal_ratio, depth, sigma_z)
         return LandmarkMeasurement(o.landmark_id, o.kind, o.mn_px * scale, noise * scale**2, o.accepted)
+
+    def _full_res(self, o: Observation) -> Observation:
+        """An observation in full-resolution pixels: its template centre, and its [m, n] over the full focal length."""
+        if self.scale.identity:
+            return o
+        return dataclasses.replace(o, uv_px=self.scale.to_full_px(o.uv_px), mn_px=o.mn_px * self.scale.focal_ratio)
 
     def _reported_cov(self, cov_m2: np.ndarray, xy_m: np.ndarray, altitude_m: float, has_attitude: bool) -> np.ndarray:
         """(2, 2) covariance of the true position: the filter's, plus the apparent-frame errors.

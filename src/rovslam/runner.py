@@ -553,6 +553,7 @@ class _Run:
             "source_warnings": list(getattr(self.seq, "warnings", [])),
             "source_frames_left_out": int(getattr(self.seq, "left_out", 0)),
             "landmarks": pipe.ekf.n_landmarks,
+            "processing": {"scale": pipe.scale.scale, "width_px": pipe.camera.width_px, "height_px": pipe.camera.height_px},
             "recoveries": [
                 {"frame": e.frame, "t_s": e.t_s, "offset_m": list(e.offset_m), "landmarks": list(e.landmarks),
                  "cause": e.cause}

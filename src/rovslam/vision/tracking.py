@@ -37,6 +37,7 @@ import numpy as np
 
 from rovslam.config import SpeedTemplateConfig, TrackerConfig
 from rovslam.errors import InvalidArgumentError
+from rovslam.vision.filters import local_variance
 from rovslam.vision.templates import Template, extract_templates, window_inhibited
 
 # Reasons of a failed match (Match.reason).
@@ -350,6 +351,10 @@ class TokenTracker:
         self._tokens: list[Template] = []
         self._prev_img: np.ndarray | None = None
         self._prev_small: np.ndarray | None = None  # the previous image reduced for the global shift
+        self._prev_inhibit: np.ndarray | None = None  # the previous frame's forbidden pixels
+        self._last_shift: np.ndarray | None = None  # median motion of the last tracked tokens (u, v) px
+        self._prior_for: np.ndarray | None = None  # the image the cached global shift was measured on
+        self._prior: tuple[np.ndarray | None, float] = (None, float("nan"))
         # (image given to track, its reduction): extract reuses it for the same image (computed once a frame)
         self._reduced: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -363,31 +368,114 @@ class TokenTracker:
         self._tokens = []
         self._prev_img = None
         self._prev_small = None
+        self._prev_inhibit = None
+        self._last_shift = None
+        self._prior_for = None
+        self._prior = (None, float("nan"))
         self._reduced = None
 
-    def extract(self, track_img: np.ndarray, local_var: np.ndarray, inhibit: np.ndarray | None = None) -> int:
+    def extract(self, track_img: np.ndarray, local_var: np.ndarray, inhibit: np.ndarray | None = None,
+                expected_shift_uv_px: np.ndarray | None = None) -> int:
         """Extract fresh tokens for the next frame (paper step 8); returns how many.
+
+        Where the seabed will still be seen: with a large expected motion (more than the search
+        radius), windows that it would carry out of the next frame are not chosen (a band
+        :func:`leaving_mask` wide on the side the content leaves), unless that leaves fewer
+        tokens than choosing anywhere.
 
         Parameters
         ----------
         track_img: ``(H, W) float32`` tracking image of the current frame.
         local_var: ``(H, W) float32`` local variance over the speed template size.
         inhibit: ``(H, W) bool`` forbidden pixels (laser spots, landmark templates).
+        expected_shift_uv_px: ``(2,)`` content motion expected to the next frame; None: the
+            median motion of the tokens tracked in this frame, when there were some.
         """
-        cfg = self.speed_config
         img = np.array(track_img, dtype=np.float32)  # own copy: the caller may reuse its buffer
-        self._tokens = extract_templates(
-            img, local_var, cfg.size_px, cfg.max_count, cfg.min_local_variance, cfg.border_px, inhibit,
-            cfg.min_spacing_px, cfg.max_self_similarity if cfg.max_self_similarity < 1.0 else None,
-            cfg.search_radius_px + 2,
-        )
+        shift = self._last_shift if expected_shift_uv_px is None else np.asarray(expected_shift_uv_px, np.float64)
+        self._tokens = self._choose(img, local_var, inhibit, shift, _NEXT_SHIFT_SLACK)
         self._prev_img = img
         self._prev_small = None
         if self.tracker_config.global_search:
             reduced, self._reduced = self._reduced, None
             self._prev_small = reduced[1] if reduced is not None and reduced[0] is track_img else (
                 reduce_image(img, global_scale(img.shape)))
+        self._prev_inhibit = None if inhibit is None else np.array(inhibit, dtype=bool)
+        self._prior_for = None
         return len(self._tokens)
+
+    def _choose(self, img: np.ndarray, local_var: np.ndarray, inhibit: np.ndarray | None,
+                shift_uv_px: np.ndarray | None, slack: float) -> list[Template]:
+        """The tokens of ``img``, away from the band a large ``shift_uv_px`` carries out of the next frame."""
+        cfg = self.speed_config
+
+        def choose(mask: np.ndarray | None) -> list[Template]:
+            return extract_templates(
+                img, local_var, cfg.size_px, cfg.max_count, cfg.min_local_variance, cfg.border_px, mask,
+                cfg.min_spacing_px, cfg.max_self_similarity if cfg.max_self_similarity < 1.0 else None,
+                cfg.search_radius_px + 2,
+            )
+
+        if shift_uv_px is None or not _large_motion(shift_uv_px, cfg.search_radius_px):
+            return choose(inhibit)
+        leaving = leaving_mask(img.shape, shift_uv_px, cfg.border_px + 2.0 + slack * float(np.max(np.abs(shift_uv_px))))
+        staying = choose(leaving if inhibit is None else leaving | inhibit)
+        if len(staying) >= min(cfg.max_count, _MIN_STAYING_TOKENS):
+            return staying
+        anywhere = choose(inhibit)
+        return staying if len(staying) >= len(anywhere) else anywhere
+
+    def motion_prior(self, track_img: np.ndarray) -> tuple[np.ndarray | None, float]:
+        """``(shift (2,) or None, confidence)``: the whole-image motion since the last extraction.
+
+        Phase correlation of the reduced images (:func:`global_shift`), measured once per
+        image (:meth:`track` reuses it); None when there is no previous image or the global
+        search is off.
+        """
+        img = np.asarray(track_img)
+        if self._prior_for is img:
+            return self._prior
+        prior: tuple[np.ndarray | None, float] = (None, float("nan"))
+        if self.tracker_config.global_search and self._prev_small is not None:
+            scale = global_scale(img.shape)
+            small = reduce_image(img.astype(np.float32, copy=False), scale)
+            if scale < 1.0:  # a new array (at scale 1 it is the caller's image): the same frame's extract() reuses it
+                self._reduced = (track_img, small)
+            if small.shape == self._prev_small.shape:
+                g_small, g_conf = global_shift(self._prev_small, small)
+                prior = (g_small / scale, g_conf)
+        self._prior_for, self._prior = img, prior
+        return prior
+
+    def reselect_for_motion(self, shift_uv_px: np.ndarray) -> bool:
+        """Choose the previous frame's tokens again where the seabed stays in view after ``shift_uv_px``.
+
+        Tokens are chosen before the next frame's motion is known; after a large motion (the
+        first pair, a gap, a still camera, a pair moving a third of the image) many of them
+        leave the image. When the motion (predicted or measured by :meth:`motion_prior`) is
+        larger than the search radius and carries a token's window out of the image, the
+        tokens are chosen again in the previous tracking image, away from the band that leaves
+        (and from its inhibited pixels). Returns True when the tokens changed (the per-token
+        predictions must then be recomputed).
+        """
+        shift = np.asarray(shift_uv_px, dtype=np.float64).reshape(-1)
+        if (self._prev_img is None or not self._tokens or shift.shape != (2,) or not np.all(np.isfinite(shift))
+                or not _large_motion(shift, self.speed_config.search_radius_px)):
+            return False
+        h, w = self._prev_img.shape
+        half = 0.5 * (self.speed_config.size_px - 1)
+        centres = np.array([t.centre_uv_px for t in self._tokens]) + shift
+        stay = np.all((centres >= half + 1.0) & (centres <= np.array([w - 2.0 - half, h - 2.0 - half])), axis=1)
+        n_stay = int(np.count_nonzero(stay))
+        if n_stay == len(self._tokens):
+            return False
+        size = self.speed_config.size_px
+        fresh = self._choose(self._prev_img, local_variance(self._prev_img, size), self._prev_inhibit, shift,
+                             _PRIOR_SHIFT_SLACK)
+        if len(fresh) <= n_stay:
+            return False
+        self._tokens = fresh
+        return True
 
     def track(
         self,
@@ -458,16 +546,7 @@ class TokenTracker:
                 )
         # The whole-image shift, every frame (at reduced resolution: cheap): a second opinion on
         # the motion, which breaks the chain of a wrong speed predicting the next wrong match.
-        g_shift: np.ndarray | None = None
-        g_conf = float("nan")
-        if cfg.global_search and self._prev_small is not None:
-            scale = global_scale(img.shape)
-            small = reduce_image(img, scale)
-            if scale < 1.0:  # a new array (at scale 1 it is the caller's image): the same frame's extract() reuses it
-                self._reduced = (track_img, small)
-            if small.shape == self._prev_small.shape:
-                g_small, g_conf = global_shift(self._prev_small, small)
-                g_shift = g_small / scale
+        g_shift, g_conf = self.motion_prior(track_img)
         global_ok = g_shift is not None and g_conf >= cfg.min_global_confidence
 
         matches: list[Match] | None = None
@@ -484,6 +563,14 @@ class TokenTracker:
             g_coherent = _coherent(g_matches, tokens, g_off)
             if matches is None or g_coherent > coherent or (g_coherent == coherent and sum(m.ok for m in g_matches) > n_ok):
                 matches, used_global = g_matches, True
+        if g_shift is not None and not global_ok and (matches is None or n_ok < need):
+            # A weak phase-correlation peak (large motion, little overlap, low contrast) is still the
+            # motion when the tokens confirm it: enough of them found around it, moving together.
+            g_off = rot - rot.mean(axis=0)
+            g_matches = _match_all(img, tokens, g_shift + g_off, cfg.global_search_radius_px, cfg, inhibit)
+            g_coherent = _coherent(g_matches, tokens, g_off)
+            if g_coherent >= min(n, max(need, _MIN_CONFIRMING_TOKENS)) and g_coherent > coherent:
+                matches, used_global = g_matches, True
         if matches is None:
             # No prediction and no usable global shift: assume no motion.
             matches = _match_all(img, tokens, rot, self.speed_config.search_radius_px, cfg, inhibit)
@@ -491,6 +578,7 @@ class TokenTracker:
         ok = np.array([m.ok for m in matches], dtype=bool)
         uv_prev = np.array([t.centre_uv_px for t in tokens], dtype=np.float64).reshape(-1, 2)[ok]
         uv_curr = np.array([m.uv_px for m in matches], dtype=np.float64).reshape(-1, 2)[ok]
+        self._last_shift = np.median(uv_curr - uv_prev, axis=0) if len(uv_curr) >= 2 else None
         scores = np.array([m.score for m in matches], dtype=np.float64)[ok]
         return TokenTracks(uv_prev, uv_curr, scores, n, used_global, tuple(m.reason for m in matches),
                            g_shift, g_conf)
@@ -499,6 +587,37 @@ class TokenTracker:
 # The motion predicted from the last speed and the whole-image shift disagree beyond this: both
 # are tried and the one the tokens agree with more is kept.
 _PRIOR_DISAGREEMENT_PX = 2.0
+# A phase-correlation shift below the confidence threshold is accepted when at least this many
+# tokens (and at least min_tracked_fraction of them) are found around it, moving together.
+_MIN_CONFIRMING_TOKENS = 3
+# Tokens chosen away from the band the motion carries out of view: the band is widened by this
+# fraction of the motion (the next frame's motion is a guess: 25 %; a measured prior: 10 %).
+_NEXT_SHIFT_SLACK = 0.25
+_PRIOR_SHIFT_SLACK = 0.1
+# Fewer tokens than this where the seabed stays: choose anywhere instead, if that gives more.
+_MIN_STAYING_TOKENS = 4
+
+
+def _large_motion(shift_uv_px: np.ndarray, search_radius_px: int) -> bool:
+    """Whether a content motion is larger than the token search radius (tokens near the border then leave)."""
+    return bool(np.all(np.isfinite(shift_uv_px)) and float(np.max(np.abs(shift_uv_px))) > search_radius_px)
+
+
+def leaving_mask(shape_hw: tuple[int, int], shift_uv_px: np.ndarray, margin_px: float) -> np.ndarray:
+    """``(H, W) bool``: the pixels a content motion ``shift_uv_px`` carries out of the next frame (with a margin).
+
+    Pixel ``(u, v)`` is True when ``u + du`` or ``v + dv`` falls within ``margin_px`` of the
+    image border or beyond: a template touching it cannot be found in the next frame.
+    """
+    h, w = int(shape_hw[0]), int(shape_hw[1])
+    du, dv = (float(x) for x in np.asarray(shift_uv_px, dtype=np.float64).reshape(2))
+    m = float(margin_px)
+    mask = np.zeros((h, w), dtype=bool)
+    u = np.arange(w) + du
+    v = np.arange(h) + dv
+    mask[:, (u < m) | (u > w - 1 - m)] = True
+    mask[(v < m) | (v > h - 1 - m), :] = True
+    return mask
 
 
 def _coherent(matches: list[Match], tokens: Sequence[Template], offsets_uv_px: np.ndarray) -> int:
