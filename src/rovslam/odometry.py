@@ -460,8 +460,8 @@ class SpeedEstimator:
         if not (math.isfinite(sample) and step_m2 > 0.0):
             return
         self._relief_seen_s += dt_s
-        w = (1.0 - math.exp(-dt_s / RELIEF_TAU_S)) * step_m2 * step_m2
         a = math.exp(-dt_s / RELIEF_TAU_S)
+        w = (1.0 - a) * step_m2 * step_m2
         self._relief_num = a * self._relief_num + w * sample
         self._relief_den = a * self._relief_den + w
 
