@@ -79,6 +79,9 @@ def test_bad_image_folders(folder, tmp_path):
     line = _error(["run", d, *out])
     assert "a folder of images without sequence.toml and frames.csv runs with --camera CAMERA.toml ([camera]" in line
     assert "(README, 'Real dives in')" in line
+    assert "missing: --camera CAMERA.toml and --fps F or --times FILE." in line
+    assert "missing: --fps F or --times FILE." in _error(["run", d, "--camera", cam, *out])
+    assert "missing: --camera CAMERA.toml." in _error(["run", d, "--fps", "5", *out])
     assert "give --fps F" in _error(["run", d, "--camera", cam, "--fps", "5", "--times", tmp_path / "t.csv", *out])
     assert "--fps must be a frame rate" in _error(["run", d, "--camera", cam, "--fps", "0", *out])
     times = tmp_path / "t.csv"

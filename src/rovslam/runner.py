@@ -140,11 +140,14 @@ def open_source(path: str | Path, camera_file: str | Path | None = None, options
                 f"{p}: no sequence.toml, frames.csv or image files (PNG, JPEG, TIFF) in this folder: it is not a sequence "
                 "folder, a folder of images or a ROS 2 bag (metadata.yaml)."
             )
-        if opts.camera_file is None or (opts.fps is None and opts.times_file is None):
+        missing = [flag for flag, absent in (("--camera CAMERA.toml", opts.camera_file is None),
+                                             ("--fps F or --times FILE", opts.fps is None and opts.times_file is None))
+                   if absent]
+        if missing:
             raise SequenceFormatError(
                 f"{p}: a folder of images without sequence.toml and frames.csv runs with --camera CAMERA.toml "
-                f"({CAMERA_TABLES}) and --fps F or --times FILE (README, 'Real dives in'); or make it a sequence folder "
-                "(README, 'Sequence folder (format v1)')."
+                f"({CAMERA_TABLES}) and --fps F or --times FILE (README, 'Real dives in'); missing: "
+                f"{' and '.join(missing)}. Or make it a sequence folder (README, 'Sequence folder (format v1)')."
             )
         src = ImageFolderSource(p, _camera_file(p, "image folder", opts), opts.fps, opts.times_file)
         return _with_navigation(src, opts, src.span_s, "image folder")

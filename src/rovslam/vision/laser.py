@@ -396,7 +396,8 @@ def _fit_plane(points: np.ndarray, sigmas: np.ndarray) -> tuple[float, float, tu
     design = np.column_stack([np.ones(len(points)), points[:, 0], points[:, 1]])
     w = 1.0 / sigmas**2
     normal = design.T @ (design * w[:, None])
-    if np.linalg.cond(normal) > 1e12:
+    eig = np.linalg.eigvalsh(normal)  # the normal matrix is symmetric: its condition number from its eigenvalues
+    if not eig[0] > 1e-12 * eig[-1]:
         return None  # collinear spots: no plane
     cov = np.linalg.inv(normal)
     coef = cov @ (design.T @ (w * points[:, 2]))

@@ -179,7 +179,7 @@ def self_similarity(track_img: np.ndarray, top_left_uv: tuple[int, int], size_px
     pu, pv = u0 - su0, v0 - sv0  # where the window finds itself
     ex = max(0, int(exclusion_px))
     is_max[max(0, pv - ex) : pv + ex + 1, max(0, pu - ex) : pu + ex + 1] = False
-    return float(corr[is_max].max()) if is_max.any() else -1.0
+    return float(np.max(corr, where=is_max, initial=-1.0))  # -1 (the lowest correlation) when there is none
 
 
 def extract_templates(

@@ -157,7 +157,8 @@ def match_template(
     pred = np.asarray(predicted_uv_px, dtype=np.float64).reshape(-1)
     if pred.shape != (2,):
         raise InvalidArgumentError(f"predicted_uv_px must be 2 numbers (u, v), got shape {pred.shape}")
-    if not np.all(np.isfinite(pred)):
+    pu_pred, pv_pred = float(pred[0]), float(pred[1])
+    if not (math.isfinite(pu_pred) and math.isfinite(pv_pred)):
         return _fail(REASON_OUTSIDE)
     if img.dtype != np.float32:
         img = img.astype(np.float32)
@@ -168,8 +169,8 @@ def match_template(
     ih, iw = img.shape
     r = int(search_radius_px)
     # Rounded predicted top-left corner; the window spans corners tl0 - r .. tl0 + r.
-    tl_u = int(np.rint(pred[0] - 0.5 * (tw - 1)))
-    tl_v = int(np.rint(pred[1] - 0.5 * (th - 1)))
+    tl_u = round(pu_pred - 0.5 * (tw - 1))  # half to even, as np.rint
+    tl_v = round(pv_pred - 0.5 * (th - 1))
     u0, u1 = max(0, tl_u - r), min(iw, tl_u + r + tw)
     v0, v1 = max(0, tl_v - r), min(ih, tl_v + r + th)
     if u1 - u0 < tw + 2 or v1 - v0 < th + 2:
@@ -209,9 +210,7 @@ def _second_peak(corr: np.ndarray, pu: int, pv: int, exclusion_px: int) -> float
     is_max = corr >= cv2.dilate(corr, _ones3())
     ex = max(0, exclusion_px)
     is_max[max(0, pv - ex) : pv + ex + 1, max(0, pu - ex) : pu + ex + 1] = False
-    if not is_max.any():
-        return -1.0
-    return float(corr[is_max].max())
+    return float(np.max(corr, where=is_max, initial=-1.0))  # -1 (the lowest correlation) when there is none
 
 
 @lru_cache(maxsize=4)
