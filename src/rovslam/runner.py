@@ -58,7 +58,7 @@ class RunSummary:
     status: str = "complete"  # "complete" | "interrupted" | "unusable" | "failed"
     reason: str | None = None
     sonar_rejected: list[tuple[int, float, str]] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)  # what the source left out (a damaged video)
+    warnings: list[str] = field(default_factory=list)  # what the source left out (a damaged video), a map that was not used
 
     @property
     def fps(self) -> float:
@@ -340,6 +340,44 @@ def _fallback_detail(info: Any, where: str, altitude_m: float) -> str:
     return f"{altitude_m:g} m, [laser] assumed_altitude_m of the configuration (no [vehicle] altitude_m in {where})"
 
 
+# The map corrects the odometry only where its landmarks are found again: below this share of the
+# frames with a landmark in view, over at least MAP_USE_MIN_FRAMES such frames, the run says so.
+MAP_USE_MIN_FOUND = 0.25
+MAP_USE_MIN_FRAMES = 50
+
+
+class MapTally:
+    """How often the landmarks expected in view were found again (``summary.json`` ``map_use``).
+
+    A frame counts as "in view" when some landmark passed the visibility gate (5) and as "found"
+    when at least one landmark match was accepted. A seabed whose appearance changes between
+    passes (moving sunlight caustics, turbidity, a scene that moves) makes the landmarks
+    unrecognisable: the map then stops correcting the odometry's drift, and the run warns.
+    """
+
+    def __init__(self) -> None:
+        self.in_view = 0
+        self.found = 0
+
+    def add(self, res: FrameResult) -> None:
+        if res.skipped_reason is None and res.landmarks_visible > 0:
+            self.in_view += 1
+            self.found += res.landmarks_tracked > 0
+
+    def warnings(self) -> list[str]:
+        if self.in_view < MAP_USE_MIN_FRAMES or self.found >= MAP_USE_MIN_FOUND * self.in_view:
+            return []
+        return [f"landmarks were found again in only {self.found} of the {self.in_view} frames that had one in view "
+                f"({100.0 * self.found / self.in_view:.0f} %): the map corrects little of the odometry's drift, and the "
+                "position's error may outgrow its covariance. Common causes: a seabed whose appearance changes "
+                "between passes (moving sunlight caustics in shallow water, turbidity, moving weed), or too little "
+                "texture for [landmark_templates] min_local_variance"]
+
+    def summary(self) -> dict[str, Any]:
+        return {"frames_with_landmark_in_view": self.in_view, "frames_with_landmark_found": self.found,
+                "found_fraction": self.found / self.in_view if self.in_view else None}
+
+
 class SourceTally:
     """Counts, frame by frame, where the altitude and the heading came from (``summary.json`` ``sources``).
 
@@ -417,6 +455,7 @@ class _Run:
         self.reason: str | None = None
         self.fallback_detail = ""
         self.tally: SourceTally | None = None
+        self.map_use = MapTally()
         self.summary_base: dict[str, Any] = {
             "software": {"name": "rovslam", "version": __version__},
             "sequence_name": seq.info.name,
@@ -454,6 +493,7 @@ class _Run:
                 writer.write_frame(res)
                 self.measurements.write(res.measurements)
                 self.sources.add(frame, res)
+                self.map_use.add(res)
                 self.gallery.write_frame(frame.image, res)
                 if res.new_landmark_id is not None:
                     writer.write_landmark_template(res.new_landmark_id, pipe.landmarks[res.new_landmark_id].patch)
@@ -554,6 +594,7 @@ class _Run:
             "source": self.sources.description.to_dict(),
             "sources": self.sources.summary(),
             "source_warnings": list(getattr(self.seq, "warnings", [])),
+            "map_use": {**self.map_use.summary(), "warnings": self.map_use.warnings()},
             "source_frames_left_out": int(getattr(self.seq, "left_out", 0)),
             "landmarks": pipe.ekf.n_landmarks,
             "processing": {"scale": pipe.scale.scale, "width_px": pipe.camera.width_px, "height_px": pipe.camera.height_px},
@@ -573,7 +614,7 @@ class _Run:
             self.n, self.total, list(self.pipe.skipped), self.pipe.ekf.n_landmarks, wall, interrupted, self.out,
             signal=self.stop.name if interrupted else None, signum=self.stop.signum if interrupted else None,
             status=self.status, reason=self.reason, sonar_rejected=list(self.sonar_rejected),
-            warnings=list(getattr(self.seq, "warnings", [])),
+            warnings=list(getattr(self.seq, "warnings", [])) + self.map_use.warnings(),
         )
 
 
