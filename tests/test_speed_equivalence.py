@@ -207,3 +207,57 @@ def test_extract_reuses_the_reduction_track_made_of_the_same_image():
     tr.track(frames[1], None)
     tr.extract(other, lv[0])
     np.testing.assert_array_equal(tr._prev_small, reduce_image(other, global_scale(other.shape)))
+
+
+def _best_hypothesis_reference(a, b, prior_rad, prior_var, thr, sigma0, joint):
+    """The hypothesis search with one pair at a time (a Python loop, ``rot2(t) @ v``), as it was."""
+    from rovslam.camera import rot2, wrap_angle
+    from rovslam.odometry import _MAX_HYPOTHESES
+
+    thetas = [prior_rad]
+    ds = [np.median(a - b @ rot2(prior_rad).T, axis=0)]
+    pick = np.linspace(0, len(a) - 1, _MAX_HYPOTHESES).astype(np.intp) if len(a) > _MAX_HYPOTHESES else np.arange(len(a))
+    singles = a[pick] - b[pick] @ rot2(prior_rad).T
+    thetas += [prior_rad] * len(singles)
+    ds += list(singles)
+    if joint and len(a) >= 2:
+        i, j = np.triu_indices(len(a), 1)
+        da, db = a[i] - a[j], b[i] - b[j]
+        base2 = np.einsum("kj,kj->k", db, db)
+        keep = base2 >= max((8.0 * thr) ** 2, float(np.max(base2)) / 16.0)
+        if np.any(keep) and len(keep) > _MAX_HYPOTHESES:
+            keep &= base2 >= np.sort(base2)[-_MAX_HYPOTHESES]
+        th = np.arctan2(da[keep, 1], da[keep, 0]) - np.arctan2(db[keep, 1], db[keep, 0])
+        th = prior_rad + wrap_angle(th - prior_rad)
+        for t, ii, jj in zip(th, i[keep], j[keep]):
+            thetas.append(float(t))
+            ds.append(0.5 * (a[ii] + a[jj]) - rot2(t) @ (0.5 * (b[ii] + b[jj])))
+    thetas_a, ds_a = np.asarray(thetas), np.asarray(ds)
+    c, s = np.cos(thetas_a)[:, None], np.sin(thetas_a)[:, None]
+    rb = np.stack([c * b[None, :, 0] - s * b[None, :, 1], s * b[None, :, 0] + c * b[None, :, 1]], axis=-1)
+    r2 = np.einsum("kmj,kmj->km", a[None] - rb - ds_a[:, None, :], a[None] - rb - ds_a[:, None, :])
+    score = np.minimum(r2, thr**2).sum(axis=1) / sigma0**2
+    if joint and prior_var > 0:
+        score = score + wrap_angle(thetas_a - prior_rad) ** 2 / prior_var
+    k = int(np.argmin(score))
+    return float(thetas_a[k]), ds_a[k], r2[k] <= thr**2
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 14), joint=st.booleans(),
+       turn=st.floats(-0.2, 0.2), outliers=st.integers(0, 4))
+def test_best_hypothesis_is_the_pair_by_pair_search(seed, n, joint, turn, outliers):
+    """Rigid-motion hypotheses of all token pairs at once: the same turn, translation and inliers, bit for bit."""
+    from rovslam.camera import rot2
+    from rovslam.odometry import _best_hypothesis
+
+    rng = np.random.default_rng(seed)
+    b = rng.uniform(-0.2, 0.2, (n, 2))
+    a = b @ rot2(turn).T + rng.uniform(-0.05, 0.05, 2) + rng.normal(0, 2e-4, (n, 2))
+    a[: min(outliers, n)] += rng.normal(0, 0.01, (min(outliers, n), 2))  # tokens that disagree
+    args = (a, b, turn + rng.normal(0, 0.01), 1e-4, 6e-4, 3e-4, joint)
+    theta, d, inl = _best_hypothesis(*args)
+    theta_ref, d_ref, inl_ref = _best_hypothesis_reference(*args)
+    assert theta == theta_ref
+    assert np.array_equal(d, d_ref)
+    assert np.array_equal(inl, inl_ref)

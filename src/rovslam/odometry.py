@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -339,6 +340,15 @@ def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, pr
     return _RigidFit(theta, d, theta_var, cov_d, resid_var)
 
 
+@lru_cache(maxsize=64)
+def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.triu_indices(n, 1)``, computed once per token count (read-only)."""
+    i, j = np.triu_indices(n, 1)
+    i.setflags(write=False)
+    j.setflags(write=False)
+    return i, j
+
+
 def _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint):
     """(theta, d, inlier mask) of the best rigid hypothesis: MSAC residuals plus the compass prior.
 
@@ -347,17 +357,16 @@ def _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint):
     fix the turn (at least a quarter of the tokens' extent, and 8 thresholds). Each is scored
     by ``sum(min(r^2, thr^2)) / sigma0^2 + (theta - prior)^2 / prior_var``.
     """
-    thetas = [prior_rad]
-    ds = [np.median(a - b @ rot2(prior_rad).T, axis=0)]
     if len(a) > _MAX_HYPOTHESES:
         pick = np.linspace(0, len(a) - 1, _MAX_HYPOTHESES).astype(np.intp)
     else:
         pick = np.arange(len(a))
-    singles = a[pick] - b[pick] @ rot2(prior_rad).T
-    thetas += [prior_rad] * len(singles)
-    ds += list(singles)
+    rb_prior = b @ rot2(prior_rad).T
+    singles = a[pick] - rb_prior[pick]
+    thetas = [np.full(1 + len(singles), prior_rad)]
+    ds = [np.median(a - rb_prior, axis=0)[None], singles]
     if joint and len(a) >= 2:
-        i, j = np.triu_indices(len(a), 1)
+        i, j = _pairs(len(a))
         da, db = a[i] - a[j], b[i] - b[j]
         base2 = np.einsum("kj,kj->k", db, db)
         extent2 = float(np.max(base2))
@@ -366,11 +375,16 @@ def _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint):
             keep &= base2 >= np.sort(base2)[-_MAX_HYPOTHESES]
         th = np.arctan2(da[keep, 1], da[keep, 0]) - np.arctan2(db[keep, 1], db[keep, 0])
         th = prior_rad + wrap_angle(th - prior_rad)
-        for t, ii, jj in zip(th, i[keep], j[keep]):
-            thetas.append(float(t))
-            ds.append(0.5 * (a[ii] + a[jj]) - rot2(t) @ (0.5 * (b[ii] + b[jj])))
-    thetas_a = np.asarray(thetas)
-    ds_a = np.asarray(ds)
+        ii, jj = i[keep], j[keep]
+        # Each pair's translation mid(a) - R(t) mid(b); a stacked matmul gives R(t) @ v bit for bit.
+        c, s = np.cos(th), np.sin(th)
+        rots = np.empty((len(th), 2, 2))
+        rots[:, 0, 0], rots[:, 0, 1], rots[:, 1, 0], rots[:, 1, 1] = c, -s, s, c
+        mid_b = 0.5 * (b[ii] + b[jj])
+        thetas.append(th)
+        ds.append(0.5 * (a[ii] + a[jj]) - np.matmul(rots, mid_b[:, :, None])[:, :, 0])
+    thetas_a = np.concatenate(thetas)
+    ds_a = np.concatenate(ds)
     c, s = np.cos(thetas_a)[:, None], np.sin(thetas_a)[:, None]
     rb = np.stack([c * b[None, :, 0] - s * b[None, :, 1], s * b[None, :, 0] + c * b[None, :, 1]], axis=-1)
     r = a[None] - rb - ds_a[:, None, :]  # (K, M, 2)
