@@ -118,6 +118,7 @@ def _run(spec: CellSpec, cell_dir: Path, keep_sequence: bool) -> dict[str, Any]:
         "status": "ok",
         "error": "",
         **cell_figures(ev),
+        "landmarks_found": _landmarks_found(run_dir),
         "frames_per_s": summary.fps,  # wall clock, as `rovslam run` reports it: depends on the machine's load
         "frames_per_cpu_s": summary.frames / (c2 - c1) if c2 > c1 else None,  # per second of one core
         "simulate_s": t1 - t0,
@@ -135,6 +136,15 @@ def _run(spec: CellSpec, cell_dir: Path, keep_sequence: bool) -> dict[str, Any]:
     if spec.simulated and not keep_sequence:
         shutil.rmtree(seq, ignore_errors=True)
     return row
+
+
+def _landmarks_found(run_dir: Path) -> float | None:
+    """Share of the frames with a landmark in view where one was found again (``summary.json`` ``map_use``)."""
+    try:
+        value = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))["map_use"]["found_fraction"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return float(value) if isinstance(value, (int, float)) else None
 
 
 def cell_figures(ev) -> dict[str, Any]:

@@ -16,7 +16,7 @@ from typing import Any
 
 MATRIX_COLUMNS = (
     "cell", "group", "scenario", "seed", "config", "status", "error",
-    "frames", "duration_s", "distance_m", "skipped_frames", "landmarks",
+    "frames", "duration_s", "distance_m", "skipped_frames", "landmarks", "landmarks_found",
     "ate_rmse_m", "ate_max_m", "final_error_m", "final_error_pct",
     "coverage_2sigma", "nees_mean", "max_error_jump_sigma", "max_error_jump_t_s",
     "dr_ate_rmse_m", "dr_ate_max_m", "dr_final_error_m", "dr_final_error_pct",
@@ -48,6 +48,7 @@ SUMMARY_FIGURES = (
     Figure("sm_ate_rmse_m", "smoothed ATE [cm]", 100, 2, "max"),
     Figure("sm_coverage_2sigma", "smoothed inside 2-sigma [%]", 100, 1, "min"),
     Figure("landmarks", "landmarks", 1, 0, "min"),
+    Figure("landmarks_found", "landmark found in view [%]", 100, 0, "min"),
     Figure("frames_per_cpu_s", "frames/s (1 core)", 1, 0, "min"),
     Figure("dr_ate_rmse_m", "dead reckoning ATE [cm]", 100, 2, "max"),
     Figure("pc_ate_rmse_m", "phase correlation ATE [cm]", 100, 2, "max"),
