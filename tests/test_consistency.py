@@ -9,6 +9,8 @@
   highest local variance, makes it one).
 * Three seeds of the real-photo survey with turns stay inside their 2-sigma ellipse on at
   least 95 % of the frames.
+* In turbid water (laser spots read half a pixel inward: the altitude 1 % long for the whole
+  dive; the compass drifting by 1 degree) the truth stays inside the 2-sigma ellipse.
 
 The dives are simulated once per module (seeded). Frame numbers below are those of the
 seeded dives: the fault is injected where the map seen before it comes back into view.
@@ -306,10 +308,7 @@ def test_without_the_self_similarity_test_the_grating_is_a_landmark():
 # ----------------------------------------------------------------------------- the real-photo survey with turns
 
 
-@pytest.mark.parametrize("seed", [0, 1, pytest.param(2, marks=pytest.mark.xfail(strict=True, reason=(
-    "out of reach today: 78 % inside 2-sigma. At 24-26 s the vehicle slows at a lane end over a "
-    "6 cm stone: the good speeds before the tokens fail are 5-8 mm/s (2-3 sigma) too fast, the laser "
-    "altitude 3-5 cm off the mean seabed the tokens see, and 15 mm of error stays at NEES 5-6 for 25 s")))])
+@pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_real_photo_survey_with_turns_stays_inside_its_bounds(tmp_path, seed):
     """2 minutes (600 frames) of ``photo-turns`` (the chamber3 photomosaic, heading turns, yaw
     oscillation, tilt, compass noise): truth inside the 2-sigma ellipse on >= 95 % of frames."""
@@ -323,3 +322,34 @@ def test_the_real_photo_survey_with_turns_stays_inside_its_bounds(tmp_path, seed
     simulate("photo-turns", tmp_path / "seq", frames=600, seed=seed)
     _, _, nees = _run(tmp_path / "seq")
     assert np.mean(nees < TWO_SIGMA_NEES) >= 0.95
+
+
+# ----------------------------------------------------------------------------- turbid water
+
+
+def _earlier_filter() -> RunConfig:
+    """The filter before the altitude offset became a lasting consider state (issue 10's first build)."""
+    cfg = RunConfig()
+    return dataclasses.replace(
+        cfg,
+        slam=dataclasses.replace(cfg.slam, altitude_bias_consider=False, altitude_bias_tau_s=1.0,
+                                 heading_bias_sigma_rad=0.0087),
+        odometry=dataclasses.replace(cfg.odometry, compass_drift_sigma_rad=0.0087),
+    )
+
+
+@pytest.mark.slow
+def test_turbid_water_stays_inside_its_bounds(tmp_path):
+    """2.5 minutes of ``turbid-relief`` seed 0: >= 95 % inside 2-sigma, mean NEES 1 to 3.
+
+    The laser spots of this water are found 0.5 px inward (the altitude reads 1.1 cm, 0.8 %, long
+    for the whole dive) and the compass drifts up to 2 degrees: errors that last. Measured: 96.1 %,
+    NEES 1.08; the earlier filter (the altitude offset learned with a 1 s correlation, a 0.5 degree
+    compass drift) 62.9 %, NEES 4.2 on the same frames.
+    """
+    simulate("turbid-relief", tmp_path / "seq", frames=750, seed=0)
+    _, _, nees = _run(tmp_path / "seq")
+    assert np.mean(nees < TWO_SIGMA_NEES) >= 0.95
+    assert 1.0 <= float(np.mean(nees[1:])) <= 3.0
+    _, _, nees_before = _run(tmp_path / "seq", _earlier_filter())
+    assert np.mean(nees_before < TWO_SIGMA_NEES) < 0.8

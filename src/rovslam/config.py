@@ -276,7 +276,7 @@ class OdometryConfig(_Checked):
     relief_prior_sigma: float = _num(0.02, ge=0)  # relief height spread / altitude assumed before the tokens measured it
     relief_prior_s: float = _num(2.0, ge=0)  # ... its share fades as exp(-seconds measured / this) (0: no prior, start as flat)
     compass_sigma_rad: float = _num(0.0087, ge=0)  # compass white noise (0.5 deg); 0 uses the compass as it is (paper)
-    compass_drift_sigma_rad: float = _num(0.0087, ge=0)  # slow compass error no smoothing removes (magnetic disturbance)
+    compass_drift_sigma_rad: float = _num(0.0175, ge=0)  # slow compass error no smoothing removes (magnetic disturbance, 1 deg)
     attitude_sigma_rad: float = _num(0.0035, ge=0)  # AHRS roll / pitch accuracy (0.2 deg), when frames.csv has them
     attitude_noise_sigma_rad: float = _num(0.0002, ge=0)  # AHRS reading-to-reading noise (0.01 deg): moves each frame's seabed
 
@@ -296,12 +296,13 @@ class SlamConfig(_Checked):
     innovation_gate: float = _num(13.82, gt=0)  # chi-square 2 dof, 99.9 %
     augmentation: Augmentation = "full"  # "full" (correct cross-covariances) | "paper" ((4) diagonal block)
     gate_covariance: GateCovariance = "relative"  # (5), (6): "relative" (P_Xi + P_x - C - C^T) | "paper" (P_Xi + P_x)
-    heading_bias_sigma_rad: float = _num(0.0087, ge=0)  # > 0: estimate the slow compass error in the state (0: paper)
+    heading_bias_sigma_rad: float = _num(0.0175, ge=0)  # > 0: estimate the slow compass error in the state (1 deg; 0: paper)
     heading_bias_tau_s: float = _num(120.0, gt=0)  # its correlation time (Ornstein-Uhlenbeck)
     backend: Backend = "ekf"  # the online estimate: "ekf" (the paper's) or "isam2" (GTSAM, [smoother])
     landmark_height_sigma_m: float = _num(0.03, ge=0)  # > 0: each landmark's height in the state, this prior (0: flat seabed, the paper)
     altitude_bias_sigma_m: float = _num(0.01, ge=0)  # > 0: the measured altitude's offset from the seabed datum in the state
-    altitude_bias_tau_s: float = _num(1.0, gt=0)  # its correlation time (the relief passing under the lasers)
+    altitude_bias_tau_s: float = _num(30.0, gt=0)  # its correlation time (the altimeter's calibration, the relief under the lasers)
+    altitude_bias_consider: bool = True  # b a consider state (Schmidt): its uncertainty carried, never learned (False: learned)
 
 
 RobustLoss = Literal["huber", "cauchy", "none"]

@@ -20,6 +20,14 @@ relief passes (an Ornstein-Uhlenbeck process of correlation time ``altitude_bias
 true depth of landmark i is ``Z + b - h_i``, and the tokens' speed, measured at depth Z, is
 really ``(Z + b) / Z`` times larger: one state ties the odometry's scale and every landmark's
 depth together, so their errors, correlated from frame to frame, are not averaged as if white.
+A scale error is invisible to the images (the odometry and every landmark's depth scale
+together), so by default (``altitude_bias_consider``) ``b`` is a *consider* state (Schmidt-Kalman):
+the updates never change it (the rows of the gain for ``b`` are zero; the Joseph form stays
+exact), and its variance, never learned away, keeps the altimeter's persistent error (a laser
+spot centroid off by half a pixel in turbid water is a 1 % scale for minutes,
+``altitude_bias_tau_s`` = 30 s) in the vehicle's and the landmarks' covariance. Learned, it
+was pulled by the relief's parallax to wrong values with a shrinking variance; with the earlier
+1 s correlation, the filter averaged a persistent error over many frames as if it were white.
 
 * Prediction (1), (2) (:mod:`rovslam.slam.motion`): ``[x, y] += R(psi) [u, v] dt``; the speed covariance Q is projected
   through ``R(psi) dt``, an optional heading noise through ``dR/dpsi [u, v] dt``; landmarks
@@ -561,6 +569,8 @@ class EkfSlam:
             keep = np.zeros(n, dtype=bool)
             keep[k : k + self._lm] = True
             gain[~keep] = 0.0
+        if self._b is not None and self.config.altitude_bias_consider:  # a consider state: carried, never learned
+            gain[self._b] = 0.0
         self._x[:n] += gain @ nu  # (3) state update
         # Joseph form, rank 4: P -= K W^T + W K^T, W = M - K S / 2 (valid for any gain K).
         w = m - 0.5 * (gain @ s)
