@@ -24,7 +24,7 @@ A scale error is invisible to the images (the odometry and every landmark's dept
 together), so by default (``altitude_bias_consider``) ``b`` is a *consider* state (Schmidt-Kalman):
 the updates never change it (the rows of the gain for ``b`` are zero; the Joseph form stays
 exact), and its variance, never learned away, keeps the altimeter's persistent error (a laser
-spot centroid off by half a pixel in turbid water is a 1 % scale for minutes,
+spot centroid held half a pixel off by a video codec's blocks is a 1 % scale for minutes,
 ``altitude_bias_tau_s`` = 30 s) in the vehicle's and the landmarks' covariance. Learned, it
 was pulled by the relief's parallax to wrong values with a shrinking variance; with the earlier
 1 s correlation, the filter averaged a persistent error over many frames as if it were white.

@@ -155,6 +155,15 @@ def window_inhibited(mask: np.ndarray, centre_uv_px: np.ndarray, size_hw: tuple[
 _ONES3 = np.ones((3, 3), np.uint8)
 
 
+def second_peak(corr: np.ndarray, pu: int, pv: int, exclusion_px: int) -> float:
+    """Highest 3x3 local maximum of the ``(h, w) float32`` correlation ``corr`` farther than
+    ``exclusion_px`` (Chebyshev) from ``(pu, pv)``; -1 (the lowest correlation) when there is none."""
+    is_max = corr >= cv2.dilate(corr, _ONES3)
+    ex = max(0, int(exclusion_px))
+    is_max[max(0, pv - ex) : pv + ex + 1, max(0, pu - ex) : pu + ex + 1] = False
+    return float(np.max(corr, where=is_max, initial=-1.0))
+
+
 def self_similarity(track_img: np.ndarray, top_left_uv: tuple[int, int], size_px: int, radius_px: int,
                     exclusion_px: int = 3) -> float:
     """How much a window looks like its neighbourhood: the highest other peak of its autocorrelation.
@@ -175,11 +184,7 @@ def self_similarity(track_img: np.ndarray, top_left_uv: tuple[int, int], size_px
     if patch.shape != (size_px, size_px) or float(cv2.meanStdDev(patch)[1][0, 0]) <= 1e-6:
         return 1.0  # a window that cannot be correlated is as ambiguous as it gets
     corr = cv2.matchTemplate(img[sv0:sv1, su0:su1], patch, cv2.TM_CCOEFF_NORMED)
-    is_max = corr >= cv2.dilate(corr, _ONES3)
-    pu, pv = u0 - su0, v0 - sv0  # where the window finds itself
-    ex = max(0, int(exclusion_px))
-    is_max[max(0, pv - ex) : pv + ex + 1, max(0, pu - ex) : pu + ex + 1] = False
-    return float(np.max(corr, where=is_max, initial=-1.0))  # -1 (the lowest correlation) when there is none
+    return second_peak(corr, u0 - su0, v0 - sv0, exclusion_px)  # the window finds itself at (u0 - su0, v0 - sv0)
 
 
 def extract_templates(

@@ -38,7 +38,7 @@ import numpy as np
 from rovslam.config import SpeedTemplateConfig, TrackerConfig
 from rovslam.errors import InvalidArgumentError
 from rovslam.vision.filters import local_variance
-from rovslam.vision.templates import Template, extract_templates, window_inhibited
+from rovslam.vision.templates import Template, extract_templates, second_peak, window_inhibited
 
 # Reasons of a failed match (Match.reason).
 REASON_OUTSIDE = "search window outside the image"
@@ -192,25 +192,12 @@ def match_template(
         return _fail(REASON_BORDER, uv_int, float(best))
 
     # Ambiguity: highest other local maximum outside the exclusion zone.
-    second = _second_peak(corr, pu, pv, int(config.second_peak_exclusion_px))
+    second = second_peak(corr, pu, pv, int(config.second_peak_exclusion_px))
     if second >= config.max_second_peak_ratio * best:
         return _fail(REASON_AMBIGUOUS, uv_int, float(best), second)
 
     uv = uv_int + _subpixel_offset(corr[pv - 1 : pv + 2, pu - 1 : pu + 2], config.subpixel)
     return Match(True, uv, float(best), "", second)
-
-
-@lru_cache(maxsize=8)
-def _ones3() -> np.ndarray:
-    return np.ones((3, 3), np.uint8)
-
-
-def _second_peak(corr: np.ndarray, pu: int, pv: int, exclusion_px: int) -> float:
-    """Highest 3x3 local maximum of ``corr`` farther than ``exclusion_px`` (Chebyshev) from (pu, pv)."""
-    is_max = corr >= cv2.dilate(corr, _ones3())
-    ex = max(0, exclusion_px)
-    is_max[max(0, pv - ex) : pv + ex + 1, max(0, pu - ex) : pu + ex + 1] = False
-    return float(np.max(corr, where=is_max, initial=-1.0))  # -1 (the lowest correlation) when there is none
 
 
 @lru_cache(maxsize=4)
