@@ -21,6 +21,7 @@ NEVER = {
     "camera": ["rovslam.cli", "rovslam.viz", "rovslam.pipeline", "rovslam.slam", "rovslam.vision", "rovslam.io"],
     "vision": ["rovslam.slam", "rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.sim"],
     "odometry": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.sim"],
+    "shutter": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.sim"],
     "heading": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.vision"],
     "altitude": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.vision"],
     "landmarks": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam"],

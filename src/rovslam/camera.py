@@ -38,6 +38,7 @@ MIN_FOCAL_PX = 1.0
 MAX_FOCAL_PX = 1e6
 MAX_IMAGE_SIDE_PX = 65535
 MAX_LASER_OFFSET_M = 10.0  # a laser pointer mounted farther than this from the camera is a unit mistake
+MAX_READOUT_S = 1.0  # a rolling shutter slower than a second is a unit mistake (milliseconds?)
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,7 @@ class Camera:
     cy_px: float
     distortion: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
     yaw_offset_rad: float = 0.0
+    readout_s: float = 0.0  # rolling shutter: time from the first row's exposure to the last's (0: global shutter)
 
     def __post_init__(self) -> None:
         if not (0 < self.width_px <= MAX_IMAGE_SIDE_PX and 0 < self.height_px <= MAX_IMAGE_SIDE_PX):
@@ -80,6 +82,22 @@ class Camera:
             raise SequenceFormatError(
                 f"camera distortion and yaw_offset_rad must be finite, got {self.distortion}, {self.yaw_offset_rad}"
             )
+        if not (np.isfinite(self.readout_s) and 0.0 <= self.readout_s <= MAX_READOUT_S):
+            raise SequenceFormatError(
+                f"camera readout_s (rolling-shutter readout time) must be from 0 to {MAX_READOUT_S:g} s, got "
+                f"{self.readout_s} (0 for a global shutter; a 30 frames/s rolling shutter reads out in at most 0.033 s)"
+            )
+
+    def row_time_s(self, v_px: np.ndarray) -> np.ndarray:
+        """When row ``v_px`` was exposed, relative to the frame's time (its middle row), in seconds.
+
+        A rolling shutter exposes the rows top to bottom over ``readout_s``: row v at
+        ``readout_s (v - (H - 1) / 2) / (H - 1)``. ``(...)`` -> same shape; zeros for a global shutter.
+        """
+        v = np.asarray(v_px, dtype=np.float64)
+        if self.readout_s == 0.0:
+            return np.zeros_like(v)
+        return self.readout_s * (v - 0.5 * (self.height_px - 1)) / max(self.height_px - 1, 1)
 
     @property
     def focal_px(self) -> float:

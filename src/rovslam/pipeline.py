@@ -36,6 +36,7 @@ from rovslam.heading import HeadingEstimate, HeadingPrior, HeadingTracker
 from rovslam.io.sequence import Frame, SequenceInfo
 from rovslam.landmarks import LandmarkRecord, most_distinctive, oriented_patch
 from rovslam.odometry import SpeedEstimator, SpeedMeasurement
+from rovslam.shutter import mn_at_frame_time, mn_rate_px_s, tokens_at_frame_time
 from rovslam.slam import EkfSlam
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 from rovslam.slam.motion import motion_step_m
@@ -191,6 +192,7 @@ class SlamPipeline:
         self._inhibit_landmarks(mask, tracked, new_template)  # step 4
         tracks, speed = self._measure_speed(track_img, mask, alt, att, prior, dt_s, frame.has_attitude)  # step 5
         heading = self._fuse_heading(prior, speed)
+        tracked = self._landmarks_at_frame_time(tracked, speed, prior, alt, dt_s)  # rolling shutter, if any
         if self._n == 0 and frame.has_attitude:
             self._start_filter(alt.altitude_m)
         n_events = len(self.recovery.events)
@@ -198,7 +200,7 @@ class SlamPipeline:
         event = self.recovery.events[-1] if len(self.recovery.events) > n_events else None
         new_id = None
         if new_template is not None:  # step 7
-            new_id, init = self._add_landmark(track_img, new_template, alt, att, heading, frame)
+            new_id, init = self._add_landmark(track_img, new_template, alt, att, heading, frame, speed, prior, dt_s)
             observations.append(init)
         self._extract_tokens(track_img, mask)  # step 8
 
@@ -355,8 +357,9 @@ class SlamPipeline:
         tracks = self.tokens.track(track_img, common, mask, offsets)
         if self._prev_t_s is None:
             return tracks, None
+        uv_prev, uv_curr = tokens_at_frame_time(self.camera, tracks.uv_prev_px, tracks.uv_curr_px, dt_s)
         speed = self.speed.measure(
-            self.camera, tracks.uv_prev_px, tracks.uv_curr_px, self._prev_altitude_m, alt.altitude_m, dt_s,
+            self.camera, uv_prev, uv_curr, self._prev_altitude_m, alt.altitude_m, dt_s,
             dpsi_rad=prior.step_rad, altitude_sigma_m=alt.sigma_m, attitude_prev_rad=self._prev_attitude,
             attitude_curr_rad=att, dpsi_sigma_rad=prior.step_sigma_rad,
             altitude_samples=max(alt.n_spots, 1) if alt.source.startswith("laser") else 1,
@@ -402,6 +405,28 @@ class SlamPipeline:
             return None, rot
         common = np.mean(full - rot, axis=0)
         return common, full - common
+
+    def _landmarks_at_frame_time(
+        self, tracked: list[TrackedLandmark], speed: SpeedMeasurement | None, prior: HeadingPrior,
+        alt: AltitudeEstimate, dt_s: float,
+    ) -> list[TrackedLandmark]:
+        """Step 5, rolling shutter: each landmark's [m, n] moved to the frame's time (:mod:`rovslam.shutter`)."""
+        if self.camera.readout_s == 0.0 or not tracked or speed is None:
+            return tracked
+        yaw_rate = self._yaw_rate_radps(speed, prior, dt_s)
+        out = []
+        for t in tracked:
+            depth = alt.altitude_m - self.ekf.landmark_height_m(t.record.id)
+            rate = mn_rate_px_s(t.mn_px, speed.speed_mps, yaw_rate, depth, self.focal_px)
+            out.append(dataclasses.replace(t, mn_px=mn_at_frame_time(self.camera, t.uv_px[1], t.mn_px, rate)))
+        return out
+
+    def _yaw_rate_radps(self, speed: SpeedMeasurement, prior: HeadingPrior, dt_s: float) -> float:
+        """The turn rate over the last frame interval: the tokens' turn when they measured it, else the compass's."""
+        if not dt_s > 0:
+            return 0.0
+        step = speed.dpsi_rad if speed.ok and math.isfinite(speed.dpsi_rad) else prior.step_rad
+        return float(step) / dt_s if math.isfinite(step) else 0.0
 
     def _fuse_heading(self, prior: HeadingPrior, speed: SpeedMeasurement | None) -> HeadingEstimate:
         """Step 5, heading: the compass smoothed with the turn the tokens measured."""
@@ -503,10 +528,15 @@ class SlamPipeline:
     # ------------------------------------------------------------------ step 7
     def _add_landmark(
         self, track_img: np.ndarray, template: Template, alt: AltitudeEstimate, att: tuple[float, float],
-        heading: HeadingEstimate, frame: Frame,
+        heading: HeadingEstimate, frame: Frame, speed: SpeedMeasurement | None = None,
+        prior: HeadingPrior | None = None, dt_s: float = 0.0,
     ) -> tuple[int, Observation]:
         """Step 7: augment the state with the new landmark by (4) and keep its template."""
         mn = pixels_to_mn(self.camera, template.centre_uv_px, alt.altitude_m, *att)[0]
+        if self.camera.readout_s > 0 and speed is not None and prior is not None:  # rolling shutter
+            rate = mn_rate_px_s(mn, speed.speed_mps, self._yaw_rate_radps(speed, prior, dt_s), alt.altitude_m,
+                                self.focal_px)
+            mn = mn_at_frame_time(self.camera, template.centre_uv_px[1], mn, rate)
         new_id = self.ekf.augment(
             mn, heading.heading_rad, alt.altitude_m, self.focal_px, altitude_sigma_m=alt.sigma_m,
             heading_sigma_rad=heading.observation_sigma_rad,

@@ -46,7 +46,7 @@ ATTITUDE_COLUMNS = ("roll_rad", "pitch_rad")
 GROUNDTRUTH_COLUMNS = ("t_s", "x_m", "y_m", "altitude_m", "heading_rad")
 RELIEF_COLUMN = "relief_m"  # optional: seabed height above the mean plane under the camera (altitude_m is above the plane)
 _CAMERA_REQUIRED = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
-_CAMERA_OPTIONAL = ("distortion", "yaw_offset_rad", "bit_depth")
+_CAMERA_OPTIONAL = ("distortion", "yaw_offset_rad", "readout_s", "bit_depth")
 _LASER_KEYS = ("origin_m", "direction")
 _TOP_KEYS = ("format", "name", "camera", "laser", "vehicle", "metadata")
 
@@ -239,6 +239,7 @@ def info_from_toml(data: dict[str, Any], path: Path, *, require_format: bool = T
             cy_px=_number(cam["cy_px"], f"{path}: camera.cy_px"),
             distortion=tuple(_number(v, f"{path}: camera.distortion[{i}]") for i, v in enumerate(dist)),
             yaw_offset_rad=_number(cam.get("yaw_offset_rad", 0.0), f"{path}: camera.yaw_offset_rad"),
+            readout_s=_number(cam.get("readout_s", 0.0), f"{path}: camera.readout_s"),
         )
     except SequenceFormatError as exc:
         if str(exc).startswith(str(path)):
@@ -648,6 +649,8 @@ def info_to_toml(info: SequenceInfo) -> dict[str, Any]:
             "yaw_offset_rad": float(cam.yaw_offset_rad),
         },
     }
+    if cam.readout_s > 0:  # (only then: global-shutter sequences' files stay as they were)
+        data["camera"]["readout_s"] = float(cam.readout_s)
     if info.bit_depth is not None:
         data["camera"]["bit_depth"] = int(info.bit_depth)
     if info.lasers:

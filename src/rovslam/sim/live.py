@@ -142,7 +142,7 @@ class LiveSimulator:
 
             self._codec = H264RoundTrip(sc.camera.width_px, sc.camera.height_px, sc.frame_rate_hz, sc.h264)
         self.info = SequenceInfo(
-            name=f"rovslam closed loop {sc.name} (seed {self.seed})", camera=sc.camera, lasers=sc.lasers,
+            name=f"rovslam closed loop {sc.name} (seed {self.seed})", camera=sc.recorded_camera, lasers=sc.lasers,
             metadata={"generator": "rovslam.sim.live", "scenario": sc.name, "seed": self.seed,
                       "frame_rate_hz": float(sc.frame_rate_hz), "texture": texture_note,
                       "nominal_altitude_m": float(sc.vehicle.altitude_m)},

@@ -104,6 +104,11 @@ class Scenario:
         return self.vehicle.attitude_sigma_rad > 0
 
     @property
+    def recorded_camera(self) -> Camera:
+        """The camera as ``sequence.toml`` describes it: with the sensor's rolling-shutter readout time."""
+        return replace(self.camera, readout_s=float(self.sensor.readout_s))
+
+    @property
     def duration_s(self) -> float:
         """Dive time of the full preset."""
         return (self.n_frames - 1) / self.frame_rate_hz
@@ -463,7 +468,7 @@ def simulate(
         metadata["relief"] = f"{type(world.relief).__name__}, heights within [{lo:.3f}, {hi:.3f}] m"
     if sc.h264 is not None:
         metadata["compression"] = f"H.264 round trip, CRF {sc.h264.crf}"
-    info = SequenceInfo(name=f"rovslam simulate {sc.name} (seed {int(seed)})", camera=sc.camera, lasers=sc.lasers,
+    info = SequenceInfo(name=f"rovslam simulate {sc.name} (seed {int(seed)})", camera=sc.recorded_camera, lasers=sc.lasers,
                         metadata=metadata)
     tilted = sc.tilted
     codec = None if sc.h264 is None else H264RoundTrip(sc.camera.width_px, sc.camera.height_px,
