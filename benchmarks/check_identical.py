@@ -8,7 +8,7 @@ the build to compare with, e.g.::
 
 Both builds run the same simulated sequence (``portofino-short``, 600 frames, seed 0, PNG; add
 ``--texture photo`` for the real seabed photo) and every result file is compared byte for byte
-(``summary.json`` only without its timing fields). Exits 1 and names the files that differ.
+(``summary.json`` without its timing fields, and it and ``config.toml`` on the keys both builds write). Exits 1 and names the files that differ.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import tomllib
 from pathlib import Path
 
 if __package__ in (None, ""):
@@ -42,18 +43,30 @@ def _summary(path: Path) -> dict:
     return {k: v for k, v in data.items() if k not in TIMING_KEYS}
 
 
+def _same_on_common_keys(a: object, b: object, where: str, one_sided: list[str]) -> bool:
+    """Whether two parsed documents agree on every key both have; keys in one only go to ``one_sided``."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        one_sided.extend(f"{where}{k}" for k in sorted(a.keys() ^ b.keys()))
+        return all([_same_on_common_keys(a[k], b[k], f"{where}{k}.", one_sided) for k in sorted(a.keys() & b.keys())])
+    return a == b
+
+
 def compare(a: Path, b: Path) -> list[str]:
-    """Relative paths of the files that differ (or exist on one side only)."""
+    """Relative paths of the files that differ (or exist on one side only).
+
+    ``summary.json`` and ``config.toml`` are compared on the keys both builds write: a new
+    record or a new configuration key (at a default that changes nothing) is named, not a difference.
+    """
     files_a = {p.relative_to(a) for p in a.rglob("*") if p.is_file()}
     files_b = {p.relative_to(b) for p in b.rglob("*") if p.is_file()}
     bad = sorted(str(p) + " (only in one)" for p in files_a ^ files_b)
     for rel in sorted(files_a & files_b):
-        if rel.name == "summary.json":
-            sa, sb = _summary(a / rel), _summary(b / rel)
-            extra = sorted(sa.keys() ^ sb.keys())
-            if extra:  # a field one build reports and the other does not (a new record, not a result)
-                print(f"{rel}: fields in one build only, not compared: {', '.join(extra)}")
-            same = all(sa[k] == sb[k] for k in sa.keys() & sb.keys())
+        if rel.name in ("summary.json", "config.toml"):
+            load = _summary if rel.name == "summary.json" else (lambda p: tomllib.loads(p.read_text()))
+            one_sided: list[str] = []
+            same = _same_on_common_keys(load(a / rel), load(b / rel), "", one_sided)
+            if one_sided:
+                print(f"{rel}: keys in one build only, not compared: {', '.join(one_sided)}")
         else:
             same = filecmp.cmp(a / rel, b / rel, shallow=False)
         if not same:

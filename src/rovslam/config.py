@@ -115,6 +115,10 @@ class BandpassConfig(_Checked):
     sigma_coarse_px: float = _num(4.0, gt=0)  # removes wavelengths longer than ~2*pi*sigma_coarse (illumination)
     channel: Channel = "green"  # red is reserved for the lasers
     despeckle_px: int = _num(7, ge=0)  # >= 2: remove bright specks (marine snow) narrower than this first; 0: off (paper)
+    # A frame whose band-passed standard deviation is below this (a dark or low-contrast camera) is
+    # scaled up to it before the local-variance thresholds, as a camera's gain would; 0: off (paper).
+    # Correlation does not see the gain; the matrix presets' frames all lie above 2.0.
+    min_contrast_std: float = _num(1.7, ge=0)
 
     def _check_relations(self) -> None:
         if self.sigma_coarse_px <= self.sigma_fine_px:

@@ -223,8 +223,11 @@ class SlamPipeline:
         else:  # the channel reduced to the processing scale (area average on floats), then despeckled
             chan = remove_specks(self.scale.reduce(template_channel(frame.image, cfg.channel)), cfg.despeckle_px)
         img = bandpass(chan, cfg.sigma_fine_px, cfg.sigma_coarse_px)
-        if contrast_std(img) < MIN_TEXTURE_STD:
+        std = contrast_std(img)
+        if std < MIN_TEXTURE_STD:
             return None, "no texture (black, saturated or flat frame)"
+        if std < cfg.min_contrast_std:  # dark or low-contrast: lifted as a camera's gain would, for the thresholds
+            img *= np.float32(cfg.min_contrast_std / std)
         return img, None
 
     # ------------------------------------------------------------------ step 1
