@@ -313,3 +313,21 @@ def landmark_field(seed, xy_m, density_per_m2=30.0, margin_m=0.4):
     rng = np.random.default_rng(seed)
     lo, hi = xy_m.min(0) - margin_m, xy_m.max(0) + margin_m
     return rng.uniform(lo, hi, (int(density_per_m2 * np.prod(hi - lo)), 2))
+
+
+def simulate_variant(out_dir, base: str, name: str, seed: int, **fields):
+    """Simulate a preset with some of its fields replaced (``n_frames=80, sensor=...``) into ``out_dir``.
+
+    The variant is registered under ``name`` only while it is simulated. Returns ``out_dir``.
+    """
+    import dataclasses
+
+    from rovslam.sim import SCENARIOS, simulate
+
+    sc = dataclasses.replace(SCENARIOS[base], name=name, **fields)
+    SCENARIOS[name] = sc
+    try:
+        simulate(name, out_dir, seed=seed)
+    finally:
+        del SCENARIOS[name]
+    return out_dir

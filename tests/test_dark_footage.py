@@ -19,10 +19,9 @@ from rovslam.eval.metrics import consistency
 from rovslam.io.sequence import Frame, SequenceInfo, read_groundtruth
 from rovslam.pipeline import SlamPipeline
 from rovslam.runner import run_sequence
-from rovslam.sim import SCENARIOS, simulate
 from rovslam.sim.render import SensorParams
 from rovslam.vision.filters import contrast_std
-from synth import paper_camera, seabed_frame, seabed_spectrum
+from synth import paper_camera, seabed_frame, seabed_spectrum, simulate_variant
 
 PAPER = RunConfig(bandpass=BandpassConfig(min_contrast_std=0.0))
 
@@ -53,15 +52,8 @@ def test_a_negative_or_missing_floor_is_refused(bad):
 @pytest.fixture(scope="module")
 def dark_dive(tmp_path_factory):
     """150 frames of the paper's trial with the lamps at an eighth of their power (a frame's band-passed std ~0.7)."""
-    sc = dataclasses.replace(SCENARIOS["portofino-short"], name="test-dark", n_frames=150,
-                             sensor=dataclasses.replace(SensorParams(), exposure_gain=0.12))
-    SCENARIOS[sc.name] = sc
-    try:
-        seq = tmp_path_factory.mktemp("dark") / "seq"
-        simulate(sc.name, seq, seed=0)
-    finally:
-        del SCENARIOS[sc.name]
-    return seq
+    return simulate_variant(tmp_path_factory.mktemp("dark") / "seq", "portofino-short", "test-dark", seed=0,
+                            n_frames=150, sensor=dataclasses.replace(SensorParams(), exposure_gain=0.12))
 
 
 def _run(seq, out, config):

@@ -11,9 +11,9 @@ from rovslam.errors import SequenceFormatError
 from rovslam.io.sequence import open_sequence
 from rovslam.runner import run_sequence
 from rovslam.shutter import mn_at_frame_time, mn_rate_px_s, tokens_at_frame_time
-from rovslam.sim import SCENARIOS, simulate
 from rovslam.sim.render import SensorParams
 from rovslam.sim.vehicle import VehicleParams
+from synth import simulate_variant
 
 CAM = Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5, readout_s=0.03)
 
@@ -92,19 +92,11 @@ def test_landmark_seen_late_in_the_readout_is_moved_back_to_the_frame_pose():
 @pytest.fixture(scope="module")
 def rolling_shutter_dive(tmp_path_factory):
     """80 frames at 0.3 m/s under a 30 ms rolling shutter (flat seabed, the paper's camera)."""
-    base = SCENARIOS["portofino-short"]
-    sc = dataclasses.replace(
-        base, name="test-rolling-shutter", n_frames=80,
+    return simulate_variant(
+        tmp_path_factory.mktemp("rs") / "seq", "portofino-short", "test-rolling-shutter", seed=3, n_frames=80,
         sensor=dataclasses.replace(SensorParams(), readout_s=0.03),
         vehicle=dataclasses.replace(VehicleParams(), cruise_speed_mps=0.3, accel_limit_mps2=0.3),
     )
-    SCENARIOS[sc.name] = sc
-    try:
-        seq = tmp_path_factory.mktemp("rs") / "seq"
-        simulate(sc.name, seq, seed=3)
-    finally:
-        del SCENARIOS[sc.name]
-    return seq
 
 
 def _surge_error_mps(seq, out) -> tuple[np.ndarray, np.ndarray]:
