@@ -304,3 +304,18 @@ def test_a_local_cluster_says_nothing_when_dasks_default_port_is_taken():
         assert not [w for w in caught if "8787" in str(w.message)], [str(w.message) for w in caught]
     finally:
         holder.close()
+
+
+@pytest.mark.parametrize("column", ["x_m", "y_m", "altitude_m"])
+def test_ground_truth_beyond_the_earth_is_refused(base, tmp_path, column):
+    """x_m = 1e300 ran, and NumPy's 'overflow encountered in multiply' came out on stderr of `rovslam eval`."""
+    from rovslam.io.sequence import read_groundtruth
+
+    gt = tmp_path / "gt.csv"
+    shutil.copy(base[0] / "groundtruth.csv", gt)
+    fc.set_cell(gt, 3, column, "1e300")
+    with pytest.raises(SequenceFormatError, match=rf"gt\.csv, line 4: column '{column}' is 1e\+300 m, beyond any place"):
+        read_groundtruth(gt)
+    refused(["eval", str(_copy(base[1], tmp_path / "res")), "-g", str(gt)], "beyond any place on Earth")
+    fc.set_cell(gt, 3, column, "5500000.0")  # a UTM northing is a place
+    assert read_groundtruth(gt).x_m.shape == (8,)

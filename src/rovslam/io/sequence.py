@@ -120,6 +120,7 @@ class GroundTruth:
 # --------------------------------------------------------------------------- reading
 
 MAX_TEXT_BYTES = 512 * 2**20  # a frames.csv of a million frames is ~80 MB
+MAX_GROUNDTRUTH_M = 1e8  # a ground-truth coordinate beyond this is no place on Earth (its squares overflowed)
 MAX_ATTITUDE_RAD = math.pi / 2  # roll or pitch beyond 90 degrees: the camera no longer looks down
 
 
@@ -463,6 +464,11 @@ def read_groundtruth(path: str | Path) -> GroundTruth:
         where = f"{p}, line {line}"
         for c in names:
             cols[c].append(float_cell(row, c, where))  # type: ignore[arg-type]
+            if c.endswith("_m") and abs(cols[c][-1]) > MAX_GROUNDTRUTH_M:
+                raise SequenceFormatError(
+                    f"{where}: column '{c}' is {cols[c][-1]:g} m, beyond any place on Earth ({MAX_GROUNDTRUTH_M:g} m); "
+                    "give metres (x north, y east from the start, or projected coordinates such as UTM)."
+                )
         if cols["t_s"][-1] <= last_t:
             raise SequenceFormatError(f"{where}: t_s is not after the previous row's; rows must be in time order.")
         last_t = cols["t_s"][-1]
