@@ -34,12 +34,14 @@ from typing import Any
 
 from rovslam import __version__
 from rovslam.config import RunConfig, to_dict
-from rovslam.errors import InvalidArgumentError, OutputError, RovslamError, SequenceFormatError, UnusableRunError
+from rovslam.errors import (ConfigError, InvalidArgumentError, OutputError, RovslamError, SequenceFormatError,
+                            UnusableRunError)
 from rovslam.io.camera_file import CAMERA_TABLES
 from rovslam.io.results import GalleryWriter, ResultWriter, describe_os_error, prepare_output_folder
 from rovslam.io.sequence import Frame, Sequence, open_sequence
 from rovslam.io.source import ASSUMED_ALTITUDE, TOKENS_ONLY, InputOptions, SourceDescription, option_flag
 from rovslam.pipeline import FrameResult, SlamPipeline
+from rovslam.vision.scale import processing_scale
 
 STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 
@@ -231,6 +233,14 @@ def check_source_against_config(info: Any, config: RunConfig, fallback_altitude_
             f"{where}: images of {cam.width_px}x{cam.height_px} px are too small: a landmark template "
             f"({lm.size_px} px) with its border ({lm.border_px} px) needs at least {need}x{need} px."
         )
+    processed = processing_scale(cam, config.processing, fallback_altitude_m).camera
+    for table, size_px in (("speed_templates", config.speed_templates.size_px), ("landmark_templates", lm.size_px)):
+        if size_px > min(processed.width_px, processed.height_px):
+            raise ConfigError(
+                f"[{table}] size_px = {size_px} of the configuration: a template larger than the images of {where} "
+                f"({processed.width_px}x{processed.height_px} px as processed); give a smaller size_px "
+                "in the configuration (the paper's: 16 for speed, 32 for landmarks)."
+            )
 
 
 def implausible_result(res: FrameResult, max_distance_m: float) -> str | None:

@@ -153,9 +153,11 @@ def _connect(scheduler: str | None, workers: int | None):
                 f"--scheduler {scheduler}: no Dask scheduler answered ({type(exc).__name__}: {exc}); "
                 "give the address `dask scheduler` prints, e.g. tcp://10.0.0.5:8786"
             ) from None
+    # dashboard_address ":0": any free port (None means Dask's 8787: with another cluster on the machine,
+    # Dask warned about it on stderr, around rovslam's own lines).
     with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environ()}):
         cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+                               dashboard_address=":0", silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 

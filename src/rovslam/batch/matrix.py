@@ -191,7 +191,15 @@ def _frames(entry: dict, scenario: Any, where: str) -> int | None:
     return None
 
 
+MAX_SEEDS = 10_000  # per entry: a count beyond this is a typo (a billion seeds would fill the memory first)
+
+
 def _seeds(value: Any, where: str) -> tuple[int, ...]:
+    if isinstance(value, (int, list)) and not isinstance(value, bool):
+        n = value if isinstance(value, int) else len(value)
+        if n > MAX_SEEDS:
+            raise ConfigError(f"{where}: {n} seeds, more than the {MAX_SEEDS} a matrix entry may hold; "
+                              "give a smaller count (seeds = 10 runs seeds 0 to 9).")
     if isinstance(value, int) and not isinstance(value, bool):
         value = list(range(_positive_int(value, where)))
     if (

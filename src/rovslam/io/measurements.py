@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from rovslam.errors import InvalidMeasurementError, ResultsFormatError, SequenceFormatError
+from rovslam.io.sequence import read_text
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 
 __all__ = [
@@ -162,20 +163,26 @@ class _Table:
         self.path = path
         if not path.is_file():
             raise ResultsFormatError(f"{path}: missing; {_NO_MEASUREMENTS_HINT}.")
-        text = path.read_text(encoding="utf-8")
+        text = read_text(path, ResultsFormatError)  # not UTF-8 (a damaged file): one line naming it
         self.torn = bool(text) and not text.endswith("\n")  # an interrupted write
         reader = csv.reader(text.splitlines())
-        header = next(reader, None)
-        if header is None:
-            raise ResultsFormatError(f"{path}: empty file (no header line); {_NO_MEASUREMENTS_HINT}.")
-        missing = [c for c in columns if c not in header]
-        if missing:
+        try:
+            header = next(reader, None)
+            if header is None:
+                raise ResultsFormatError(f"{path}: empty file (no header line); {_NO_MEASUREMENTS_HINT}.")
+            missing = [c for c in columns if c not in header]
+            if missing:
+                raise ResultsFormatError(
+                    f"{path}, line 1: missing column(s) {', '.join(missing)}; expected the header {','.join(columns)}"
+                )
+            self.col = {c: header.index(c) for c in columns}
+            self.width = len(header)
+            self.rows = [(i + 2, r) for i, r in enumerate(reader)]  # (line number, cells)
+        except csv.Error as exc:  # e.g. a field beyond the csv module's size limit
             raise ResultsFormatError(
-                f"{path}, line 1: missing column(s) {', '.join(missing)}; expected the header {','.join(columns)}"
-            )
-        self.col = {c: header.index(c) for c in columns}
-        self.width = len(header)
-        self.rows = [(i + 2, r) for i, r in enumerate(reader)]  # (line number, cells)
+                f"{path}, line {reader.line_num}: not a readable CSV line ({exc}); the file is damaged: "
+                "re-run the sequence to write it again"
+            ) from None
         if self.torn and self.rows:
             self.rows.pop()  # rows end with a newline: this is the torn last line of an interrupted run
 

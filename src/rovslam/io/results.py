@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from rovslam.errors import OutputError, ResultsFormatError
-from rovslam.io.sequence import float_cell, read_csv_table, read_text
+from rovslam.io.sequence import float_cell, not_a_file, read_csv_table, read_text
 
 TRAJECTORY_COLUMNS = (
     "t_s",
@@ -506,7 +506,7 @@ def _read_table(
     Returns the columns and the line number of each row.
     """
     if not path.is_file():
-        raise ResultsFormatError(f"{path}: missing. Is this the --out folder of a `rovslam run`?")
+        raise ResultsFormatError(f"{path}: {not_a_file(path)}. Is this the --out folder of a `rovslam run`?")
     header, rows = read_csv_table(path, required, ResultsFormatError, drop_torn_last_line=True)
     finite = _FINITE.get(path.name, ())
     out: dict[str, np.ndarray] = {}
@@ -557,9 +557,29 @@ def read_summary(path: Path) -> dict[str, Any]:
             f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg}); "
             "it was cut short or edited. Run again with --overwrite to rewrite it."
         ) from None
+    except RecursionError:  # arrays or objects nested thousands deep: not a file rovslam wrote
+        raise ResultsFormatError(
+            f"{path}: JSON nested too deep to read; it is not the summary rovslam writes. "
+            "Run again with --overwrite to rewrite it."
+        ) from None
     if not isinstance(summary, dict):
         raise ResultsFormatError(f"{path}: must hold a JSON object, got {type(summary).__name__}.")
+    for key, kind in _SUMMARY_TYPES.items():
+        value = summary.get(key)
+        if value is not None and not isinstance(value, kind):
+            what = "a JSON object" if kind is dict else "a string"
+            raise ResultsFormatError(
+                f"{path}: key '{key}' must be {what} or null, got {json.dumps(value)[:60]}; the file was edited. "
+                "Run again with --overwrite to rewrite it."
+            )
     return summary
+
+
+# The keys of summary.json that eval, report and mosaic read, and their JSON types (null allowed).
+_SUMMARY_TYPES: dict[str, type] = {
+    "software": dict, "source": dict, "sources": dict, "map_use": dict, "config": dict, "inputs": dict,
+    "sequence": str, "camera_file": str, "sequence_name": str, "heading_source": str, "altitude_source": str,
+}
 
 
 def read_results(out_dir: str | Path) -> RunResults:

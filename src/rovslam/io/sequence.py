@@ -26,6 +26,7 @@ import csv
 import io
 import math
 import os
+import stat
 import struct
 import tomllib
 from collections.abc import Iterator
@@ -119,6 +120,7 @@ class GroundTruth:
 # --------------------------------------------------------------------------- reading
 
 MAX_TEXT_BYTES = 512 * 2**20  # a frames.csv of a million frames is ~80 MB
+MAX_GROUNDTRUTH_M = 1e8  # a ground-truth coordinate beyond this is no place on Earth (its squares overflowed)
 MAX_ATTITUDE_RAD = math.pi / 2  # roll or pitch beyond 90 degrees: the camera no longer looks down
 
 
@@ -146,7 +148,10 @@ def read_text(path: Path, error: type[RovslamError] = SequenceFormatError) -> st
     line and byte offset of the first bad byte: guessing an encoding could misread numbers.
     """
     try:
-        size = path.stat().st_size
+        st = path.stat()
+        if not stat.S_ISREG(st.st_mode):  # a pipe would block the read for ever, a device never end
+            raise error(f"{path}: {not_a_file(path)}.")
+        size = st.st_size
         if size > MAX_TEXT_BYTES:
             raise error(f"{path}: {size} bytes, more than the {MAX_TEXT_BYTES // 2**20} MiB a text file of rovslam may hold.")
         data = path.read_bytes()
@@ -169,7 +174,7 @@ def parse_sequence_toml(path: Path, root: Path | None = None) -> SequenceInfo:
     """Read and validate ``sequence.toml`` (``root``: the folder it must resolve inside, if any)."""
     if not path.is_file():
         raise SequenceFormatError(
-            f"{path}: missing. A sequence folder needs sequence.toml (README, 'Sequence folder (format v1)'); "
+            f"{path}: {not_a_file(path)}. A sequence folder needs sequence.toml (README, 'Sequence folder (format v1)'); "
             "a folder of plain images runs with --camera CAMERA.toml and --fps or --times (README, 'Real dives in')."
         )
     if root is not None:
@@ -295,7 +300,7 @@ def read_csv_table(
     Raises ``error`` naming the file and line.
     """
     if not path.is_file():
-        raise error(f"{path}: missing.")
+        raise error(f"{path}: {not_a_file(path)}.")
     text = read_text(path, error)
     if drop_torn_last_line and text and not text.endswith("\n") and "\n" in text:
         text = text[: text.rindex("\n") + 1]
@@ -304,6 +309,9 @@ def read_csv_table(
         header = [h.strip() for h in next(reader, [])]
         if not any(header):
             raise error(f"{path}: empty file; the first line must be the header {','.join(required)}.")
+        if not set(required) & set(header) and _is_number(header[0]):
+            raise error(f"{path}, line 1: holds values ({','.join(header)[:60]}), not the header; "
+                        f"add the header line {','.join(required)} above the first row.")
         dup = sorted({h for h in header if header.count(h) > 1})
         if dup:
             raise error(f"{path}: header names column(s) {', '.join(dup)} more than once.")
@@ -326,6 +334,23 @@ def read_csv_table(
     except csv.Error as exc:
         raise error(f"{path}, line {reader.line_num}: not a readable CSV line ({exc}).") from None
     return header, rows
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def not_a_file(path: Path) -> str:
+    """Why ``path`` (which is not a regular file) cannot be read: missing, a folder, or a special file."""
+    if path.is_dir():
+        return "is a folder, not a file"
+    if path.exists():
+        return "is not a regular file (a pipe, socket or device)"
+    return "missing"
 
 
 def float_cell(
@@ -397,7 +422,14 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
         if not image:
             raise SequenceFormatError(f"{where}: column 'image' is empty.")
         resolved = _inside(root, image, f"{where}: column 'image'")
-        if check_images and not resolved.is_file():
+        try:
+            present = not check_images or resolved.is_file()
+        except OSError as exc:  # a folder on the way that may not be searched (chmod)
+            raise SequenceFormatError(
+                f"{where}: image file '{image}' cannot be reached ({exc.strerror or exc}); give read access to "
+                f"the folders of {folder}."
+            ) from None
+        if not present:
             raise SequenceFormatError(f"{where}: image file '{image}' not found in {folder}.")
         text = (row.get("heading_rad") or "").strip()
         if text == "":
@@ -433,6 +465,11 @@ def read_groundtruth(path: str | Path) -> GroundTruth:
         where = f"{p}, line {line}"
         for c in names:
             cols[c].append(float_cell(row, c, where))  # type: ignore[arg-type]
+            if c.endswith("_m") and abs(cols[c][-1]) > MAX_GROUNDTRUTH_M:
+                raise SequenceFormatError(
+                    f"{where}: column '{c}' is {cols[c][-1]:g} m, beyond any place on Earth ({MAX_GROUNDTRUTH_M:g} m); "
+                    "give metres (x north, y east from the start, or projected coordinates such as UTM)."
+                )
         if cols["t_s"][-1] <= last_t:
             raise SequenceFormatError(f"{where}: t_s is not after the previous row's; rows must be in time order.")
         last_t = cols["t_s"][-1]
@@ -473,7 +510,13 @@ def read_image(path: Path, camera: Camera | None = None, bit_depth: int | None =
     ``camera_source`` names where ``camera`` comes from in a size error.
     """
     try:
-        with open(path, "rb") as fh:
+        # Non-blocking open, then a look at what was opened: a pipe named like an image would
+        # otherwise wait for a writer for ever.
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            raise ImageReadError(f"{path}: {not_a_file(Path(path))}; an image must be a PNG, JPEG or TIFF file.")
+        with os.fdopen(fd, "rb") as fh:
             data = fh.read()
     except FileNotFoundError:
         raise ImageReadError(f"{path}: image file not found.") from None

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from rovslam.camera import Camera, body_from_camera, level_from_body
-from rovslam.errors import InvalidArgumentError
+from rovslam.errors import ImageReadError, InvalidArgumentError, OutputError
 
 TILE_PX = 512
 MAX_MOSAIC_PX = 40_000  # per side; beyond it, ask for a coarser --mm-per-px
@@ -374,13 +374,24 @@ def write_mosaic(path: str | Path, rgb: np.ndarray, grid: MosaicGrid) -> tuple[P
     """Write the PNG and its world file (same name, ``.pgw``). Returns both paths."""
     import cv2
 
-    png = Path(path)
+    png = check_mosaic_path(path)
     png.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(png), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
         raise InvalidArgumentError(f"{png}: could not write the PNG (is the folder writable?)")
     pgw = png.with_suffix(".pgw")
     pgw.write_text(grid.world_file(), encoding="utf-8")
     return png, pgw
+
+
+def check_mosaic_path(path: str | Path) -> Path:
+    """``path`` as the PNG file of a mosaic, or :class:`OutputError` (a folder, not a ``.png`` name)."""
+    png = Path(path)
+    if png.is_dir():
+        raise OutputError(f"{png}: is a folder; the mosaic needs a PNG file name (e.g. {png / 'mosaic.png'}).")
+    if png.suffix.lower() != ".png":
+        raise OutputError(f"{png}: a mosaic is written as PNG; give a file name ending in .png "
+                          f"(e.g. {png.with_suffix('.png')}).")
+    return png
 
 
 def native_mm_per_px(camera: Camera, altitude_m: np.ndarray) -> float:
@@ -443,6 +454,8 @@ def mosaic_of_run(
     from rovslam.io.results import read_results
     from rovslam.viz.frames import open_frames
 
+    if out_png is not None:
+        check_mosaic_path(out_png)  # before the work: a bad name is refused at once
     res = read_results(results_dir)
     store = open_frames(res.summary, seq, camera_file)
     if groundtruth is not None:
@@ -463,6 +476,11 @@ def mosaic_of_run(
         mm_per_px = grid.mm_per_px if grid is not None else native_mm_per_px(store.camera, poses.altitude_m)
     poses = poses.every(int(every))
     mosaic = build_mosaic(store.camera, poses, store.stream, mm_per_px, progress=progress, grid=grid)
+    if mosaic.frames_used == 0:  # an empty mosaic would pass for a result
+        raise ImageReadError(
+            f"{store.path}: none of the {len(poses.frame)} frames to lay could be read (images missing, unreadable "
+            "or of another size); give the run's sequence or video with --seq."
+        )
     rgb = decorate(mosaic, path_xy if overlay else None, lms if overlay else None)
     png, pgw = write_mosaic(Path(out_png) if out_png is not None else Path(results_dir) / default_name, rgb, mosaic.grid)
     return MosaicFiles(png, pgw, mosaic)

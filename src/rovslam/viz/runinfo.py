@@ -8,6 +8,7 @@ the evaluator's output: an ``eval.json`` is read when present, defensively.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from dataclasses import dataclass
@@ -16,7 +17,9 @@ from typing import Any
 
 import numpy as np
 
+from rovslam.errors import ResultsFormatError
 from rovslam.io.results import RunResults
+from rovslam.io.sequence import read_text
 
 # Altitude sources written by the laser altimeter (rovslam.vision.laser): measured or assumed.
 MEASURED_ALTITUDE = ("laser", "laser+sonar", "sonar")
@@ -176,7 +179,7 @@ def read_eval_json(path: Path) -> dict[str, Any]:
     """``eval.json`` as a dict (empty when missing or unreadable: the report computes its own figures)."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):  # RecursionError: nested thousands deep, not rovslam's
         return {}
     return data if isinstance(data, dict) else {}
 
@@ -187,10 +190,13 @@ def read_tokens(out_dir: Path) -> dict[int, np.ndarray]:
     out: dict[int, list[tuple[float, float]]] = {}
     if not path.is_file():
         return {}
-    with path.open(newline="", encoding="utf-8") as fh:
-        for row in csv.DictReader(fh):
+    text = read_text(path, ResultsFormatError)  # not UTF-8 (a damaged file): one line naming it
+    try:
+        for row in csv.DictReader(io.StringIO(text, newline="")):
             try:
                 out.setdefault(int(row["frame"]), []).append((float(row["u_px"]), float(row["v_px"])))
-            except (KeyError, ValueError):
+            except (KeyError, TypeError, ValueError):
                 continue  # a torn last line of an interrupted run
+    except csv.Error as exc:
+        raise ResultsFormatError(f"{path}: not a readable CSV file ({exc}); run again with --overwrite to rewrite it.") from None
     return {k: np.asarray(v) for k, v in out.items()}
