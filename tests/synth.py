@@ -331,3 +331,15 @@ def simulate_variant(out_dir, base: str, name: str, seed: int, **fields):
     finally:
         del SCENARIOS[name]
     return out_dir
+
+
+def photo_available() -> bool:
+    """Whether the shared real seabed photo (chamber3) is there for the photo presets."""
+    from rovslam.errors import SimulationError
+    from rovslam.sim import scenarios
+
+    try:
+        scenarios.shared_data_file("chamber3/seabed.jpg")
+    except SimulationError:
+        return False
+    return True

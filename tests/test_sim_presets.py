@@ -14,6 +14,7 @@ from rovslam.errors import SimulationError
 from rovslam.io.sequence import SequenceInfo, SequenceWriter, open_sequence, read_groundtruth
 from rovslam.sim import SCENARIOS, simulate, simulate_trajectory
 from rovslam.sim import scenarios as scenarios_module
+from synth import photo_available
 from test_sim_presets_frozen import folder_digest
 
 NEW_PRESETS = ("portofino-relief", "photo-survey", "photo-turns", "hd-survey", "still-camera", "turbid-relief",
@@ -21,16 +22,8 @@ NEW_PRESETS = ("portofino-relief", "photo-survey", "photo-turns", "hd-survey", "
 PHOTO = {"photo-survey", "photo-turns"}
 
 
-def _photo_available() -> bool:
-    try:
-        scenarios_module.shared_data_file("chamber3/seabed.jpg")
-    except SimulationError:
-        return False
-    return True
-
-
 def _skip_without_photo(name: str) -> None:
-    if name in PHOTO and not _photo_available():
+    if name in PHOTO and not photo_available():
         pytest.skip("the chamber3 photo is not available (set ROVSLAM_SHARED_DATA)")
 
 
@@ -121,7 +114,7 @@ def test_a_missing_photo_names_where_it_looked_and_the_variable(tmp_path, monkey
 
 
 def test_the_photo_is_found_through_the_environment_variable(tmp_path, monkeypatch):
-    if not _photo_available():
+    if not photo_available():
         pytest.skip("the chamber3 photo is not available")
     real = scenarios_module.shared_data_file("chamber3/seabed.jpg")
     (tmp_path / "data" / "chamber3").mkdir(parents=True)

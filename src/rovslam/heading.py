@@ -62,6 +62,8 @@ class HeadingFilter:
             elif measured:
                 self.heading_rad = wrap_angle(self.heading_rad + float(dpsi_rad))
                 self.var_rad2 += float(dpsi_sigma_rad) ** 2
+            else:  # nothing measured the turn of this step
+                self.var_rad2 += NO_COMPASS_STEP_SIGMA_RAD**2
             return self.heading_rad
         c = finite_scalar("heading_rad", compass_rad)
         r = self.compass_sigma_rad**2
@@ -119,11 +121,17 @@ class HeadingEstimate:
         observation_sigma_rad: the heading noise told to the landmark observations (3), (4):
             ``sigma_rad``, plus the compass drift when the filter holds no bias state (a
             landmark seen again minutes later was mapped under another drift).
+        walk_var_rad2: without a compass, when the filter holds the heading error ``eps``:
+            the variance the integrated heading gained over this step. Its error is then a
+            random walk, the same error for every later step, not white noise: ``eps`` carries
+            it (the landmarks seen again estimate it) and ``sigma_rad`` stays for the records.
+            None otherwise.
     """
 
     heading_rad: float
     sigma_rad: float | None
     observation_sigma_rad: float | None
+    walk_var_rad2: float | None = None
 
 
 class HeadingTracker:
@@ -160,6 +168,7 @@ class HeadingTracker:
 
     def update(self, prior: HeadingPrior, dpsi_rad: float | None, dpsi_sigma_rad: float) -> HeadingEstimate:
         """Fuse the compass with the turn the tokens measured (``dpsi_rad`` None: not measured)."""
+        var_before = self.filter.var_rad2
         psi = self.filter.update(prior.compass_rad, dpsi_rad, dpsi_sigma_rad)
         smoothing = self.odometry.compass_sigma_rad > 0 and prior.has_compass
         sigma = self.filter.sigma_rad if smoothing or not prior.has_compass else None
@@ -167,14 +176,27 @@ class HeadingTracker:
             obs_sigma = math.hypot(sigma, self.odometry.compass_drift_sigma_rad)
         else:
             obs_sigma = sigma
+        walk = self._walk_var_rad2(prior, var_before)
         self._remember(psi, prior.compass_rad)
+        if walk is not None:
+            return HeadingEstimate(psi, sigma, 0.0, walk)  # the whole heading error is eps's
         return HeadingEstimate(psi, sigma, obs_sigma)
 
-    def skip(self, compass_rad: float) -> float:
-        """An unusable frame: follow the compass alone; returns the heading."""
+    def skip(self, compass_rad: float) -> HeadingEstimate:
+        """An unusable frame: follow the compass alone (without one, the heading is held and its error grows)."""
+        prior_has_compass = math.isfinite(compass_rad)
+        var_before = self.filter.var_rad2
         psi = self.filter.update(compass_rad)
+        walk = None if prior_has_compass or self.slam.heading_bias_sigma_rad == 0 else max(
+            self.filter.var_rad2 - var_before, 0.0)
         self._remember(psi, compass_rad)
-        return psi
+        return HeadingEstimate(psi, None, None, walk)
+
+    def _walk_var_rad2(self, prior: HeadingPrior, var_before_rad2: float) -> float | None:
+        """Without a compass and with ``eps`` in the filter: what this step added to the integrated heading's variance."""
+        if prior.has_compass or self.slam.heading_bias_sigma_rad == 0:
+            return None
+        return max(self.filter.var_rad2 - var_before_rad2, 0.0)
 
     def _remember(self, heading_rad: float, compass_rad: float) -> None:
         self._previous_rad = heading_rad

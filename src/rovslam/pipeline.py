@@ -454,7 +454,9 @@ class SlamPipeline:
         """
         if speed is not None and dt_s > 0:
             bias_sigma = max(self.config.slam.altitude_bias_sigma_m, self._terrain_sigma_m(alt.altitude_m, alt))
-            self._predict(speed, prior.previous_rad, dt_s, heading.sigma_rad, alt.altitude_m, bias_sigma)
+            walk = heading.walk_var_rad2  # without a compass: the integrated heading's error is eps's random walk
+            self._predict(speed, prior.previous_rad, dt_s, heading.sigma_rad if walk is None else 0.0, alt.altitude_m,
+                          bias_sigma, walk)
         assoc = self.config.association
         refused = {id(t): t.refused for t in tracked if t.refused}
         live = [t for t in tracked if not t.refused]
@@ -520,10 +522,11 @@ class SlamPipeline:
                                               tuple(t.record.id for t in strong), "refused matches"))
 
     def _predict(self, speed: SpeedMeasurement, heading_rad: float, dt_s: float, heading_sigma_rad: float | None,
-                 altitude_m: float | None = None, altitude_bias_sigma_m: float | None = None) -> None:
+                 altitude_m: float | None = None, altitude_bias_sigma_m: float | None = None,
+                 heading_walk_var_rad2: float | None = None) -> None:
         """Prediction (1) of the filter and of the dead reckoning reported beside it."""
         self.ekf.predict(speed.surge_mps, speed.sway_mps, speed.cov_mps2, heading_rad, dt_s, heading_sigma_rad,
-                         altitude_m, altitude_bias_sigma_m)
+                         altitude_m, altitude_bias_sigma_m, heading_walk_var_rad2)
         self._dr += motion_step_m(speed.speed_mps, heading_rad, dt_s)
         if speed.ok:
             self._last_speed_mps = speed.speed_mps
@@ -560,11 +563,11 @@ class SlamPipeline:
         """An unusable frame: predict with the held speed, follow the compass, reset the token tracks."""
         self.skipped.append((frame.index, frame.t_s, reason))
         speed = None
+        heading = self.heading.skip(frame.heading_rad)
         if self._prev_t_s is not None and dt_s > 0:
             speed = self.speed.hold(dt_s)
-            self._predict(speed, prior.previous_rad, dt_s, None)
+            self._predict(speed, prior.previous_rad, dt_s, None, heading_walk_var_rad2=heading.walk_var_rad2)
         self.tokens.reset()
-        heading = HeadingEstimate(self.heading.skip(frame.heading_rad), None, None)
         # The next usable frame measures its speed against this frame's time: no tokens span it.
         self._prev_t_s = frame.t_s
         if self._prev_altitude_m is None:

@@ -327,6 +327,7 @@ class EkfSlam:
         heading_sigma_rad: float | None = None,
         altitude_m: float | None = None,
         altitude_bias_sigma_m: float | None = None,
+        heading_walk_var_rad2: float | None = None,
     ) -> None:
         """Prediction by (1) and (2) with the measured body speed and heading as inputs.
 
@@ -340,6 +341,9 @@ class EkfSlam:
                 step is scaled by ``(Z + b) / Z``. None: no such coupling.
             altitude_bias_sigma_m: the bias's stationary sigma over this step (the relief under
                 the lasers may be rougher here); default ``config.altitude_bias_sigma_m``.
+            heading_walk_var_rad2: a heading input integrated from turns, without a compass: the
+                variance it gained over this step. ``eps`` is then a random walk (no decay towards
+                0) driven by it, instead of the compass's Ornstein-Uhlenbeck drift. None: a compass.
 
         Raises:
             InvalidMeasurementError: NaN/inf or invalid input; the state is unchanged.
@@ -355,6 +359,8 @@ class EkfSlam:
         z = None if altitude_m is None else _finite("altitude_m", altitude_m, positive=True)
         sb = self.config.altitude_bias_sigma_m if altitude_bias_sigma_m is None else altitude_bias_sigma_m
         sb = _finite("altitude_bias_sigma_m", sb, nonnegative=True)
+        walk = None if heading_walk_var_rad2 is None else _finite("heading_walk_var_rad2", heading_walk_var_rad2,
+                                                                  nonnegative=True)
 
         theta = self.map_heading_rad(psi)
         speed = np.array([u, v])
@@ -380,6 +386,9 @@ class EkfSlam:
         for row, tau, sigma in ((self._eps, self.config.heading_bias_tau_s, self.config.heading_bias_sigma_rad),
                                 (self._b, self.config.altitude_bias_tau_s, sb)):
             if row is None:
+                continue
+            if row == self._eps and walk is not None:  # an integrated heading: its error walks, never decays
+                p[row, row] += walk
                 continue
             a = np.exp(-dt / tau)  # Ornstein-Uhlenbeck
             self._x[row] *= a
