@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from rovslam.config import OdometryConfig, SlamConfig
-from rovslam.eval.metrics import consistency
+from rovslam.eval.metrics import consistency, evaluate_run
 from rovslam.heading import NO_COMPASS_STEP_SIGMA_RAD, HeadingTracker
 from rovslam.io.sequence import read_groundtruth
 from rovslam.runner import run_sequence
@@ -79,3 +79,8 @@ def test_photo_turns_without_compass_stays_inside_its_covariance(tmp_path):
     cons = consistency(est - np.column_stack([gt.x_m, gt.y_m]), cov)
     assert cons.coverage_2sigma >= 0.95  # 69 % with the heading's error told as white noise
     assert cons.nees_mean <= 2.0  # 2.7 before
+    # rovslam eval does the same turn for a run that had no compass, and says so
+    ev = evaluate_run(tmp_path / "out", seq / "groundtruth.csv")
+    assert ev.run_frame_turn_rad == pytest.approx(gt.heading_rad[0], abs=1e-9)
+    assert ev.consistency.coverage_2sigma == pytest.approx(cons.coverage_2sigma)
+    assert ev.slam.ate_rmse_m == pytest.approx(float(np.sqrt(np.mean(np.sum((est - np.column_stack([gt.x_m, gt.y_m]))**2, 1)))))

@@ -716,6 +716,8 @@ class _progress:
 
 def _print_eval(f) -> None:
     """Print an :class:`rovslam.eval.Evaluation` as tables; an undefined figure says n/a, and why below."""
+    import math
+
     from rich.console import Console
     from rich.table import Table
 
@@ -754,6 +756,9 @@ def _print_eval(f) -> None:
     console.print(t)
     for note in f.notes:
         console.print(f"n/a: {note}", markup=False, highlight=False)
+    if f.run_frame_turn_rad != 0.0:
+        console.print(f"note: no compass in this run: its frame is its first heading; the ground truth was turned "
+                      f"by {math.degrees(f.run_frame_turn_rad):+.2f} deg into it", markup=False, highlight=False)
     if f.table1_landmark0:
         t1 = Table(title="Table 1: vehicle position while tracking landmark 0 (displacement since its initialisation)")
         for col in ("time [s]", "x est [m]", "y est [m]", "x true [m]", "y true [m]"):

@@ -21,6 +21,7 @@ from scipy.stats import chi2
 from rovslam.errors import InvalidArgumentError, ResultsFormatError, SequenceFormatError
 from rovslam.io.results import RunResults
 from rovslam.io.sequence import GroundTruth
+from rovslam.io.source import TOKENS_ONLY
 
 _COV_FLOOR_M2 = 1e-12  # the start is known exactly; keep P invertible there
 
@@ -220,6 +221,7 @@ class Evaluation:
     notes: tuple[str, ...] = ()  # why a figure is None
     smoothed: TrajectoryErrors | None = None  # the smoothed path (trajectory_smoothed.csv), if the run was smoothed
     smoothed_consistency: Consistency | None = None  # its marginal covariances against the truth
+    run_frame_turn_rad: float = 0.0  # a run without compass: the ground truth was turned by this into its frame
 
     @property
     def dead_reckoning_over_slam_rmse(self) -> float | None:
@@ -273,6 +275,31 @@ def _notes(frames: int, slam: TrajectoryErrors) -> tuple[str, ...]:
     return tuple(notes)
 
 
+def run_frame_turn_rad(results: RunResults, gt_heading_at_first_rad: float) -> float:
+    """The angle from the ground truth's world frame to the run's, in radians; 0 for a run with a compass.
+
+    Without a compass on any frame, the run's heading is the tokens' turn integrated from 0 at
+    its first frame: its x axis is the vehicle's first heading, not north. The turn is then
+    the ground truth's heading at the run's first frame (``gt_heading_at_first_rad``) minus
+    the run's own there.
+    """
+    heading = (results.summary.get("sources") or {}).get("heading") or {}
+    frames = heading.get("frames") if isinstance(heading, dict) else None
+    run_heading = results.trajectory.get("heading_rad")
+    if not isinstance(frames, dict) or set(frames) != {TOKENS_ONLY} or run_heading is None or len(run_heading) == 0:
+        return 0.0
+    d = float(gt_heading_at_first_rad - run_heading[0])
+    return math.atan2(math.sin(d), math.cos(d)) if math.isfinite(d) else 0.0
+
+
+def to_run_frame(xy_m: np.ndarray, turn_rad: float) -> np.ndarray:
+    """``(N, 2)`` world positions in a frame turned by ``turn_rad`` (x towards y): ``R(turn)^T p`` per row."""
+    if turn_rad == 0.0:
+        return xy_m
+    c, s = math.cos(turn_rad), math.sin(turn_rad)
+    return np.asarray(xy_m) @ np.array([[c, -s], [s, c]])
+
+
 def evaluate(
     results: RunResults,
     gt: GroundTruth,
@@ -288,7 +315,8 @@ def evaluate(
     if len(est) == 0:
         raise ResultsFormatError(f"{results.folder}: trajectory.csv has no rows; the run processed no frame.")
     idx = align_by_time(results.t_s, gt.t_s)
-    gt_xy = gt.xy_m[idx]
+    turn = run_frame_turn_rad(results, float(gt.heading_rad[idx[0]]))
+    gt_xy = to_run_frame(gt.xy_m[idx], turn)
     slam = trajectory_errors(est, gt_xy, segment_m)
     pc = None
     if phase_correlation_xy_m is not None:
@@ -300,7 +328,7 @@ def evaluate(
     skipped = results.trajectory.get("skipped")
     sm = sm_cons = None
     if results.smoothed is not None:
-        sm_gt = gt.xy_m[align_by_time(results.smoothed["t_s"], gt.t_s)]
+        sm_gt = to_run_frame(gt.xy_m[align_by_time(results.smoothed["t_s"], gt.t_s)], turn)
         sm = trajectory_errors(results.smoothed_xy_m, sm_gt, segment_m)
         sm_cons = consistency(results.smoothed_xy_m - sm_gt, results.smoothed_cov_m2, results.smoothed["t_s"])
     return Evaluation(
@@ -316,6 +344,7 @@ def evaluate(
         notes=_notes(len(est), slam),
         smoothed=sm,
         smoothed_consistency=sm_cons,
+        run_frame_turn_rad=turn,
     )
 
 

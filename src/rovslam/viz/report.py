@@ -274,6 +274,10 @@ def write_report(
 
         gt = read_groundtruth(groundtruth)
         gt_xy = runinfo.truth_at(res, gt.t_s, gt.xy_m)
+        if gt_xy is not None:  # a run without compass: the truth in its frame (its first heading)
+            from rovslam.eval.metrics import run_frame_turn_rad, to_run_frame
+
+            gt_xy = to_run_frame(gt_xy, run_frame_turn_rad(res, float(runinfo.truth_at(res, gt.t_s, gt.heading_rad)[0])))
         if gt_xy is None:
             notes.append(f"{groundtruth}: its times do not match the run's frames; accuracy figures left out.")
         else:
