@@ -21,7 +21,6 @@ from scipy.stats import chi2
 from rovslam.errors import InvalidArgumentError, ResultsFormatError, SequenceFormatError
 from rovslam.io.results import RunResults
 from rovslam.io.sequence import GroundTruth
-from rovslam.io.source import TOKENS_ONLY
 
 _COV_FLOOR_M2 = 1e-12  # the start is known exactly; keep P invertible there
 
@@ -283,10 +282,8 @@ def run_frame_turn_rad(results: RunResults, gt_heading_at_first_rad: float) -> f
     the ground truth's heading at the run's first frame (``gt_heading_at_first_rad``) minus
     the run's own there.
     """
-    heading = (results.summary.get("sources") or {}).get("heading") or {}
-    frames = heading.get("frames") if isinstance(heading, dict) else None
     run_heading = results.trajectory.get("heading_rad")
-    if not isinstance(frames, dict) or set(frames) != {TOKENS_ONLY} or run_heading is None or len(run_heading) == 0:
+    if not results.without_compass or run_heading is None or len(run_heading) == 0:
         return 0.0
     d = float(gt_heading_at_first_rad - run_heading[0])
     return math.atan2(math.sin(d), math.cos(d)) if math.isfinite(d) else 0.0

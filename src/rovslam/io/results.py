@@ -473,6 +473,15 @@ class RunResults:
         return np.column_stack([self.trajectory["x_m"], self.trajectory["y_m"]])
 
     @property
+    def without_compass(self) -> bool:
+        """Whether no frame had a compass: the run's frame is then its first heading, not north."""
+        from rovslam.io.source import TOKENS_ONLY
+
+        heading = (self.summary.get("sources") or {}).get("heading") or {}
+        frames = heading.get("frames") if isinstance(heading, dict) else None
+        return isinstance(frames, dict) and set(frames) == {TOKENS_ONLY}
+
+    @property
     def cov_m2(self) -> np.ndarray:
         """(N, 2, 2) position covariances."""
         return _cov_table(self.trajectory)

@@ -228,8 +228,12 @@ def plot_map(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None) -> 
         # the vehicle's final 2-sigma ellipse at the same magnification
         e = ellipse_points(xy[-1], res.cov_m2[-1], 2.0, scale)
         ax.plot(e[:, 1], e[:, 0], color="tab:blue", lw=0.7, label=f"final vehicle 2-sigma x{scale}")
-    ax.set_xlabel("y east [m]")
-    ax.set_ylabel("x north [m]")
+    if res.without_compass:  # the run's frame: x along its first heading, y to starboard of it
+        ax.set_xlabel("y, starboard of the first heading [m]")
+        ax.set_ylabel("x, along the first heading (no compass) [m]")
+    else:
+        ax.set_xlabel("y east [m]")
+        ax.set_ylabel("x north [m]")
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(alpha=0.3)
     ax.legend(loc="upper left", fontsize=7, framealpha=0.85, bbox_to_anchor=(1.01, 1.0))
