@@ -104,6 +104,16 @@ def test_a_quaternion_that_is_not_unit_length_is_refused():
         quaternions_to_heading(np.array([[0.0, 0.0, 0.0, 2.0]]), ["nav.csv, line 3"], "enu", "flu", "body-to-world")
 
 
+def test_a_huge_quaternion_is_refused_without_a_numpy_warning():
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an overflow warning would reach the user's stderr before the error
+        with pytest.raises(NavigationError, match="line 4: quaternion .* length inf, not 1"):
+            quaternions_to_heading(np.array([[1e200, 0.0, 0.0, 1.0]]), ["nav.csv, line 4"], "enu", "flu",
+                                   "body-to-world")
+
+
 # --------------------------------------------------------------------------- NAV.csv and its mapping
 
 

@@ -230,7 +230,8 @@ def quaternions_to_heading(q_xyzw: np.ndarray, where: list[str], world: str, bod
     one that turns the camera to look up or sideways (a wrong world or body convention).
     """
     q = np.asarray(q_xyzw, dtype=np.float64).reshape(-1, 4)
-    norm = np.linalg.norm(q, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):  # a component of 1e200: an inf length, refused below
+        norm = np.linalg.norm(q, axis=1)
     bad = np.nonzero(~(np.abs(norm - 1.0) <= 0.05))[0]
     if len(bad):
         i = int(bad[0])
