@@ -176,7 +176,7 @@ class HeadingTracker:
             obs_sigma = math.hypot(sigma, self.odometry.compass_drift_sigma_rad)
         else:
             obs_sigma = sigma
-        walk = self._walk_var_rad2(prior, var_before)
+        walk = self._walk_var_rad2(prior.has_compass, var_before)
         self._remember(psi, prior.compass_rad)
         if walk is not None:
             return HeadingEstimate(psi, sigma, 0.0, walk)  # the whole heading error is eps's
@@ -184,17 +184,15 @@ class HeadingTracker:
 
     def skip(self, compass_rad: float) -> HeadingEstimate:
         """An unusable frame: follow the compass alone (without one, the heading is held and its error grows)."""
-        prior_has_compass = math.isfinite(compass_rad)
         var_before = self.filter.var_rad2
         psi = self.filter.update(compass_rad)
-        walk = None if prior_has_compass or self.slam.heading_bias_sigma_rad == 0 else max(
-            self.filter.var_rad2 - var_before, 0.0)
+        walk = self._walk_var_rad2(math.isfinite(compass_rad), var_before)
         self._remember(psi, compass_rad)
         return HeadingEstimate(psi, None, None, walk)
 
-    def _walk_var_rad2(self, prior: HeadingPrior, var_before_rad2: float) -> float | None:
+    def _walk_var_rad2(self, has_compass: bool, var_before_rad2: float) -> float | None:
         """Without a compass and with ``eps`` in the filter: what this step added to the integrated heading's variance."""
-        if prior.has_compass or self.slam.heading_bias_sigma_rad == 0:
+        if has_compass or self.slam.heading_bias_sigma_rad == 0:
             return None
         return max(self.filter.var_rad2 - var_before_rad2, 0.0)
 

@@ -414,15 +414,19 @@ class SlamPipeline:
         alt: AltitudeEstimate, dt_s: float,
     ) -> list[TrackedLandmark]:
         """Step 5, rolling shutter: each landmark's [m, n] moved to the frame's time (:mod:`rovslam.shutter`)."""
-        if self.camera.readout_s == 0.0 or not tracked or speed is None:
+        if self.camera.readout_s == 0.0 or speed is None:
             return tracked
-        yaw_rate = self._yaw_rate_radps(speed, prior, dt_s)
-        out = []
-        for t in tracked:
-            depth = alt.altitude_m - self.ekf.landmark_height_m(t.record.id)
-            rate = mn_rate_px_s(t.mn_px, speed.speed_mps, yaw_rate, depth, self.focal_px)
-            out.append(dataclasses.replace(t, mn_px=mn_at_frame_time(self.camera, t.uv_px[1], t.mn_px, rate)))
-        return out
+        return [dataclasses.replace(t, mn_px=self._mn_at_frame_time(
+            t.mn_px, t.uv_px[1], alt.altitude_m - self.ekf.landmark_height_m(t.record.id), speed, prior, dt_s))
+            for t in tracked]
+
+    def _mn_at_frame_time(self, mn_px: np.ndarray, v_px: float, depth_m: float, speed: SpeedMeasurement | None,
+                          prior: HeadingPrior | None, dt_s: float) -> np.ndarray:
+        """A landmark's [m, n] seen at image row ``v_px`` moved to the frame's time (unchanged for a global shutter)."""
+        if self.camera.readout_s == 0.0 or speed is None or prior is None:
+            return mn_px
+        rate = mn_rate_px_s(mn_px, speed.speed_mps, self._yaw_rate_radps(speed, prior, dt_s), depth_m, self.focal_px)
+        return mn_at_frame_time(self.camera, v_px, mn_px, rate)
 
     def _yaw_rate_radps(self, speed: SpeedMeasurement, prior: HeadingPrior, dt_s: float) -> float:
         """The turn rate over the last frame interval: the tokens' turn when they measured it, else the compass's."""
@@ -539,10 +543,7 @@ class SlamPipeline:
     ) -> tuple[int, Observation]:
         """Step 7: augment the state with the new landmark by (4) and keep its template."""
         mn = pixels_to_mn(self.camera, template.centre_uv_px, alt.altitude_m, *att)[0]
-        if self.camera.readout_s > 0 and speed is not None and prior is not None:  # rolling shutter
-            rate = mn_rate_px_s(mn, speed.speed_mps, self._yaw_rate_radps(speed, prior, dt_s), alt.altitude_m,
-                                self.focal_px)
-            mn = mn_at_frame_time(self.camera, template.centre_uv_px[1], mn, rate)
+        mn = self._mn_at_frame_time(mn, template.centre_uv_px[1], alt.altitude_m, speed, prior, dt_s)  # rolling shutter
         new_id = self.ekf.augment(
             mn, heading.heading_rad, alt.altitude_m, self.focal_px, altitude_sigma_m=alt.sigma_m,
             heading_sigma_rad=heading.observation_sigma_rad,

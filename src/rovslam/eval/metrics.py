@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
+from rovslam.camera import rot2
 from rovslam.errors import InvalidArgumentError, ResultsFormatError, SequenceFormatError
 from rovslam.io.results import RunResults
 from rovslam.io.sequence import GroundTruth
@@ -293,8 +294,7 @@ def to_run_frame(xy_m: np.ndarray, turn_rad: float) -> np.ndarray:
     """``(N, 2)`` world positions in a frame turned by ``turn_rad`` (x towards y): ``R(turn)^T p`` per row."""
     if turn_rad == 0.0:
         return xy_m
-    c, s = math.cos(turn_rad), math.sin(turn_rad)
-    return np.asarray(xy_m) @ np.array([[c, -s], [s, c]])
+    return np.asarray(xy_m) @ rot2(turn_rad)
 
 
 def evaluate(

@@ -319,14 +319,13 @@ def _series(reader: _Reader, topic: str, t0_ns: int, value: Any) -> tuple[np.nda
     return ts[keep], [vals[i] for i in idx], [where[i] for i in idx]
 
 
-def _track(reader: _Reader, topic: str, what: str, t_s: np.ndarray, values: np.ndarray, angle: bool = False) -> NavTrack:
-    """A :class:`NavTrack` of a topic's usable values, or NavigationError naming the topic when it has none."""
+def _require_samples(reader: _Reader, topic: str, what: str, t_s: np.ndarray) -> None:
+    """NavigationError naming the bag and topic when the topic gave no usable sample of ``what``."""
     if len(t_s) == 0:
         raise NavigationError(
             f"{reader.path}: topic {topic} ({reader.topics[topic][0]}) holds no usable {what} (no message, or every "
             "value NaN or infinite); give another topic, or leave the option out."
         )
-    return NavTrack(t_s, values, angle=angle)
 
 
 def read_bag_navigation(reader: _Reader, options: InputOptions, t0_ns: int) -> Navigation | None:
@@ -344,18 +343,19 @@ def read_bag_navigation(reader: _Reader, options: InputOptions, t0_ns: int) -> N
             scale = math.pi / 180 if options.heading_degrees else 1.0
             t, v, _ = _series(reader, name, t0_ns, lambda m, _t, _w: float(m.data) * scale)
             keep = np.isfinite(v)
-            heading = _track(reader, name, "heading", t[keep], np.asarray(v)[keep], angle=True)
+            _require_samples(reader, name, "heading", t[keep])
+            heading = NavTrack(t[keep], np.asarray(v)[keep], angle=True)
             details["heading"] = f"topic {name} ({msgtype}, {'degrees' if options.heading_degrees else 'radians'} from north towards east)"
         else:
             t, q, where = _series(reader, name, t0_ns, _orientation)
-            _track(reader, name, "heading", t, t)  # no message: said before the quaternions are read
+            _require_samples(reader, name, "heading", t)  # no message: said before the quaternions are read
             h, _, _ = quaternions_to_heading(np.asarray(q), where, conv, body, "body-to-world")
             heading = NavTrack(t, h, angle=True)
             details["heading"] = f"topic {name} ({msgtype} orientation, {conv.upper()})"
     if options.attitude_topic is not None:
         name = options.attitude_topic
         t, q, where = _series(reader, name, t0_ns, _orientation)
-        _track(reader, name, "attitude", t, t)
+        _require_samples(reader, name, "attitude", t)
         _, r, p = quaternions_to_heading(np.asarray(q), where, conv, body, "body-to-world")
         roll, pitch = NavTrack(t, r), NavTrack(t, p)
         details["attitude"] = f"topic {name} ({topics[name][0]} orientation, {conv.upper()})"

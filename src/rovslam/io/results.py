@@ -43,6 +43,7 @@ import numpy as np
 
 from rovslam.errors import OutputError, ResultsFormatError
 from rovslam.io.sequence import float_cell, not_a_file, read_csv_table, read_text
+from rovslam.io.source import TOKENS_ONLY
 
 TRAJECTORY_COLUMNS = (
     "t_s",
@@ -475,8 +476,6 @@ class RunResults:
     @property
     def without_compass(self) -> bool:
         """Whether no frame had a compass: the run's frame is then its first heading, not north."""
-        from rovslam.io.source import TOKENS_ONLY
-
         heading = (self.summary.get("sources") or {}).get("heading") or {}
         frames = heading.get("frames") if isinstance(heading, dict) else None
         return isinstance(frames, dict) and set(frames) == {TOKENS_ONLY}
