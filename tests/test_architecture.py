@@ -22,6 +22,7 @@ NEVER = {
     "vision": ["rovslam.slam", "rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.sim"],
     "odometry": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.sim"],
     "shutter": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.sim"],
+    "sunlight": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.sim"],
     "heading": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.vision"],
     "altitude": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.vision"],
     "landmarks": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam"],

@@ -228,6 +228,39 @@ def test_estimator_holds_the_last_speed_and_grows_the_covariance():
     assert again.ok and est.gap_s == 0.0
 
 
+def test_estimator_learns_the_acceleration_its_speeds_show_and_holds_with_it():
+    """A swell rocks the vehicle: the speeds measured before a gap show how fast it changes speed,
+    and a held speed's covariance grows with that, not with the configured floor alone."""
+    rng = np.random.default_rng(21)
+    g_floor = 0.02
+    amp, period = 0.12, 7.0  # surge wave: 0.12 m/s, 7 s
+    steady = SpeedEstimator(OdometryConfig(held_speed_drift_mps2=g_floor))
+    rocked = SpeedEstimator(OdometryConfig(held_speed_drift_mps2=g_floor))
+    for k in range(600):  # 2 minutes
+        t = k * DT
+        for est, surge in ((steady, 0.2), (rocked, 0.2 + amp * np.sin(2 * np.pi * t / period))):
+            uv0, uv1 = make_tokens(CAM, rng, 8, [surge * DT, 0.0])
+            assert est.measure(CAM, uv0 + rng.normal(0, 0.05, uv0.shape), uv1, Z, Z, DT).ok
+    # Per axis (surge and sway averaged): the surge's acceleration RMS amp w / sqrt(2), over two axes.
+    want = amp * 2 * np.pi / period / np.sqrt(2) / np.sqrt(2)
+    assert rocked.accel_sigma_mps2 == pytest.approx(want, rel=0.1)  # 0.054 m/s^2
+    assert steady.accel_sigma_mps2 < 0.005  # measurement noise is taken out
+    empty = np.zeros((0, 2))
+    held_steady = steady.measure(CAM, empty, empty, Z, Z, DT)
+    held_rocked = rocked.measure(CAM, empty, empty, Z, Z, DT)
+    # One step into the gap: Q = 3 B + g^2 dt^2, g the larger of the floor and the learned acceleration.
+    np.testing.assert_allclose(held_steady.cov_mps2, 3.0 * steady.last_good.cov_mps2 + np.eye(2) * (g_floor * DT) ** 2)
+    g = rocked.accel_sigma_mps2
+    np.testing.assert_allclose(held_rocked.cov_mps2, 3.0 * rocked.last_good.cov_mps2 + np.eye(2) * (g * DT) ** 2)
+    # A gap's speed changes are not learned (they are what the held covariance bounds).
+    before = rocked.accel_sigma_mps2
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.6 * DT, 0.0])  # back from the gap at another speed
+    assert rocked.measure(CAM, uv0, uv1, Z, Z, DT).ok
+    assert rocked.accel_sigma_mps2 == before
+    rocked.reset()
+    assert rocked.accel_sigma_mps2 == 0.0
+
+
 def test_a_held_speed_covers_the_position_error_it_causes():
     """Monte Carlo: a held speed is wrong by the same e0 + a T_k at every step of the gap; the
     position variance the filter accumulates from the per-step Q equals that of the correlated sum."""

@@ -105,3 +105,61 @@ def test_local_variance_rejects_bad_sizes():
         local_variance(img, 32)
     with pytest.raises(InvalidArgumentError, match="single-channel"):
         local_variance(np.zeros((20, 20, 3), np.float32), 8)
+
+
+def test_remove_specks_takes_out_a_caustic_line_and_keeps_dark_stones_and_large_bright_areas():
+    from rovslam.vision.filters import remove_specks
+
+    img = np.full((120, 160), 100.0, np.float32)
+    img[:, 40:49] = 200.0  # a 9 px bright line (a caustic at 2 m), the whole height
+    img[60:66, 100:106] = 20.0  # a dark stone, 6 px
+    yy, xx = np.mgrid[:120, :160]
+    bright = (yy - 30) ** 2 + (xx - 120) ** 2 <= 22**2  # a bright area 45 px across
+    img[bright] = 180.0
+    out = remove_specks(img, 31)
+    assert out.dtype == np.float32 and out.shape == img.shape
+    np.testing.assert_array_equal(out[:, 40:49], 100.0)  # the line is gone
+    np.testing.assert_array_equal(out[60:66, 100:106], 20.0)  # the stone is kept, exactly
+    assert out[30, 120] == 180.0  # the large bright area's centre is kept
+    np.testing.assert_array_equal(remove_specks(img, 0), img)
+
+
+@pytest.mark.parametrize("size_px", [3, 7, 15, 21, 31, 41])
+def test_the_opening_element_is_an_octagon_within_a_pixel_of_the_disc(size_px):
+    import cv2
+
+    from rovslam.vision.filters import _CROSS, _octagon, _open_octagon
+
+    # A single bright pixel dilated by the element draws the element; an opening's element is
+    # what an erosion then a dilation sweep: dilate a point with the same decomposition.
+    n = 2 * size_px + 1
+    point = np.zeros((n, n), np.uint8)
+    point[size_px, size_px] = 255
+    square, a = _octagon(size_px)
+    drawn = cv2.dilate(cv2.dilate(point, _CROSS, iterations=a) if a else point, square) > 0
+    disc = np.zeros((n, n), bool)
+    r0 = size_px // 2
+    disc[size_px - r0:size_px - r0 + size_px, size_px - r0:size_px - r0 + size_px] = (
+        cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px)) > 0)
+    cols = np.flatnonzero(drawn.any(axis=0))
+    assert cols[-1] - cols[0] + 1 == size_px  # the same width as the disc
+    assert np.sum(drawn ^ disc) <= 0.15 * disc.sum()  # and nearly the same pixels
+    # A structure the element fits in survives the opening; one it does not fit in is removed.
+    img = np.zeros((n + 20, n + 20), np.uint8)
+    img[10:10 + n, 10:10 + n][drawn] = 200
+    np.testing.assert_array_equal(_open_octagon(img, size_px), img)
+    thin = np.zeros_like(img)
+    thin[:, 10:10 + size_px - 1] = 200  # one pixel narrower than the element
+    assert _open_octagon(thin, size_px).max() == 0
+
+
+@pytest.mark.parametrize("size_px", [3, 7, 15])
+def test_narrow_openings_are_opencvs_exact_disc(size_px):
+    import cv2
+
+    from rovslam.vision.filters import OCTAGON_FROM_PX, remove_specks
+
+    assert size_px < OCTAGON_FROM_PX
+    img = np.random.default_rng(size_px).uniform(0, 255, (60, 80)).astype(np.float32)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px))
+    np.testing.assert_array_equal(remove_specks(img, size_px), cv2.morphologyEx(img, cv2.MORPH_OPEN, disc))

@@ -115,6 +115,9 @@ class BandpassConfig(_Checked):
     sigma_coarse_px: float = _num(4.0, gt=0)  # removes wavelengths longer than ~2*pi*sigma_coarse (illumination)
     channel: Channel = "green"  # red is reserved for the lasers
     despeckle_px: int = _num(7, ge=0)  # >= 2: remove bright specks (marine snow) narrower than this first; 0: off (paper)
+    # When the landmarks in view stop being found again (sunlight caustics: rovslam.sunlight), bright
+    # structures narrower than this are removed from then on (31 px: 6 cm at 500 px/m); 0: never.
+    sunlight_px: int = _num(31, ge=0)
     # A frame whose band-passed standard deviation is below this (a dark or low-contrast camera) is
     # scaled up to it before the local-variance thresholds, as a camera's gain would; 0: off (paper).
     # Correlation does not see the gain; the matrix presets' frames all lie above 2.0.
@@ -125,6 +128,8 @@ class BandpassConfig(_Checked):
             self._fail("sigma_coarse_px", f"must be larger than sigma_fine_px = {self.sigma_fine_px!r}")
         if self.despeckle_px == 1:
             self._fail("despeckle_px", "must be 0 (off) or >= 2 px")
+        if self.sunlight_px == 1:
+            self._fail("sunlight_px", "must be 0 (off) or >= 2 px")
 
 
 @dataclass(frozen=True)
@@ -271,7 +276,9 @@ class OdometryConfig(_Checked):
     token_sigma_px: float = _num(0.15, gt=0)  # one token's displacement noise (floor)
     common_sigma_px: float = _num(0.15, ge=0)  # an error all tokens of a step share (compression, lighting): not / n
     gap_speed_sigma_mps: float = _num(0.02, ge=0)  # landmark search: the speed may change by this per second
-    held_speed_drift_mps2: float = _num(0.1, ge=0)  # a held speed's error grows by this per second (a manoeuvre)
+    # a held speed's error grows by at least this per second (a manoeuvre), by more when the dive's
+    # speeds have shown harder accelerations (swell: SpeedEstimator.accel_sigma_mps2)
+    held_speed_drift_mps2: float = _num(0.1, ge=0)
     initial_speed_sigma_mps: float = _num(0.2, gt=0)  # speed sigma held before the first good measurement
     max_accel_mps2: float = _num(0.0, ge=0)  # > 0: a speed changing faster than this (+3 sigma) is a wrong consensus (0: off)
     max_speed_mps: float = _num(3.0, gt=0)  # a measured speed above this is not a vehicle's: refused

@@ -40,6 +40,8 @@ __all__ = ["SpeedMeasurement", "SpeedEstimator", "speed_from_tokens"]
 
 # Time over which the relief's height spread under the tokens is averaged (it changes over metres).
 RELIEF_TAU_S = 5.0
+ACCEL_TAU_S = 30.0
+"""Seconds over which :class:`SpeedEstimator` averages the accelerations its speeds show."""
 
 # At most this many single-token hypotheses are scored (plus the median); the pairwise
 # residual table is then at most 65 x N, whatever N.
@@ -452,6 +454,8 @@ class SpeedEstimator:
         self._relief_num = 0.0
         self._relief_den = 0.0
         self._relief_seen_s = 0.0  # seconds of relief samples since the start: the prior fades with them
+        self._accel_num = 0.0  # exponential average of the per-axis acceleration variance, m^2/s^4
+        self._accel_den = 0.0
 
     @property
     def relief_var(self) -> float:
@@ -478,6 +482,31 @@ class SpeedEstimator:
         w = (1.0 - a) * step_m2 * step_m2
         self._relief_num = a * self._relief_num + w * sample
         self._relief_den = a * self._relief_den + w
+
+    @property
+    def accel_sigma_mps2(self) -> float:
+        """The vehicle's acceleration per axis (RMS over the last ``ACCEL_TAU_S`` seconds) its speeds show (>= 0)."""
+        return math.sqrt(self._accel_num / self._accel_den) if self._accel_den > 0 else 0.0
+
+    def _learn_acceleration(self, m: SpeedMeasurement, dt_s: float) -> None:
+        """Average the speed change since the last good speed, less what their noise explains.
+
+        Only consecutive good speeds are compared (a gap's change is what is being bounded).
+        The change over one step is ``a dt`` plus both speeds' errors, so a sample is
+        ``(|dv|^2 / 2 - tr(C_prev + C_curr) / 2) / dt^2`` per axis, clipped at 0, averaged
+        with weights ``dt`` (bias-corrected at the start, as the relief).
+        """
+        last = self._last
+        if last is None or self._gap_s > 0.0 or not dt_s > 0.0:
+            return
+        dv = m.speed_mps - last.speed_mps
+        noise = 0.5 * float(np.trace(m.cov_mps2 + last.cov_mps2))
+        sample = max(0.5 * float(dv @ dv) - noise, 0.0) / dt_s**2
+        if not math.isfinite(sample):
+            return
+        a = math.exp(-dt_s / ACCEL_TAU_S)
+        self._accel_num = a * self._accel_num + (1.0 - a) * sample
+        self._accel_den = a * self._accel_den + (1.0 - a)
 
     @property
     def last_good(self) -> SpeedMeasurement | None:
@@ -527,6 +556,7 @@ class SpeedEstimator:
         if m.ok:
             self._learn_relief(m.relief_sample, float(dt_s), float(np.sum((m.speed_mps * dt_s) ** 2)))
         if m.ok and self._plausible(m, float(dt_s)):
+            self._learn_acceleration(m, float(dt_s))
             self._last, self._last_dt_s = m, float(dt_s)
             self._gap_s = self._gap_sum_s2 = 0.0
             return m
@@ -539,8 +569,9 @@ class SpeedEstimator:
 
         The held speed's error is the same in every step of the gap: the last good speed's
         error ``e0`` (covariance ``B``) plus a drift growing with the time ``T_k`` since then
-        (``g = held_speed_drift_mps2``, an unknown acceleration ``a``: the vehicle may be
-        manoeuvring, a lane end, while the tokens fail), so step ``k``
+        (``g``, an unknown acceleration ``a``: the vehicle may be manoeuvring, a lane end, or
+        rocked by the swell while the tokens fail; ``g`` is ``held_speed_drift_mps2`` or, when
+        larger, the acceleration the dive's own speeds have shown, :attr:`accel_sigma_mps2`), so step ``k``
         moves the position by ``(e0 + a T_k) dt_k`` too much. Those errors are correlated, but
         the filter adds each step's Q as if independent, so Q is chosen to give the position,
         after every step, the variance of the correlated sum::
@@ -559,7 +590,7 @@ class SpeedEstimator:
         t_prev, s_prev = self._gap_s, self._gap_sum_s2
         self._gap_s += dt
         self._gap_sum_s2 += self._gap_s * dt
-        g2 = self.config.held_speed_drift_mps2**2
+        g2 = max(self.config.held_speed_drift_mps2, self.accel_sigma_mps2) ** 2
         grow = g2 * (self._gap_sum_s2**2 - s_prev**2) / dt**2 if dt > 0 else g2 * self._gap_s**2
         if self._last is None:
             surge = sway = 0.0

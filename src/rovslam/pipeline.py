@@ -41,10 +41,11 @@ from rovslam.slam import EkfSlam
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 from rovslam.slam.motion import motion_step_m
 from rovslam.slam.observation import observation_noise_px2, pixels_to_mn
+from rovslam.sunlight import SunlightEvent, SunlightMonitor, moving_light_share
 from rovslam.vision.filters import (
     bandpass,
     contrast_std,
-    despeckled_channel,
+    despeckled_channels,
     local_variance,
     remove_specks,
     template_channel,
@@ -152,6 +153,12 @@ class SlamPipeline:
             self.smoother = Isam2Smoother(config.smoother)
         self.landmarks: list[LandmarkRecord] = []
         self.recovery = RecoveryMonitor(config.association)
+        # Sunlight caustics: bright structures that do not move with the seabed, taken out while they are seen.
+        self.sunlight = SunlightMonitor() if config.bandpass.sunlight_px > config.bandpass.despeckle_px else None
+        self.sunlight_events: list[SunlightEvent] = []
+        self._sunlit_frames = 0
+        self._bright_prev: np.ndarray | None = None  # (H, W) float32 bright structures of the last frame
+        self._bright: np.ndarray | None = None  # ... and of this one
         self.skipped: list[tuple[int, float, str]] = []
         self._prev_t_s: float | None = None
         self._prev_altitude_m: float | None = None
@@ -198,6 +205,9 @@ class SlamPipeline:
         n_events = len(self.recovery.events)
         observations = self._predict_and_update(speed, tracked, alt, prior, heading, dt_s, frame)  # step 6
         event = self.recovery.events[-1] if len(self.recovery.events) > n_events else None
+        relit = self._watch_sunlight(frame, tracks, speed)
+        if relit is not None:  # the sunlight was taken out (or left in again): steps 7 and 8 cut from that image
+            track_img = relit
         new_id = None
         if new_template is not None:  # step 7
             new_id, init = self._add_landmark(track_img, new_template, alt, att, heading, frame, speed, prior, dt_s)
@@ -205,6 +215,8 @@ class SlamPipeline:
         self._extract_tokens(track_img, mask)  # step 8
 
         self._prev_t_s, self._prev_altitude_m, self._prev_attitude = frame.t_s, alt.altitude_m, att
+        self._bright_prev = self._bright
+        self._sunlit_frames += self.sunlight is not None and self.sunlight.active
         self._n += 1
         return self._result(
             frame, dt_s, heading, alt.altitude_m, speed,
@@ -218,10 +230,16 @@ class SlamPipeline:
         if frame.image is None or frame.error is not None:
             return None, frame.error or "no image"
         cfg = self.config.bandpass
+        wide_px = cfg.sunlight_px if self.sunlight is not None else 0
         if self.scale.identity:
-            chan = despeckled_channel(frame.image, cfg.channel, cfg.despeckle_px)
+            chan, wide = despeckled_channels(frame.image, cfg.channel, cfg.despeckle_px, wide_px)
         else:  # the channel reduced to the processing scale (area average on floats), then despeckled
             chan = remove_specks(self.scale.reduce(template_channel(frame.image, cfg.channel)), cfg.despeckle_px)
+            wide = remove_specks(chan, wide_px) if wide_px else None
+        if wide is not None:  # the bright structures between the two widths: the sunlight, if any
+            self._bright = chan - wide
+            if self.sunlight.active:
+                chan = wide
         img = bandpass(chan, cfg.sigma_fine_px, cfg.sigma_coarse_px)
         std = contrast_std(img)
         if std < MIN_TEXTURE_STD:
@@ -229,6 +247,44 @@ class SlamPipeline:
         if std < cfg.min_contrast_std:  # dark or low-contrast: lifted as a camera's gain would, for the thresholds
             img *= np.float32(cfg.min_contrast_std / std)
         return img, None
+
+    def _watch_sunlight(self, frame: Frame, tracks: TokenTracks, speed: SpeedMeasurement | None) -> np.ndarray | None:
+        """After step 6: did the bright structures around the tokens move with them? (:mod:`rovslam.sunlight`)
+
+        Returns this frame's tracking image when the sunlight was just taken out (or left in
+        again), so that steps 7 and 8 cut their templates from it; None when nothing changed.
+        """
+        if self.sunlight is None or self._bright_prev is None or self._bright is None:
+            return None
+        uv0, uv1 = tracks.uv_prev_px, tracks.uv_curr_px
+        if speed is not None and speed.ok and len(speed.inlier_mask) == len(uv0):  # the consensus's tokens only
+            uv0, uv1 = uv0[speed.inlier_mask], uv1[speed.inlier_mask]
+        share, rms = moving_light_share(self._bright_prev, self._bright, uv0, uv1, self.config.speed_templates.size_px)
+        if not self.sunlight.observe(share, rms):
+            return None
+        img, reason = self._tracking_image(frame)
+        if reason is not None:  # no texture left without the sunlight: keep the image as it was
+            self.sunlight.active = not self.sunlight.active
+            return None
+        self.sunlight_events.append(SunlightEvent(self._n, frame.t_s, self.sunlight.active, self.sunlight.share))
+        return img
+
+    def sunlight_summary(self) -> dict:
+        """What ``summary.json`` says of the sunlight: frames it was taken out of, and when it changed."""
+        return {"opening_px": self.config.bandpass.sunlight_px if self.sunlight is not None else 0,
+                "frames_removed": int(self._sunlit_frames),
+                "changes": [{"frame": e.frame, "t_s": e.t_s, "removed": e.removed, "share": e.share}
+                            for e in self.sunlight_events]}
+
+    def sunlight_warnings(self) -> list[str]:
+        """One line for the run's warnings when the sunlight was taken out of any frame."""
+        if not self._sunlit_frames:
+            return []
+        first = next(e for e in self.sunlight_events if e.removed)
+        return [f"bright light that does not move with the seabed (sunlight caustics) was seen from t = "
+                f"{first.t_s:.1f} s: bright structures narrower than {self.config.bandpass.sunlight_px} px were "
+                f"removed from {self._sunlit_frames} of {self._n} frames before tracking ([bandpass] sunlight_px; "
+                "0 turns this off)"]
 
     # ------------------------------------------------------------------ step 1
     def _measure_altitude(self, frame: Frame, att: tuple[float, float]) -> AltitudeEstimate:

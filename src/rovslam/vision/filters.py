@@ -28,6 +28,7 @@ call allocates only the arrays it returns: every image-sized allocation costs pa
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import cv2
@@ -79,24 +80,69 @@ def template_channel(image: np.ndarray, channel: str) -> np.ndarray:
     return img[:, :, _CHANNEL_INDEX[channel]].astype(np.float32)
 
 
+_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+OCTAGON_FROM_PX = 16
+"""Openings this wide and wider use the octagon (:func:`_open_octagon`); narrower ones OpenCV's disc."""
+
+
 @lru_cache(maxsize=8)
 def _disc(size_px: int) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px))
 
 
-def remove_specks(channel_img: np.ndarray, size_px: int) -> np.ndarray:
-    """Grey-level opening with a ``size_px`` disc: removes bright specks smaller than it.
+def _open(img: np.ndarray, size_px: int) -> np.ndarray:
+    """Grey-level opening by a disc of width ``size_px`` (exact below ``OCTAGON_FROM_PX``, an octagon from it on)."""
+    if size_px >= OCTAGON_FROM_PX:
+        return _open_octagon(img, size_px)
+    return cv2.morphologyEx(img, cv2.MORPH_OPEN, _disc(int(size_px)))
 
-    Marine snow (bright particles in the water, not on the seabed) makes the highest local
-    variance in turbid footage, and a template on a particle follows the water, not the
-    seabed. An opening (erosion then dilation) removes bright blobs narrower than the disc
-    and keeps larger structures, so the templates land on the seabed. ``size_px < 2``
-    returns the image unchanged. ``(H, W) float32 -> (H, W) float32``.
+
+@lru_cache(maxsize=8)
+def _octagon(size_px: int) -> tuple[np.ndarray, int]:
+    """The disc of diameter ``size_px`` as a square and a diamond: ``(square kernel, diamond radius)``.
+
+    An octagon is the Minkowski sum of a square of half-side ``b`` and a diamond of radius
+    ``a`` (``a`` 3x3 crosses); ``b = a / sqrt(2)`` makes its eight sides about equal, so it is
+    within a pixel of the disc of the same width ``2 (a + b) + 1``.
+    """
+    radius = (int(size_px) - 1) / 2.0
+    a = int(round(radius / (1.0 + math.sqrt(0.5))))
+    b = max(int(round(radius - a)), 0)
+    return cv2.getStructuringElement(cv2.MORPH_RECT, (2 * b + 1, 2 * b + 1)), a
+
+
+def _open_octagon(img: np.ndarray, size_px: int) -> np.ndarray:
+    """Grey-level opening by the octagon of width ``size_px`` (a new array, the input's dtype).
+
+    An erosion by a Minkowski sum is the erosions by its terms in turn (and so the dilation),
+    so the octagon costs a square's separable passes and ``a`` 3x3 passes: 0.2 ms at 31 px on
+    a 360x272 frame, where OpenCV's disc kernel costs 1.6 ms (it visits every kernel pixel;
+    at 7 px both cost 0.07 ms, and the exact disc is kept there).
+    """
+    square, a = _octagon(int(size_px))
+    out = cv2.erode(img, square)
+    if a:
+        out = cv2.erode(out, _CROSS, iterations=a)
+        out = cv2.dilate(out, _CROSS, iterations=a)
+    return cv2.dilate(out, square)
+
+
+def remove_specks(channel_img: np.ndarray, size_px: int) -> np.ndarray:
+    """Grey-level opening with a ``size_px`` disc: removes bright structures narrower than it.
+
+    Two kinds of light are not the seabed and are only ever *added* to it: marine snow (bright
+    particles in the water, which make the highest local variance in turbid footage and follow
+    the water) and, in shallow water, sunlight caustics (a bright network of lines a few
+    centimetres wide that drifts and flickers with the waves: a template on it follows the
+    waves, and one that holds a piece of it is not found again). An opening (erosion then
+    dilation) removes bright structures the octagon does not fit in and keeps the dark ones
+    (stones, holes, shadows) and larger bright areas, so the templates land on the seabed.
+    ``size_px < 2`` returns the image unchanged. ``(H, W) float32 -> (H, W) float32``.
     """
     img = _check_image(channel_img, "remove_specks")
     if size_px < 2:
         return img
-    return cv2.morphologyEx(img, cv2.MORPH_OPEN, _disc(int(size_px)))
+    return _open(img, int(size_px))
 
 
 def despeckled_channel(image: np.ndarray, channel: str, despeckle_px: int) -> np.ndarray:
@@ -107,18 +153,32 @@ def despeckled_channel(image: np.ndarray, channel: str, despeckle_px: int) -> np
     moves a quarter of the bytes: 3 ms instead of 8 ms on a 1920x1080 frame.
     ``(H, W, 3) uint8`` RGB or ``(H, W) uint8`` -> ``(H, W) float32``, a new array.
     """
+    return despeckled_channels(image, channel, despeckle_px, 0)[0]
+
+
+def despeckled_channels(
+    image: np.ndarray, channel: str, despeckle_px: int, wide_px: int
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The despeckled channel and, when ``wide_px >= 2``, that channel opened again with ``wide_px``.
+
+    Both openings are taken on 8 bits (see :func:`despeckled_channel`); the second is what
+    :mod:`rovslam.sunlight` tracks on under sunlight caustics, and the difference of the two
+    is the bright structures between the two widths. Returns ``((H, W) float32, (H, W) float32 or None)``.
+    """
     if channel not in CHANNELS or np.asarray(image).dtype != np.uint8:
-        return remove_specks(template_channel(image, channel), despeckle_px)  # its errors, its messages
+        narrow = remove_specks(template_channel(image, channel), despeckle_px)  # its errors, its messages
+        return narrow, (remove_specks(narrow, wide_px) if wide_px >= 2 else None)
     img = np.asarray(image)
     if img.ndim == 3 and img.shape[2] == 3:
         chan = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if channel == "grey" else img[:, :, _CHANNEL_INDEX[channel]]
     elif img.ndim == 2:
         chan = img
     else:
-        return template_channel(img, channel)  # raises with the shape
+        return template_channel(img, channel), None  # raises with the shape
     if despeckle_px >= 2:
-        chan = cv2.morphologyEx(np.ascontiguousarray(chan), cv2.MORPH_OPEN, _disc(int(despeckle_px)))
-    return chan.astype(np.float32)
+        chan = _open(np.ascontiguousarray(chan), int(despeckle_px))
+    wide = _open(np.ascontiguousarray(chan), int(wide_px)).astype(np.float32) if wide_px >= 2 else None
+    return chan.astype(np.float32), wide
 
 
 @lru_cache(maxsize=32)

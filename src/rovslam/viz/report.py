@@ -293,9 +293,10 @@ def write_report(
         rep.warnings.append(f"Heading: {head.label}.")
     if res.summary.get("interrupted"):
         rep.warnings.append("The run was interrupted: these are the frames processed before it stopped.")
-    map_use = res.summary.get("map_use")
-    if isinstance(map_use, dict):
-        rep.warnings += [w[:1].upper() + w[1:] + "." for w in map_use.get("warnings", []) if isinstance(w, str)]
+    for key in ("sunlight", "map_use"):  # what the run noticed about the seabed's appearance
+        part = res.summary.get(key)
+        if isinstance(part, dict):
+            rep.warnings += [w[:1].upper() + w[1:] + "." for w in part.get("warnings", []) if isinstance(w, str)]
     rep.warnings += notes
     figs = [
         ("Figure 2", plots.plot_altitude_speed(res, out / "altitude_speed.png", alt)),

@@ -1,0 +1,137 @@
+"""Sunlight caustics: the moving share of the bright structures, the monitor's switch, the run it fixes."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from rovslam.config import BandpassConfig, RunConfig
+from rovslam.eval.metrics import evaluate_run
+from rovslam.runner import run_sequence
+from rovslam.sim import SCENARIOS, simulate
+from rovslam.sunlight import (
+    MIN_BRIGHT_RMS,
+    SUNLIGHT_OFF_SHARE,
+    SUNLIGHT_ON_SHARE,
+    SUNLIGHT_SMOOTHING,
+    SunlightMonitor,
+    moving_light_share,
+)
+
+
+def _bright(seed: int, shape=(200, 260)) -> np.ndarray:
+    """Bright specks on black: ``(H, W) float32``, what the two openings' difference looks like."""
+    rng = np.random.default_rng(seed)
+    img = np.zeros(shape, np.float32)
+    for _ in range(700):
+        r, c = rng.integers(5, shape[0] - 5), rng.integers(5, shape[1] - 5)
+        img[r - 2:r + 3, c - 1:c + 2] = rng.uniform(20.0, 80.0)
+    return cv2.GaussianBlur(img, (0, 0), 1.0)
+
+
+def _shift(img: np.ndarray, du: float, dv: float) -> np.ndarray:
+    return cv2.warpAffine(img, np.float32([[1, 0, du], [0, 1, dv]]), img.shape[::-1], flags=cv2.INTER_CUBIC)
+
+
+def test_bright_structures_that_moved_with_the_tokens_have_no_moving_share():
+    prev = _bright(1)
+    rng = np.random.default_rng(2)
+    uv_prev = rng.uniform([40, 40], [220, 160], size=(8, 2))
+    du, dv = 3.4, -2.2
+    curr = _shift(prev, du, dv)
+    share, rms = moving_light_share(prev, curr, uv_prev, uv_prev + [du, dv])
+    assert share < 0.02  # interpolation only
+    assert rms > MIN_BRIGHT_RMS
+    # The same specks, but the light moved 5 px more than the seabed (a drifting caustic).
+    share_drift, _ = moving_light_share(prev, _shift(prev, du + 5.0, dv), uv_prev, uv_prev + [du, dv])
+    assert share_drift > 0.5
+    # Unrelated light (a flickering network): about 1.
+    share_new, _ = moving_light_share(prev, _bright(3), uv_prev, uv_prev + [du, dv])
+    assert 0.7 < share_new < 1.3
+
+
+def test_moving_share_ignores_lost_tokens_and_one_wrong_match():
+    prev = _bright(4)
+    rng = np.random.default_rng(5)
+    uv_prev = rng.uniform([40, 40], [220, 160], size=(7, 2))
+    curr = _shift(prev, 2.0, 1.0)
+    uv_curr = uv_prev + [2.0, 1.0]
+    uv_curr[0] = [np.nan, np.nan]  # lost
+    uv_curr[1] += [30.0, -20.0]  # matched at the wrong place
+    share, _ = moving_light_share(prev, curr, uv_prev, uv_curr)
+    assert share < 0.02
+    assert np.isnan(moving_light_share(prev, curr, np.zeros((0, 2)), np.zeros((0, 2)))[0])
+    assert np.isnan(moving_light_share(prev, curr, uv_prev[:1], np.full((1, 2), np.nan))[0])
+
+
+def test_monitor_switches_on_after_the_smoothed_share_passes_and_off_with_hysteresis():
+    mon = SunlightMonitor()
+    for _ in range(50):  # the seabed's own specks
+        assert not mon.observe(0.012, 20.0)
+    start = 0.012 * (1 - (1 - SUNLIGHT_SMOOTHING) ** 50)  # smoothed from 0
+    assert not mon.active and mon.share == pytest.approx(start, rel=1e-9)
+    # Sunlight: the smoothed share crosses the on-threshold after n frames of 0.08.
+    n_on = next(k for k in range(1, 100)
+                if 0.08 + (start - 0.08) * (1 - SUNLIGHT_SMOOTHING) ** k > SUNLIGHT_ON_SHARE)
+    flips = [mon.observe(0.08, 20.0) for _ in range(n_on)]
+    assert flips == [False] * (n_on - 1) + [True] and mon.active
+    # Faint structures or no tokens change nothing.
+    share = mon.share
+    assert not mon.observe(0.9, MIN_BRIGHT_RMS / 2) and not mon.observe(float("nan"), 20.0)
+    assert mon.share == share
+    # Between the thresholds it stays on; below the off-threshold it goes off.
+    for _ in range(40):
+        assert not mon.observe((SUNLIGHT_ON_SHARE + SUNLIGHT_OFF_SHARE) / 2, 20.0)
+    assert mon.active
+    flips = [mon.observe(0.0, 20.0) for _ in range(40)]
+    assert flips.count(True) == 1 and not mon.active
+    with pytest.raises(ValueError):
+        SunlightMonitor(on_share=0.01, off_share=0.02)
+
+
+@pytest.fixture(scope="module")
+def swell_runs(tmp_path_factory):
+    """The swell preset's first 24 s with the sunlight taken out (default) and left in, and the control."""
+    base = SCENARIOS["swell"]
+    SCENARIOS["swell-no-caustics"] = dataclasses.replace(
+        base, name="swell-no-caustics", lighting=dataclasses.replace(base.lighting, caustics=None))
+    root = tmp_path_factory.mktemp("sunlight")
+    runs = {}
+    try:
+        for name in ("swell", "swell-no-caustics"):
+            simulate(name, root / name, frames=120, seed=0)
+        left_in = RunConfig(bandpass=BandpassConfig(sunlight_px=0))
+        for key, seq, cfg in (("out", "swell", RunConfig()), ("in", "swell", left_in),
+                              ("control", "swell-no-caustics", RunConfig())):
+            run_sequence(root / seq, root / key, cfg)
+            runs[key] = (json.loads((root / key / "summary.json").read_text()),
+                         evaluate_run(root / key, root / seq / "groundtruth.csv"))
+    finally:
+        del SCENARIOS["swell-no-caustics"]
+    return runs
+
+
+def test_the_sunlight_is_taken_out_early_and_the_dive_keeps_its_accuracy(swell_runs):
+    out_summary, out_eval = swell_runs["out"]
+    in_summary, in_eval = swell_runs["in"]
+    sun = out_summary["sunlight"]
+    # Taken out within 5 s (the check matrix: 2.4 to 4.6 s into its three swell dives; this one 4.6 s).
+    assert sun["opening_px"] == 31 and sun["changes"][0]["removed"] and sun["changes"][0]["frame"] <= 25
+    assert len(sun["changes"]) == 1 and sun["frames_removed"] == 120 - sun["changes"][0]["frame"]  # then stays
+    assert len(sun["warnings"]) == 1 and "sunlight caustics" in sun["warnings"][0]
+    assert in_summary["sunlight"]["frames_removed"] == 0
+    # The sunlight left in: the landmarks are rarely found again and the error grows.
+    assert in_summary["map_use"]["found_fraction"] < 0.15
+    assert len(in_summary["map_use"]["warnings"]) == 1 and "caustics" in in_summary["map_use"]["warnings"][0]
+    assert out_summary["map_use"]["found_fraction"] > 0.3
+    assert out_eval.slam.ate_rmse_m < 0.5 * in_eval.slam.ate_rmse_m
+
+
+def test_a_dive_without_sunlight_keeps_the_narrow_opening(swell_runs):
+    summary, _ = swell_runs["control"]
+    assert summary["sunlight"] == {"opening_px": 31, "frames_removed": 0, "changes": [], "warnings": []}
+    assert summary["map_use"]["found_fraction"] > 0.6 and summary["map_use"]["warnings"] == []
