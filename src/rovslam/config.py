@@ -115,8 +115,9 @@ class BandpassConfig(_Checked):
     sigma_coarse_px: float = _num(4.0, gt=0)  # removes wavelengths longer than ~2*pi*sigma_coarse (illumination)
     channel: Channel = "green"  # red is reserved for the lasers
     despeckle_px: int = _num(7, ge=0)  # >= 2: remove bright specks (marine snow) narrower than this first; 0: off (paper)
-    # When the landmarks in view stop being found again (sunlight caustics: rovslam.sunlight), bright
-    # structures narrower than this are removed from then on (31 px: 6 cm at 500 px/m); 0: never.
+    # While bright structures around the speed tokens do not move with them (sunlight caustics:
+    # rovslam.sunlight), those narrower than this are removed (31 px: 6 cm at 500 px/m); 0 or
+    # not above despeckle_px: never.
     sunlight_px: int = _num(31, ge=0)
     # A frame whose band-passed standard deviation is below this (a dark or low-contrast camera) is
     # scaled up to it before the local-variance thresholds, as a camera's gain would; 0: off (paper).
