@@ -66,6 +66,8 @@ def test_missing_file(tmp_path):
         ("[bandpass]\ndespeckle_px = 1\n", ["despeckle_px = 1", "0 (off) or >= 2"]),
         ("[bandpass]\nsunlight_px = 1\n", ["sunlight_px = 1", "0 (off) or >= 2"]),
         ("[bandpass]\nsunlight_px = -31\n", ["[bandpass] sunlight_px = -31", ">= 0"]),
+        ("[bandpass]\nsunlight_px = 100001\n", ["[bandpass] sunlight_px = 100001", "<= 255"]),
+        ("[bandpass]\ndespeckle_px = 100001\n", ["[bandpass] despeckle_px = 100001", "<= 255"]),
         ("[bandpass]\nsigma_fine_px = 0\n", ["[bandpass] sigma_fine_px = 0.0", "> 0"]),
         ("[bandpass]\nsigma_fine_px = 5.0\n", ["sigma_coarse_px = 4.0", "larger than sigma_fine_px"]),
         ("[tracker]\nmin_correlation = -1\n", ["[tracker] min_correlation = -1.0", "> 0 and <= 1"]),

@@ -95,6 +95,9 @@ def _check_value(table: str, key: str, value: Any, tp: Any, meta: typing.Mapping
             raise ConfigError(f"{where}: out of range, must be {' and '.join(p for p in parts if p)}")
 
 
+MAX_OPENING_PX = 255  # widest bright-structure opening (despeckle_px, sunlight_px)
+
+
 @dataclass(frozen=True)
 class BandpassConfig(_Checked):
     """2-D band-pass filter of Misu et al. (difference of Gaussians) before the local variance.
@@ -114,11 +117,13 @@ class BandpassConfig(_Checked):
     sigma_fine_px: float = _num(1.0, gt=0)  # removes wavelengths shorter than ~2*pi*sigma_fine (noise)
     sigma_coarse_px: float = _num(4.0, gt=0)  # removes wavelengths longer than ~2*pi*sigma_coarse (illumination)
     channel: Channel = "green"  # red is reserved for the lasers
-    despeckle_px: int = _num(7, ge=0)  # >= 2: remove bright specks (marine snow) narrower than this first; 0: off (paper)
+    # >= 2: remove bright specks (marine snow) narrower than this first; 0: off (paper). At most
+    # MAX_OPENING_PX: a disc kernel's memory grows with its square (100001 px asked for 10 GB).
+    despeckle_px: int = _num(7, ge=0, le=MAX_OPENING_PX)
     # While bright structures around the speed tokens do not move with them (sunlight caustics:
     # rovslam.sunlight), those narrower than this are removed (31 px: 6 cm at 500 px/m); 0 or
     # not above despeckle_px: never.
-    sunlight_px: int = _num(31, ge=0)
+    sunlight_px: int = _num(31, ge=0, le=MAX_OPENING_PX)
     # A frame whose band-passed standard deviation is below this (a dark or low-contrast camera) is
     # scaled up to it before the local-variance thresholds, as a camera's gain would; 0: off (paper).
     # Correlation does not see the gain; the matrix presets' frames all lie above 2.0.
