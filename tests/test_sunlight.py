@@ -43,14 +43,13 @@ def test_bright_structures_that_moved_with_the_tokens_have_no_moving_share():
     uv_prev = rng.uniform([40, 40], [220, 160], size=(8, 2))
     du, dv = 3.4, -2.2
     curr = _shift(prev, du, dv)
-    share, rms = moving_light_share(prev, curr, uv_prev, uv_prev + [du, dv])
+    share = moving_light_share(prev, curr, uv_prev, uv_prev + [du, dv])
     assert share < 0.02  # interpolation only
-    assert rms > MIN_BRIGHT_RMS
     # The same specks, but the light moved 5 px more than the seabed (a drifting caustic).
-    share_drift, _ = moving_light_share(prev, _shift(prev, du + 5.0, dv), uv_prev, uv_prev + [du, dv])
+    share_drift = moving_light_share(prev, _shift(prev, du + 5.0, dv), uv_prev, uv_prev + [du, dv])
     assert share_drift > 0.5
     # Unrelated light (a flickering network): about 1.
-    share_new, _ = moving_light_share(prev, _bright(3), uv_prev, uv_prev + [du, dv])
+    share_new = moving_light_share(prev, _bright(3), uv_prev, uv_prev + [du, dv])
     assert 0.7 < share_new < 1.3
 
 
@@ -62,32 +61,35 @@ def test_moving_share_ignores_lost_tokens_and_one_wrong_match():
     uv_curr = uv_prev + [2.0, 1.0]
     uv_curr[0] = [np.nan, np.nan]  # lost
     uv_curr[1] += [30.0, -20.0]  # matched at the wrong place
-    share, _ = moving_light_share(prev, curr, uv_prev, uv_curr)
+    share = moving_light_share(prev, curr, uv_prev, uv_curr)
     assert share < 0.02
-    assert np.isnan(moving_light_share(prev, curr, np.zeros((0, 2)), np.zeros((0, 2)))[0])
-    assert np.isnan(moving_light_share(prev, curr, uv_prev[:1], np.full((1, 2), np.nan))[0])
+    assert np.isnan(moving_light_share(prev, curr, np.zeros((0, 2)), np.zeros((0, 2))))
+    assert np.isnan(moving_light_share(prev, curr, uv_prev[:1], np.full((1, 2), np.nan)))
+    # Faint bright structures say nothing: the same light scaled below MIN_BRIGHT_RMS gives no share.
+    faint = prev * np.float32(0.1 * MIN_BRIGHT_RMS / np.sqrt(np.mean(prev**2)))
+    assert np.isnan(moving_light_share(faint, _bright(3) * faint.max() / _bright(3).max(), uv_prev, uv_prev))
 
 
 def test_monitor_switches_on_after_the_smoothed_share_passes_and_off_with_hysteresis():
     mon = SunlightMonitor()
     for _ in range(50):  # the seabed's own specks
-        assert not mon.observe(0.012, 20.0)
+        assert not mon.observe(0.012)
     start = 0.012 * (1 - (1 - SUNLIGHT_SMOOTHING) ** 50)  # smoothed from 0
     assert not mon.active and mon.share == pytest.approx(start, rel=1e-9)
     # Sunlight: the smoothed share crosses the on-threshold after n frames of 0.08.
     n_on = next(k for k in range(1, 100)
                 if 0.08 + (start - 0.08) * (1 - SUNLIGHT_SMOOTHING) ** k > SUNLIGHT_ON_SHARE)
-    flips = [mon.observe(0.08, 20.0) for _ in range(n_on)]
+    flips = [mon.observe(0.08) for _ in range(n_on)]
     assert flips == [False] * (n_on - 1) + [True] and mon.active
-    # Faint structures or no tokens change nothing.
+    # No token with bright structures (a NaN share) changes nothing.
     share = mon.share
-    assert not mon.observe(0.9, MIN_BRIGHT_RMS / 2) and not mon.observe(float("nan"), 20.0)
+    assert not mon.observe(float("nan"))
     assert mon.share == share
     # Between the thresholds it stays on; below the off-threshold it goes off.
     for _ in range(40):
-        assert not mon.observe((SUNLIGHT_ON_SHARE + SUNLIGHT_OFF_SHARE) / 2, 20.0)
+        assert not mon.observe((SUNLIGHT_ON_SHARE + SUNLIGHT_OFF_SHARE) / 2)
     assert mon.active
-    flips = [mon.observe(0.0, 20.0) for _ in range(40)]
+    flips = [mon.observe(0.0) for _ in range(40)]
     assert flips.count(True) == 1 and not mon.active
     with pytest.raises(ValueError):
         SunlightMonitor(on_share=0.01, off_share=0.02)

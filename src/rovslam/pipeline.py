@@ -259,8 +259,8 @@ class SlamPipeline:
         uv0, uv1 = tracks.uv_prev_px, tracks.uv_curr_px
         if speed is not None and speed.ok and len(speed.inlier_mask) == len(uv0):  # the consensus's tokens only
             uv0, uv1 = uv0[speed.inlier_mask], uv1[speed.inlier_mask]
-        share, rms = moving_light_share(self._bright_prev, self._bright, uv0, uv1, self.config.speed_templates.size_px)
-        if not self.sunlight.observe(share, rms):
+        share = moving_light_share(self._bright_prev, self._bright, uv0, uv1, self.config.speed_templates.size_px)
+        if not self.sunlight.observe(share):
             return None
         img, reason = self._tracking_image(frame)
         if reason is not None:  # no texture left without the sunlight: keep the image as it was

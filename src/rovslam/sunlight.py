@@ -44,7 +44,7 @@ MIN_BRIGHT_RMS = 10.0  # grey levels: a token window with fainter bright structu
 def moving_light_share(
     bright_prev: np.ndarray, bright_curr: np.ndarray, uv_prev_px: np.ndarray, uv_curr_px: np.ndarray,
     size_px: int = 16,
-) -> tuple[float, float]:
+) -> float:
     """How much of the bright structures around the tokens did not move with them.
 
     Args:
@@ -55,17 +55,17 @@ def moving_light_share(
         size_px: side of the compared windows.
 
     Returns:
-        ``(share, rms)``: the median over the tokens of ``sum (Bc - Bp)^2 / sum (Bc^2 + Bp^2)``
-        over each token's windows (0 when the bright structures moved with the seabed, about 1
-        when they are unrelated) and their RMS in grey levels, over the windows whose RMS reaches
-        ``MIN_BRIGHT_RMS``; ``(nan, 0)`` without such a window.
+        The median over the tokens of ``sum (Bc - Bp)^2 / sum (Bc^2 + Bp^2)`` over each token's
+        windows (0 when the bright structures moved with the seabed, about 1 when they are
+        unrelated), over the tokens whose windows' RMS reaches ``MIN_BRIGHT_RMS`` (fainter ones
+        say nothing); NaN without such a token.
     """
     p = np.asarray(uv_prev_px, dtype=float).reshape(-1, 2)
     q = np.asarray(uv_curr_px, dtype=float).reshape(-1, 2)
     ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(q), axis=1)
     p, q = p[ok], q[ok]
     if len(p) == 0:
-        return float("nan"), 0.0
+        return float("nan")
     # Each window follows its token with the frame's turn and scale (a vehicle turning or climbing
     # turns and scales the seabed's specks too): the similarity that best maps the tokens, in least squares.
     half = (size_px - 1) / 2.0
@@ -77,10 +77,10 @@ def moving_light_share(
     total = np.sum(wa * wa, axis=1) + np.sum(wb * wb, axis=1)
     keep = total >= 2.0 * size_px * size_px * MIN_BRIGHT_RMS**2  # a window with no bright structure says nothing
     if not keep.any():
-        return float("nan"), 0.0
+        return float("nan")
     shares = np.sum((wb - wa) ** 2, axis=1)[keep] / total[keep]
     # The median over the tokens: one token matched wrongly (or half out of the frame) is not the light.
-    return float(np.median(shares)), float(np.sqrt(np.mean(total[keep]) / (2.0 * size_px * size_px)))
+    return float(np.median(shares))
 
 
 def _similarity(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -135,18 +135,18 @@ class SunlightMonitor:
     """
 
     def __init__(self, on_share: float = SUNLIGHT_ON_SHARE, off_share: float = SUNLIGHT_OFF_SHARE,
-                 smoothing: float = SUNLIGHT_SMOOTHING, min_rms: float = MIN_BRIGHT_RMS):
-        if not (0.0 < off_share < on_share and 0.0 < smoothing <= 1.0 and min_rms >= 0.0):
-            raise ValueError(f"need 0 < off_share < on_share, smoothing in (0, 1], min_rms >= 0; got "
-                             f"{off_share}, {on_share}, {smoothing}, {min_rms}")
+                 smoothing: float = SUNLIGHT_SMOOTHING):
+        if not (0.0 < off_share < on_share and 0.0 < smoothing <= 1.0):
+            raise ValueError(f"need 0 < off_share < on_share and smoothing in (0, 1]; got "
+                             f"{off_share}, {on_share}, {smoothing}")
         self.on_share, self.off_share = float(on_share), float(off_share)
-        self.smoothing, self.min_rms = float(smoothing), float(min_rms)
+        self.smoothing = float(smoothing)
         self.share = 0.0
         self.active = False
 
-    def observe(self, share: float, rms: float) -> bool:
-        """Fold one frame in (a NaN share or faint structures change nothing); True when :attr:`active` flipped."""
-        if not (np.isfinite(share) and rms >= self.min_rms):
+    def observe(self, share: float) -> bool:
+        """Fold one frame in (a NaN share changes nothing); True when :attr:`active` flipped."""
+        if not np.isfinite(share):
             return False
         self.share += self.smoothing * (float(share) - self.share)
         if not self.active and self.share > self.on_share:
