@@ -65,3 +65,27 @@ def test_the_isam2_back_end_gives_the_online_estimate_and_writes_the_smoothed_di
     gap = np.linalg.norm(a.xy_m - b.xy_m, axis=1)
     sigma = np.sqrt(np.maximum(a.cov_m2[:, 0, 0], a.cov_m2[:, 1, 1]))
     assert np.all(gap[1:] <= 3.0 * sigma[1:] + 1e-4)
+
+
+def test_a_smoothed_dive_with_a_lasting_altimeter_error_stays_inside_its_bounds(tmp_path):
+    """80 s of ``turbid-relief`` (seed 0): its laser spots, smeared by the video codec, read the
+    altitude about 0.8 % long all dive, a scale of the whole estimate that no image can see. The
+    graph holds no such error; the files written carry it (``[slam] altitude_bias_sigma_m``) with
+    the compass's constant error. Measured: 98.3 % inside 2-sigma, against 29.6 % with the
+    graph's marginals alone."""
+    from rovslam.io.sequence import read_groundtruth
+    from rovslam.slam.smoother import Isam2Smoother
+
+    simulate("turbid-relief", tmp_path / "seq", frames=400, seed=0)
+    run_sequence(tmp_path / "seq", tmp_path / "run")
+    smooth_run(tmp_path / "run")
+    ev = evaluate_run(tmp_path / "run", tmp_path / "seq" / "groundtruth.csv")
+    assert ev.smoothed_consistency.coverage_2sigma >= 0.95
+    graph = Isam2Smoother()
+    for meas in read_measurements(tmp_path / "run"):
+        graph.add_frame(meas)
+    res = graph.smoothed()
+    gt = read_groundtruth(tmp_path / "seq" / "groundtruth.csv")
+    err = res.xy_m - np.column_stack([gt.x_m, gt.y_m])
+    nees = np.einsum("ni,nij,nj->n", err[1:], np.linalg.inv(res.cov_xy_m2[1:]), err[1:])
+    assert np.mean(nees <= 4.0) < 0.5

@@ -77,6 +77,7 @@ def test_records_hold_frozen_float_copies_and_compare_nan_equal():
         (dict(heading_step_sigma_rad=0.0), "heading_step_sigma_rad must be > 0"),
         (dict(altitude_m=0.0), "altitude_m must be > 0"),
         (dict(focal_px=np.nan), "focal_px"),
+        (dict(attitude_sigma_rad=-0.001), "attitude_sigma_rad must be >= 0"),
         (dict(landmarks=(LandmarkMeasurement(1, "track", [1.0, 2.0], np.eye(2)),) * 2), "observed twice"),
         (dict(landmarks=("not an observation",)), "LandmarkMeasurement"),
     ],
@@ -121,6 +122,21 @@ def test_a_survey_round_trips_exactly(tmp_path, survey):
     assert back == frames  # bit for bit, NaN fields included
     header = (tmp_path / MEASUREMENTS_FILE).read_text().splitlines()[0]
     assert header.startswith("frame,t_s,dt_s,surge_mps,sway_mps")
+
+
+def test_the_ahrs_accuracy_round_trips_and_an_earlier_run_without_it_reads_as_none(tmp_path, survey):
+    frames = [frame(index=k, t_s=0.2 * k, attitude_sigma_rad=0.0035 if k % 2 else 0.0, landmarks=()) for k in range(1, 5)]
+    write_measurements(tmp_path, frames)
+    back = read_measurements(tmp_path)
+    assert [f.attitude_sigma_rad for f in back] == [0.0035, 0.0, 0.0035, 0.0]
+    # A run by an earlier rovslam: the same file without the column (it had no such value).
+    path = tmp_path / MEASUREMENTS_FILE
+    lines = path.read_text().splitlines()
+    assert lines[0].endswith(",attitude_sigma_rad")
+    path.write_text("\n".join(line.rsplit(",", 1)[0] for line in lines) + "\n")
+    old = read_measurements(tmp_path)
+    assert [f.attitude_sigma_rad for f in old] == [0.0] * 4
+    assert [f.t_s for f in old] == [f.t_s for f in frames]
 
 
 @settings(max_examples=40, deadline=None)

@@ -20,6 +20,7 @@ from rovslam.config import SlamConfig
 from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError
 from rovslam.io.measurements import write_measurements
 from rovslam.slam import EkfSlam, observation_noise_px2, observe_mn
+from rovslam.slam.apparent import apparent_frame_cov_m2
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 from rovslam.slam.smoother import Isam2Smoother, SmootherConfig
 from synth import SurveyNoise, crosshatch_track, landmark_field, lawnmower_track, survey_measurements
@@ -372,7 +373,15 @@ def test_smooth_command_writes_the_smoothed_files(tmp_path):
     assert traj.dtype.names == ("t_s", "x_m", "y_m", "var_x_m2", "cov_xy_m2", "var_y_m2", "heading_rad")
     _, _, direct = smooth(sv.frames, SmootherConfig())  # no config.toml: the default drift model
     np.testing.assert_allclose(np.column_stack([traj["x_m"], traj["y_m"]]), direct.xy_m, atol=1e-8)
-    np.testing.assert_allclose(traj["var_x_m2"], direct.cov_xy_m2[:, 0, 0], rtol=1e-6)
+    # The graph's marginals plus what the whole dive shares: the compass's error at the start
+    # (0.5 degree by default) turns the estimate about the origin, the altimeter's lasting error
+    # (1 cm) scales it (no AHRS: no tilt term).
+    turned = direct.cov_xy_m2 + apparent_frame_cov_m2(direct.xy_m, direct.altitude_m, 0.0, 0.0087,
+                                                      0.01 / direct.altitude_m)
+    np.testing.assert_allclose(traj["var_x_m2"], turned[:, 0, 0], rtol=1e-4)
+    np.testing.assert_allclose(traj["cov_xy_m2"], turned[:, 0, 1], rtol=1e-4, atol=1e-12)
+    far = np.argmax(np.hypot(*direct.xy_m.T))
+    assert traj["var_y_m2"][far] > 1.1 * direct.cov_xy_m2[far, 1, 1]  # they matter away from the start
     tum = np.loadtxt(tmp_path / "trajectory_smoothed.tum")
     assert tum.shape == (len(sv.frames), 8)
     np.testing.assert_allclose(tum[:, 3], 1.31)

@@ -38,6 +38,7 @@ from rovslam.landmarks import LandmarkRecord, most_distinctive, oriented_patch
 from rovslam.odometry import SpeedEstimator, SpeedMeasurement
 from rovslam.shutter import mn_at_frame_time, mn_rate_px_s, tokens_at_frame_time
 from rovslam.slam import EkfSlam
+from rovslam.slam.apparent import apparent_frame_cov_m2, shared_heading_sigma_rad
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 from rovslam.slam.motion import motion_step_m
 from rovslam.slam.observation import observation_noise_px2, pixels_to_mn
@@ -163,6 +164,7 @@ class SlamPipeline:
         self._prev_t_s: float | None = None
         self._prev_altitude_m: float | None = None
         self._prev_attitude = (0.0, 0.0)
+        self._last_meas: FrameMeasurements | None = None  # the latest frame's (landmark_rows: the apparent frame)
         self._last_speed_mps: np.ndarray | None = None  # (surge, sway) of the last good step
         self._dr = np.zeros(2)
         self._n = 0  # frames processed (not skipped)
@@ -644,13 +646,14 @@ class SlamPipeline:
         """
         observations = tuple(self._full_res(o) for o in observations)
         meas = self._measurements(frame, dt_s, heading, altitude_m, altitude, speed, observations)
+        self._last_meas = meas
         xy, cov, heading_map = self.ekf.vehicle_xy_m, self.ekf.vehicle_cov_m2, self.ekf.map_heading_rad(heading.heading_rad)
         if self.smoother is not None:
             est = self.smoother.add_frame(meas)
             xy, cov, heading_map = est.xy_m, est.cov_xy_m2, est.heading_rad
         return FrameResult(
             index=frame.index, t_s=frame.t_s, dt_s=dt_s, x_m=float(xy[0]), y_m=float(xy[1]),
-            cov_xy_m2=self._reported_cov(cov, xy, altitude_m, frame.has_attitude),
+            cov_xy_m2=self._reported_cov(cov, xy, meas),
             heading_rad=heading_map, altitude_m=altitude_m,
             altitude_sigma_m=altitude.sigma_m if altitude else math.nan,
             altitude_source=altitude.source if altitude else "none",
@@ -684,6 +687,7 @@ class SlamPipeline:
             heading_step_rad=speed.dpsi_rad if turn else math.nan,
             heading_step_sigma_rad=speed.dpsi_sigma_rad if turn else math.nan,
             altitude_m=altitude_m, altitude_sigma_m=sigma_z, focal_px=self.scale.full.focal_px, landmarks=landmarks,
+            attitude_sigma_rad=self.config.odometry.attitude_sigma_rad if frame.has_attitude else 0.0,
         )
 
     def _landmark_measurement(self, o: Observation, altitude_m: float, sigma_z: float) -> LandmarkMeasurement:
@@ -703,23 +707,20 @@ class SlamPipeline:
             return o
         return dataclasses.replace(o, uv_px=self.scale.to_full_px(o.uv_px), mn_px=o.mn_px * self.scale.focal_ratio)
 
-    def _reported_cov(self, cov_m2: np.ndarray, xy_m: np.ndarray, altitude_m: float, has_attitude: bool) -> np.ndarray:
-        """(2, 2) covariance of the true position: the filter's, plus the apparent-frame errors.
+    def _reported_cov(self, cov_m2: np.ndarray, xy_m: np.ndarray, meas: FrameMeasurements) -> np.ndarray:
+        """(2, 2) covariance of the true position: the back end's, plus the apparent frame's errors.
 
-        A tilt error b (AHRS) shifts every seabed point seen, so the odometry and the landmarks
-        place the vehicle at x - R b: the filter is exact for that apparent position, and the
-        true one is off by b, of covariance (Z sigma_att)^2 I. A slow compass error delta turns
-        the apparent frame about the origin: the position is off by delta J x, J = [[0, -1], [1, 0]]
-        (only when the filter does not hold that error in its state: slam.heading_bias_sigma_rad = 0).
+        The tilt the AHRS leaves, the heading error every frame shares (the compass's constant
+        error; its drift too when the back end does not estimate it) and, for the iSAM2 back end,
+        which does not hold it, the altimeter's lasting error move the whole estimate, and no
+        image can see them (:mod:`rovslam.slam.apparent`).
         """
-        cov = np.array(cov_m2, dtype=np.float64)
-        odo = self.config.odometry
-        if has_attitude:
-            cov += np.eye(2) * (altitude_m * odo.attitude_sigma_rad) ** 2
-        if odo.compass_sigma_rad > 0 and self.heading.has_compass and self.config.slam.heading_bias_sigma_rad == 0:
-            jx = np.array([[0.0, -1.0], [1.0, 0.0]]) @ xy_m
-            cov += odo.compass_drift_sigma_rad**2 * np.outer(jx, jx)
-        return cov
+        isam2 = self.smoother is not None
+        drift_estimated = (self.config.smoother if isam2 else self.config.slam).heading_bias_sigma_rad > 0
+        rot = shared_heading_sigma_rad(self.config.odometry, drift_estimated) if meas.has_compass else 0.0
+        scale = self.config.slam.altitude_bias_sigma_m / meas.altitude_m if isam2 else 0.0
+        return np.asarray(cov_m2, dtype=np.float64) + apparent_frame_cov_m2(
+            xy_m, meas.altitude_m, meas.attitude_sigma_rad, rot, scale)
 
     def _inside(self, uv_px: np.ndarray, half_px: float) -> bool:
         return bool(
@@ -729,11 +730,13 @@ class SlamPipeline:
         )
 
     def landmark_rows(self) -> list[dict]:
-        """The map for landmarks.csv."""
+        """The map for landmarks.csv; covariances with the apparent frame's errors (at the last frame's altitude)."""
         rows = []
         for rec in self.landmarks:
             xy = self.ekf.landmark_xy_m(rec.id)
             c = self.ekf.landmark_cov_m2(rec.id)
+            if self._last_meas is not None:
+                c = self._reported_cov(c, xy, self._last_meas)
             rows.append(
                 {"id": rec.id, "x_m": float(xy[0]), "y_m": float(xy[1]), "var_x_m2": float(c[0, 0]),
                  "cov_xy_m2": float(c[0, 1]), "var_y_m2": float(c[1, 1]), "first_t_s": rec.first_t_s,

@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from rovslam import __version__
 from rovslam.config import RunConfig, to_dict
 from rovslam.errors import (ConfigError, InvalidArgumentError, OutputError, RovslamError, SequenceFormatError,
@@ -576,7 +578,7 @@ class _Run:
                 self.status, self.reason = "failed", str(exc)
         if self.pipe.smoother is not None and self.n and error is None:
             try:  # the iSAM2 back end: the best estimate of the whole dive given all of it
-                write_smoothed_result(self.out, self.pipe.smoother.smoothed())
+                write_smoothed_result(self.out, self.pipe.smoother.smoothed(), self.pipe.config)
             except OSError as exc:
                 error = OutputError(f"{self.out}: cannot write the smoothed results: {describe_os_error(exc)}.")
                 self.status, self.reason = "failed", str(error)
@@ -654,25 +656,50 @@ class SmoothSummary:
     out_dir: Path
 
 
-def write_smoothed_result(out_dir: Path, res) -> None:
-    """Write a :class:`~rovslam.slam.smoother.SmoothedResult` as the smoothed trajectory and map files."""
-    from rovslam.io.results import write_smoothed
+def write_smoothed_result(out_dir: Path, res, config=None) -> None:
+    """Write a :class:`~rovslam.slam.smoother.SmoothedResult` as the smoothed trajectory and map files.
 
+    The covariances written are the graph's plus the apparent frame's errors
+    (:mod:`rovslam.slam.apparent`): the tilt each frame's AHRS left and the heading error the
+    whole dive shares, as the online estimate's, and the altimeter's lasting error
+    (``[slam] altitude_bias_sigma_m``), which the graph, unlike the EKF, does not hold: a scale
+    of the whole dive. ``config``: the run's :class:`~rovslam.config.RunConfig` (default: the
+    defaults). The landmarks take the last frame's tilt and scale terms.
+    """
+    from rovslam.io.results import write_smoothed
+    from rovslam.slam.apparent import apparent_frame_cov_m2, shared_heading_sigma_rad
+
+    config = RunConfig() if config is None else config
+    rot = shared_heading_sigma_rad(config.odometry, config.smoother.heading_bias_sigma_rad > 0)
+    n = len(res.t_s)
+    tilt = np.zeros(n) if res.attitude_sigma_rad is None else res.attitude_sigma_rad
+    compass = np.zeros(n, dtype=bool) if res.has_compass is None else res.has_compass
+    scale = config.slam.altitude_bias_sigma_m / res.altitude_m
+    cov = res.cov_xy_m2 + apparent_frame_cov_m2(res.xy_m, res.altitude_m, tilt, np.where(compass, rot, 0.0), scale)
+    lcov = res.landmarks_cov_m2
+    if n and len(lcov):
+        lcov = lcov + apparent_frame_cov_m2(res.landmarks_xy_m, res.altitude_m[-1], tilt[-1],
+                                            rot if compass[-1] else 0.0, scale[-1])
     rows = [
         {"id": int(i), "x_m": float(xy[0]), "y_m": float(xy[1]), "var_x_m2": float(c[0, 0]), "cov_xy_m2": float(c[0, 1]),
          "var_y_m2": float(c[1, 1]), "first_t_s": float(t), "observations": int(n), "downweighted": int(d)}
-        for i, xy, c, t, n, d in zip(res.landmark_ids, res.landmarks_xy_m, res.landmarks_cov_m2,
+        for i, xy, c, t, n, d in zip(res.landmark_ids, res.landmarks_xy_m, lcov,
                                       res.landmark_first_t_s, res.landmark_observations, res.landmark_downweighted)
     ]
-    write_smoothed(out_dir, res.t_s, res.xy_m, res.cov_xy_m2, res.heading_rad, res.altitude_m, rows)
+    write_smoothed(out_dir, res.t_s, res.xy_m, cov, res.heading_rad, res.altitude_m, rows)
+
+
+def run_config_for(out_dir: str | Path):
+    """The :class:`~rovslam.config.RunConfig` a run wrote to its ``config.toml`` (the defaults when there is none)."""
+    from rovslam.config import load_config
+
+    path = Path(out_dir) / "config.toml"
+    return load_config(path) if path.is_file() else RunConfig()
 
 
 def smoother_config_for_run(out_dir: str | Path):
     """The ``[smoother]`` table of the run's ``config.toml`` (the defaults when there is none)."""
-    from rovslam.config import SmootherConfig, load_config
-
-    path = Path(out_dir) / "config.toml"
-    return load_config(path).smoother if path.is_file() else SmootherConfig()
+    return run_config_for(out_dir).smoother
 
 
 def smooth_run(
@@ -700,7 +727,8 @@ def smooth_run(
     frames = read_measurements(out)
     if not frames:
         raise ResultsFormatError(f"{out}: the measurement files hold no frame; nothing to smooth.")
-    smoother = Isam2Smoother(config if config is not None else smoother_config_for_run(out))
+    run_config = run_config_for(out)
+    smoother = Isam2Smoother(config if config is not None else run_config.smoother)
     if on_start is not None:
         on_start(len(frames))
     t0 = time.perf_counter()
@@ -711,7 +739,7 @@ def smooth_run(
     t1 = time.perf_counter()
     res = smoother.smoothed()
     t2 = time.perf_counter()
-    write_smoothed_result(out, res)
+    write_smoothed_result(out, res, dataclasses.replace(run_config, smoother=smoother.config))
     return SmoothSummary(
         frames=len(frames), landmarks=len(res.landmark_ids), observations=int(res.landmark_observations.sum()),
         downweighted=int(res.landmark_downweighted.sum()), online_s=t1 - t0, final_s=t2 - t1, out_dir=out,

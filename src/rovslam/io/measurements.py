@@ -64,7 +64,10 @@ MEASUREMENT_COLUMNS = (
     "altitude_sigma_m",
     "focal_px",
     "observations",
+    "attitude_sigma_rad",
 )
+# Columns a run by an earlier rovslam did not write, and the value read in their place.
+_OPTIONAL_COLUMNS = {"attitude_sigma_rad": 0.0}
 LANDMARK_MEASUREMENT_COLUMNS = (
     "frame",
     "landmark_id",
@@ -126,7 +129,7 @@ class MeasurementWriter:
              _num(q[0, 0]), _num(q[0, 1]), _num(q[1, 1]), int(meas.speed_ok), _num(meas.heading_rad),
              _num(meas.heading_sigma_rad), _num(meas.compass_rad), _num(meas.compass_sigma_rad),
              _num(meas.heading_step_rad), _num(meas.heading_step_sigma_rad), _num(meas.altitude_m),
-             _num(meas.altitude_sigma_m), _num(meas.focal_px), len(meas.landmarks)]
+             _num(meas.altitude_sigma_m), _num(meas.focal_px), len(meas.landmarks), _num(meas.attitude_sigma_rad)]
         )
         self._n += 1
         if self._n % self.flush_every == 0:
@@ -159,7 +162,7 @@ def has_measurements(out_dir: str | Path) -> bool:
 class _Table:
     """Rows of one CSV file with its header checked; cells read with file / line / column in errors."""
 
-    def __init__(self, path: Path, columns: tuple[str, ...]):
+    def __init__(self, path: Path, columns: tuple[str, ...], optional: dict[str, float] | None = None):
         self.path = path
         if not path.is_file():
             raise ResultsFormatError(f"{path}: missing; {_NO_MEASUREMENTS_HINT}.")
@@ -170,12 +173,13 @@ class _Table:
             header = next(reader, None)
             if header is None:
                 raise ResultsFormatError(f"{path}: empty file (no header line); {_NO_MEASUREMENTS_HINT}.")
-            missing = [c for c in columns if c not in header]
+            self.absent = {c: v for c, v in (optional or {}).items() if c not in header}
+            missing = [c for c in columns if c not in header and c not in self.absent]
             if missing:
                 raise ResultsFormatError(
                     f"{path}, line 1: missing column(s) {', '.join(missing)}; expected the header {','.join(columns)}"
                 )
-            self.col = {c: header.index(c) for c in columns}
+            self.col = {c: header.index(c) for c in columns if c not in self.absent}
             self.width = len(header)
             self.rows = [(i + 2, r) for i, r in enumerate(reader)]  # (line number, cells)
         except csv.Error as exc:  # e.g. a field beyond the csv module's size limit
@@ -197,6 +201,8 @@ class _Table:
             )
 
     def number(self, line: int, cells: list[str], column: str) -> float:
+        if column in self.absent:
+            return self.absent[column]
         cell = cells[self.col[column]].strip()
         if cell == "":
             return math.nan
@@ -261,6 +267,7 @@ def _frame_from_row(table: _Table, line: int, cells: list[str], obs: tuple[Landm
             compass_sigma_rad=v["compass_sigma_rad"], heading_step_rad=v["heading_step_rad"],
             heading_step_sigma_rad=v["heading_step_sigma_rad"], altitude_m=v["altitude_m"],
             altitude_sigma_m=v["altitude_sigma_m"], focal_px=v["focal_px"], landmarks=obs,
+            attitude_sigma_rad=v["attitude_sigma_rad"],
         )
     except InvalidMeasurementError as exc:
         raise ResultsFormatError(f"{table.where(line)}: {exc}") from None
@@ -277,7 +284,7 @@ def read_measurements(out_dir: str | Path) -> list[FrameMeasurements]:
     out = Path(out_dir)
     if not out.is_dir():
         raise ResultsFormatError(f"{out}: not a folder. Give the --out folder of a `rovslam run`.")
-    frames_table = _Table(out / MEASUREMENTS_FILE, MEASUREMENT_COLUMNS)
+    frames_table = _Table(out / MEASUREMENTS_FILE, MEASUREMENT_COLUMNS, _OPTIONAL_COLUMNS)
     obs_table = _Table(out / LANDMARK_MEASUREMENTS_FILE, LANDMARK_MEASUREMENT_COLUMNS)
     by_frame = _read_observations(obs_table)
     last_obs_frame = max(by_frame, default=-1)

@@ -191,6 +191,9 @@ class FrameMeasurements(_RecordEq):
         altitude_sigma_m: its standard deviation, metres; NaN when not measured (a skipped frame).
         focal_px: focal length f of (3), pixels.
         landmarks: the landmark observations made in this frame (ids unique within the frame).
+        attitude_sigma_rad: the accuracy of the roll and pitch this frame was levelled with
+            (0: no AHRS); the tilt error it leaves shifts the apparent frame
+            (:mod:`rovslam.slam.apparent`), radians.
     """
 
     index: int
@@ -209,6 +212,7 @@ class FrameMeasurements(_RecordEq):
     altitude_sigma_m: float
     focal_px: float
     landmarks: tuple[LandmarkMeasurement, ...] = ()
+    attitude_sigma_rad: float = 0.0
 
     def __post_init__(self) -> None:
         idx = self.index
@@ -243,6 +247,7 @@ class FrameMeasurements(_RecordEq):
         sz = _scalar("altitude_sigma_m", self.altitude_sigma_m, where, allow_nan=True, nonnegative=True)
         put(self, "altitude_sigma_m", sz)
         put(self, "focal_px", _scalar("focal_px", self.focal_px, where, positive=True))
+        put(self, "attitude_sigma_rad", _scalar("attitude_sigma_rad", self.attitude_sigma_rad, where, nonnegative=True))
         try:
             obs = tuple(self.landmarks)
         except TypeError:

@@ -18,8 +18,9 @@ Variables:
 
 Factors:
 
-* Prior on ``x_0``: the origin (``initial_position_sigma_m``) and, without a compass, the
-  first heading (the map frame is then defined by it).
+* Prior on ``x_0``: the origin (``initial_position_sigma_m``, and with an AHRS the tilt offset
+  ``Z sigma_att`` it leaves, as the EKF's start) and, without a compass, the first heading (the
+  map frame is then defined by it).
 * Odometry, one ``BetweenFactorPose2`` per step: translation ``[u, v] dt`` in the frame of
   ``x_{k-1}``, covariance ``dt^2 Q``; rotation the turn the tokens measured, with its sigma,
   or, when they did not, the change of the heading input with ``loose_turn_sigma_rad``.
@@ -103,7 +104,8 @@ class SmoothedResult:
     Attributes:
         index: (N,) frame indices; t_s: (N,) frame times.
         xy_m: (N, 2) positions; heading_rad: (N,) headings; altitude_m: (N,) image depths.
-        cov_xy_m2: (N, 2, 2) marginal position covariances, world frame.
+        cov_xy_m2: (N, 2, 2) marginal position covariances, world frame (the graph's: without
+            the apparent frame's errors, :mod:`rovslam.slam.apparent`).
         landmark_ids: (M,) ids in increasing order.
         landmarks_xy_m: (M, 2) positions; landmarks_cov_m2: (M, 2, 2) marginal covariances.
         landmark_first_t_s: (M,) time of the first observation.
@@ -111,6 +113,8 @@ class SmoothedResult:
         landmark_downweighted: (M,) of them, those whose whitened residual at the estimate
             exceeds ``robust_k`` (what a robust loss down-weights).
         iterations: Levenberg-Marquardt iterations of the final polish.
+        attitude_sigma_rad: (N,) each frame's ``FrameMeasurements.attitude_sigma_rad``.
+        has_compass: (N,) whether each frame had a compass reading.
     """
 
     index: np.ndarray
@@ -126,6 +130,8 @@ class SmoothedResult:
     landmark_observations: np.ndarray
     landmark_downweighted: np.ndarray
     iterations: int = 0
+    attitude_sigma_rad: np.ndarray | None = None
+    has_compass: np.ndarray | None = None
 
 
 @dataclass
@@ -165,6 +171,8 @@ class Isam2Smoother:
         self._index: list[int] = []
         self._t_s: list[float] = []
         self._altitude_m: list[float] = []
+        self._attitude_sigma_rad: list[float] = []
+        self._has_compass: list[bool] = []
         self._landmarks: dict[int, _Landmark] = {}
         self._prev: FrameMeasurements | None = None
         self._pose = None  # latest gtsam.Pose2 estimate
@@ -266,7 +274,8 @@ class Isam2Smoother:
         if prev is None:
             self._t0_s = meas.t_s
             guess = g.Pose2(0.0, 0.0, meas.heading_rad)
-            s_xy = self.config.initial_position_sigma_m or _TINY_SIGMA
+            # With an AHRS the start is known only up to its tilt offset (as the EKF's start).
+            s_xy = math.hypot(self.config.initial_position_sigma_m, meas.altitude_m * meas.attitude_sigma_rad) or _TINY_SIGMA
             # With a compass, the compass and the drift prior fix the heading.
             s_psi = _FREE_SIGMA if meas.has_compass else (self.config.initial_heading_sigma_rad or _TINY_SIGMA)
             graph.add(g.PriorFactorPose2(xk, guess, self._sigmas(s_xy, s_xy, s_psi)))
@@ -289,6 +298,8 @@ class Isam2Smoother:
         self._index.append(meas.index)
         self._t_s.append(meas.t_s)
         self._altitude_m.append(meas.altitude_m)
+        self._attitude_sigma_rad.append(meas.attitude_sigma_rad)
+        self._has_compass.append(meas.has_compass)
         self._prev = meas
         self._pose, cov = self._recent_pose(xk)
         r = rot2(self._pose.theta())
@@ -452,6 +463,7 @@ class Isam2Smoother:
             altitude_m=np.array(self._altitude_m), cov_xy_m2=cov, landmark_ids=ids, landmarks_xy_m=lxy,
             landmarks_cov_m2=lcov, landmark_first_t_s=first, landmark_observations=nobs,
             landmark_downweighted=down, iterations=iterations,
+            attitude_sigma_rad=np.array(self._attitude_sigma_rad), has_compass=np.array(self._has_compass, dtype=bool),
         )
 
     @staticmethod

@@ -1,0 +1,74 @@
+"""Errors of the frame an estimate lives in, which no image can see (beyond the paper).
+
+Both back ends estimate the vehicle and the map in an *apparent* frame: the one the images,
+the compass and the AHRS define together. Two errors move that whole frame against the world,
+and only the reported covariance can carry them, because no measurement of a run can reduce
+them:
+
+* the AHRS's tilt error: a camera tilted by b sees every seabed point shifted by about
+  ``Z b``, so the odometry and the landmarks place the vehicle at ``x - R b``; covariance
+  ``(Z sigma_tilt)^2 I``;
+* the compass's lasting error (its deviation, and its slow drift when the filter does not hold
+  the drift in its state): a heading error delta that every frame shares turns the whole
+  estimate about the start (the origin) by delta, moving a point at x by ``delta J x``,
+  ``J = [[0, -1], [1, 0]]``; covariance ``sigma_rot^2 (J x)(J x)^T``. A drift that changes
+  during the dive is seen again by the landmarks and can be estimated (``[slam]
+  heading_bias_sigma_rad``); its value at the start, and any constant part, cannot: a turned
+  world gives the same images;
+* the altimeter's lasting error, for a back end that does not hold it in its state (the
+  smoother; the EKF carries it as its consider state ``b``): an altitude read ``Z (1 + s)``
+  scales the odometry and every landmark's depth together, so the whole estimate is scaled by
+  ``1 + s`` about the start, moving a point at x by ``s x``; covariance ``sigma_s^2 x x^T``
+  (a scaled world gives the same images).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rovslam.config import OdometryConfig
+
+__all__ = ["apparent_frame_cov_m2", "shared_heading_sigma_rad"]
+
+
+def shared_heading_sigma_rad(odometry: OdometryConfig, drift_estimated: bool) -> float:
+    """Sigma of the heading error every frame of the estimate shares, for frames with a compass.
+
+    The compass's constant error (``compass_offset_sigma_rad``) always; its slow drift too
+    (``compass_drift_sigma_rad``) when the back end does not estimate the drift in its state.
+    0 when the compass is used as it is (``compass_sigma_rad = 0``, the paper).
+    """
+    if odometry.compass_sigma_rad == 0:
+        return 0.0
+    return math.hypot(odometry.compass_offset_sigma_rad, 0.0 if drift_estimated else odometry.compass_drift_sigma_rad)
+
+
+def apparent_frame_cov_m2(xy_m, depth_m, tilt_sigma_rad, rotation_sigma_rad, scale_sigma=0.0) -> np.ndarray:
+    """Covariance the apparent frame adds to a position estimate.
+
+    Args:
+        xy_m: (2,) or (N, 2) estimated positions, world frame, metres (the start at the origin).
+        depth_m: () or (N,) the image depth Z at each position, metres.
+        tilt_sigma_rad: () or (N,) the AHRS's roll / pitch accuracy (0: no AHRS, no tilt term).
+        rotation_sigma_rad: () or (N,) sigma of the heading error shared by the whole estimate.
+        scale_sigma: () or (N,) relative sigma of a scale error shared by the whole estimate
+            (the altimeter's lasting error over the depth; 0 when the back end holds it).
+
+    Returns:
+        (2, 2) or (N, 2, 2) covariance to add to the estimate's own, metres squared.
+    """
+    xy = np.asarray(xy_m, dtype=np.float64)
+    single = xy.ndim == 1
+    xy = np.atleast_2d(xy)
+    n = xy.shape[0]
+    tilt_var = (np.broadcast_to(np.asarray(depth_m, dtype=np.float64), (n,))
+                * np.broadcast_to(np.asarray(tilt_sigma_rad, dtype=np.float64), (n,))) ** 2
+    rot_var = np.broadcast_to(np.asarray(rotation_sigma_rad, dtype=np.float64), (n,)) ** 2
+    jx = np.stack([-xy[:, 1], xy[:, 0]], axis=1)  # J x
+    scale_var = np.broadcast_to(np.asarray(scale_sigma, dtype=np.float64), (n,)) ** 2
+    cov = rot_var[:, None, None] * jx[:, :, None] * jx[:, None, :] + scale_var[:, None, None] * xy[:, :, None] * xy[:, None, :]
+    cov[:, 0, 0] += tilt_var
+    cov[:, 1, 1] += tilt_var
+    return cov[0] if single else cov
