@@ -58,3 +58,17 @@ def test_labels_stay_inside_the_bounds_while_there_is_room():
 
 def test_ellipse_magnification_is_a_stated_1_2_5_number():
     assert [nice_scale(v) for v in (0.5, 1.0, 3.0, 7.9, 19.0, 49.0, 120.0)] == [1, 1, 2, 5, 10, 20, 100]
+
+
+def test_refused_matches_are_grouped_by_the_reason_recorded():
+    from rovslam.viz.plots import refusal_groups
+
+    reasons = np.array(["", "laser spot inside the template", "innovation test", "laser spot inside the template",
+                        "", "joint compatibility"], dtype=object)
+    accepted = np.array([1, 0, 0, 0, 1, 0])
+    groups = refusal_groups(reasons, accepted)
+    assert [r for r, _ in groups][0] == "laser spot inside the template"  # the most frequent first
+    assert {r: int(m.sum()) for r, m in groups} == {"laser spot inside the template": 2, "innovation test": 1,
+                                                    "joint compatibility": 1}
+    assert not any(m[0] or m[4] for _, m in groups)  # accepted matches are in no group
+    assert refusal_groups(reasons, np.ones(6)) == []

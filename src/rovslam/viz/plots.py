@@ -91,8 +91,24 @@ def plot_altitude_speed(res: RunResults, path: Path, altitude: SourceShare | Non
     return save_figure(fig, path)
 
 
+# Colours of the refused matches, by the reason observations.csv records (others: REFUSED_OTHER).
+REFUSED_COLOURS = {"innovation test": "tab:red", "joint compatibility": "tab:orange",
+                   "laser spot inside the template": "tab:gray"}
+REFUSED_OTHER = "tab:purple"
+
+
+def refusal_groups(reasons: np.ndarray, accepted: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    """``(reason, (N,) bool mask)`` of the refused matches, one group per recorded reason, most frequent first."""
+    reasons = np.asarray(reasons, dtype=str)
+    refused = ~(np.asarray(accepted) > 0)
+    names, counts = np.unique(reasons[refused], return_counts=True)
+    return [(str(r), refused & (reasons == r)) for r, _ in sorted(zip(names, counts), key=lambda rc: -rc[1])]
+
+
 def _landmark_track_panel(ax, res: RunResults) -> None:
-    """Tracked landmark identifiers against time (accepted observations; initialisations ringed)."""
+    """Tracked landmark identifiers against time (accepted observations; initialisations ringed;
+    refused matches crossed, one colour per reason: a laser spot on the template is not the filter
+    disagreeing)."""
     obs = res.observations
     if obs and len(obs.get("t_s", [])):
         ok = obs["accepted"] > 0
@@ -102,10 +118,10 @@ def _landmark_track_panel(ax, res: RunResults) -> None:
         if np.any(init):
             ax.scatter(obs["t_s"][init], obs["landmark_id"][init], s=22, facecolors="none", edgecolors="k",
                        lw=0.7, label="initialised")
-        rej = ~ok
-        if np.any(rej):
-            ax.scatter(obs["t_s"][rej], obs["landmark_id"][rej], s=10, marker="x", c="tab:red", lw=0.7,
-                       label="rejected by the NIS gate")
+        reasons = obs.get("reason", np.full(len(ok), "refused", dtype=object))
+        for reason, sel in refusal_groups(reasons, obs["accepted"]):
+            ax.scatter(obs["t_s"][sel], obs["landmark_id"][sel], s=10, marker="x", lw=0.7,
+                       c=REFUSED_COLOURS.get(reason, REFUSED_OTHER), label=f"refused: {reason or 'refused'}")
         ax.legend(loc="upper left", fontsize=7, ncol=3)
         top = int(np.nanmax(obs["landmark_id"])) if len(obs["landmark_id"]) else 0
         ax.set_ylim(-0.8, top + 1.2)
