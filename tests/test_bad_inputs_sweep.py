@@ -204,6 +204,10 @@ def test_a_template_larger_than_the_image_names_the_configuration_key(base, tmp_
     larger than the image', with neither the key nor the fix."""
     from rovslam.runner import run_sequence
 
+    if size_px > 1e6:  # no setting takes so large a number: refused when the configuration is built
+        with pytest.raises(ConfigError, match=rf"\[speed_templates\] size_px = {size_px}: out of range"):
+            SpeedTemplateConfig(size_px=size_px)
+        return
     cfg = RunConfig(speed_templates=SpeedTemplateConfig(size_px=size_px))
     with pytest.raises(ConfigError, match=rf"\[speed_templates\] size_px = {size_px} of the configuration: .*128x96 px"):
         run_sequence(base[0], tmp_path / "out", cfg)
@@ -211,9 +215,12 @@ def test_a_template_larger_than_the_image_names_the_configuration_key(base, tmp_
 
 
 def test_a_template_larger_than_the_image_from_a_config_file(base, tmp_path):
+    (tmp_path / "c.toml").write_text("[speed_templates]\nsize_px = 200\n")
+    refused(["run", str(base[0]), "-c", str(tmp_path / "c.toml"), "--out", str(tmp_path / "out"), "-q"],
+            "[speed_templates] size_px = 200 of the configuration")
     (tmp_path / "c.toml").write_text("[speed_templates]\nsize_px = 99999999999999999999\n")
     refused(["run", str(base[0]), "-c", str(tmp_path / "c.toml"), "--out", str(tmp_path / "out"), "-q"],
-            "[speed_templates] size_px = 99999999999999999999 of the configuration")
+            "[speed_templates] size_px = 99999999999999999999: out of range")
 
 
 # ------------------------------------------------------------------ bags

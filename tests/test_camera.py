@@ -81,3 +81,24 @@ def test_bad_camera_and_laser_are_typed_errors():
         Camera(360, 272, 0.0, 1075.0, 179.5, 135.5)
     with pytest.raises(SequenceFormatError, match="direction"):
         LaserPointer((0.05, 0.05, 0.0), (0.0, 0.0, -1.0))
+
+
+@pytest.mark.parametrize(
+    "make,needle",
+    [
+        (lambda: Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5, distortion=(1e308, 0.0, 0.0, 0.0, 0.0)),
+         "distortion coefficients must be within"),
+        (lambda: Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5, yaw_offset_rad=90.0), "give radians, not degrees"),
+        (lambda: LaserPointer((0.05, 0.05, 0.0), (0.0, 1e308, 1.0)), "90.0 degrees from the optical axis"),
+        (lambda: LaserPointer((0.05, 0.05, 0.0), (1.0, 0.0, 0.1)), "never reaches the seabed"),
+    ],
+)
+def test_absurd_numbers_in_a_camera_or_laser_are_refused_where_they_enter(make, needle):
+    # 1e308 in these ran on with overflow warnings and a garbage projection; 90 is degrees.
+    with pytest.raises(SequenceFormatError, match=needle):
+        make()
+
+
+def test_a_realistic_inclined_laser_and_a_strong_lens_are_accepted():
+    LaserPointer((0.1, 0.0, 0.0), (-0.36, 0.0, 1.0))  # 20 degrees towards the optical axis
+    Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5, distortion=(-0.4, 0.2, 0.001, -0.001, -0.05))

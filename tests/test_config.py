@@ -4,7 +4,7 @@ import dataclasses
 
 import pytest
 
-from rovslam.config import RunConfig, load_config, save_config
+from rovslam.config import BandpassConfig, RunConfig, load_config, save_config
 from rovslam.errors import ConfigError
 
 
@@ -101,6 +101,31 @@ def test_every_numeric_field_declares_its_range():
         for f in dataclasses.fields(cls):
             if hints[f.name] in (int, float):
                 assert any(f.metadata.get(k) is not None for k in ("gt", "ge", "le")), f"{cls.__name__}.{f.name}"
+
+
+def _numeric_fields():
+    import typing
+
+    for stage in dataclasses.fields(RunConfig):
+        cls = typing.get_type_hints(RunConfig)[stage.name]
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            if hints[f.name] in (int, float):
+                yield cls, f, hints[f.name]
+
+
+def test_no_setting_takes_a_huge_number_nor_an_angle_beyond_half_a_turn():
+    """1e308 in any setting was an OverflowError deep in the filter ("internal error") for 21 of
+    them, and a band-pass sigma of 1e6 px ran for minutes: every number is bounded at load."""
+    for cls, f, tp in _numeric_fields():
+        huge = 10**12 if tp is int else 1e308
+        with pytest.raises(ConfigError, match=f"{f.name} = .*out of range"):
+            dataclasses.replace(cls(), **{f.name: huge})
+        if f.name.endswith("_rad"):
+            with pytest.raises(ConfigError, match="give radians, not degrees"):
+                dataclasses.replace(cls(), **{f.name: 5.0})
+    with pytest.raises(ConfigError, match="<= 100"):
+        BandpassConfig(sigma_coarse_px=1e6)
 
 
 def test_bom_is_accepted_and_other_encodings_are_named(tmp_path):

@@ -37,6 +37,8 @@ _BODY_FROM_CAMERA_NOMINAL = np.array(
 MIN_FOCAL_PX = 1.0
 MAX_FOCAL_PX = 1e6
 MAX_IMAGE_SIDE_PX = 65535
+MIN_LASER_COS = 0.17  # a laser more than 80 degrees off the optical axis never lights the seabed in view
+MAX_DISTORTION = 1e4  # largest |distortion coefficient| (real lenses: below 100; 1e308 overflowed the projection)
 MAX_LASER_OFFSET_M = 10.0  # a laser pointer mounted farther than this from the camera is a unit mistake
 MAX_READOUT_S = 1.0  # a rolling shutter slower than a second is a unit mistake (milliseconds?)
 
@@ -81,6 +83,16 @@ class Camera:
         if not (all(np.isfinite(self.distortion)) and np.isfinite(self.yaw_offset_rad)):
             raise SequenceFormatError(
                 f"camera distortion and yaw_offset_rad must be finite, got {self.distortion}, {self.yaw_offset_rad}"
+            )
+        if max(abs(float(k)) for k in self.distortion) > MAX_DISTORTION:
+            raise SequenceFormatError(
+                f"camera distortion coefficients must be within +-{MAX_DISTORTION:g}, got {self.distortion} "
+                "(OpenCV's k1 k2 p1 p2 [k3 ...] of a calibration; real lenses are below 100)"
+            )
+        if abs(self.yaw_offset_rad) > 2.0 * np.pi:
+            raise SequenceFormatError(
+                f"camera yaw_offset_rad must be within +-{2.0 * np.pi:.4f} (one turn), got {self.yaw_offset_rad}; "
+                "give radians, not degrees"
             )
         if not (np.isfinite(self.readout_s) and 0.0 <= self.readout_s <= MAX_READOUT_S):
             raise SequenceFormatError(
@@ -134,9 +146,16 @@ class LaserPointer:
 
     def __post_init__(self) -> None:
         d = np.asarray(self.direction, dtype=float)
-        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0 or d[2] <= 0:
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or not np.any(d) or d[2] <= 0:
             raise SequenceFormatError(
                 f"laser direction must be 3 finite numbers pointing down (z > 0), got {self.direction}"
+            )
+        scaled = d / np.max(np.abs(d))  # no overflow in the norm of huge numbers
+        if scaled[2] / np.linalg.norm(scaled) < MIN_LASER_COS:
+            raise SequenceFormatError(
+                f"laser direction {self.direction} points {np.degrees(np.arccos(scaled[2] / np.linalg.norm(scaled))):.1f} "
+                f"degrees from the optical axis: more than {np.degrees(np.arccos(MIN_LASER_COS)):.0f} and its spot never "
+                "reaches the seabed in view (direction is (forward, starboard, down), down about 1)"
             )
         if len(self.origin_m) != 3 or not np.all(np.isfinite(self.origin_m)):
             raise SequenceFormatError(f"laser origin_m must be 3 finite numbers, got {self.origin_m}")

@@ -93,9 +93,18 @@ def _check_value(table: str, key: str, value: Any, tp: Any, meta: typing.Mapping
             parts = [f"> {gt:g}" if gt is not None else "", f">= {ge:g}" if ge is not None else "",
                      f"<= {le:g}" if le is not None else ""]
             raise ConfigError(f"{where}: out of range, must be {' and '.join(p for p in parts if p)}")
+        if le is None:  # no setting needs a huge number: one is a typo (an exponent), and would overflow the maths
+            if key.endswith("_rad") and abs(value) > math.pi:
+                raise ConfigError(f"{where}: out of range, an angle in radians must be within +-{math.pi:.4f} "
+                                  "(half a turn); give radians, not degrees")
+            if abs(value) > MAX_SETTING:
+                raise ConfigError(f"{where}: out of range, must be within +-{MAX_SETTING:g} (no setting needs "
+                                  "a larger number: check the exponent)")
 
 
 MAX_OPENING_PX = 255  # widest bright-structure opening (despeckle_px, sunlight_px)
+MAX_SETTING = 1e6  # the largest magnitude of a number setting without a bound of its own
+MAX_BLUR_SIGMA_PX = 100.0  # widest band-pass Gaussian (a 1e6 px sigma made a kernel that ran for minutes)
 
 
 @dataclass(frozen=True)
@@ -114,8 +123,8 @@ class BandpassConfig(_Checked):
     """
 
     TABLE: ClassVar[str] = "bandpass"
-    sigma_fine_px: float = _num(1.0, gt=0)  # removes wavelengths shorter than ~2*pi*sigma_fine (noise)
-    sigma_coarse_px: float = _num(4.0, gt=0)  # removes wavelengths longer than ~2*pi*sigma_coarse (illumination)
+    sigma_fine_px: float = _num(1.0, gt=0, le=MAX_BLUR_SIGMA_PX)  # removes wavelengths shorter than ~2*pi*sigma_fine (noise)
+    sigma_coarse_px: float = _num(4.0, gt=0, le=MAX_BLUR_SIGMA_PX)  # removes wavelengths longer than ~2*pi*sigma_coarse (illumination)
     channel: Channel = "green"  # red is reserved for the lasers
     # >= 2: remove bright specks (marine snow) narrower than this first; 0: off (paper). At most
     # MAX_OPENING_PX: a disc kernel's memory grows with its square (100001 px asked for 10 GB).

@@ -122,6 +122,7 @@ class GroundTruth:
 MAX_TEXT_BYTES = 512 * 2**20  # a frames.csv of a million frames is ~80 MB
 MAX_GROUNDTRUTH_M = 1e8  # a ground-truth coordinate beyond this is no place on Earth (its squares overflowed)
 MAX_ATTITUDE_RAD = math.pi / 2  # roll or pitch beyond 90 degrees: the camera no longer looks down
+MAX_HEADING_RAD = 1e4  # an unwrapped heading of 1,600 turns is still one; 1e308 is garbage (cos of it means nothing)
 
 
 def _number(value: Any, where: str, *, positive: bool = False) -> float:
@@ -435,6 +436,11 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
         if text == "":
             raise SequenceFormatError(f"{where}: column 'heading_rad' is empty; write nan when there is no compass.")
         heading = float_cell(row, "heading_rad", where, allow_nan=True)
+        if abs(heading) > MAX_HEADING_RAD:  # NaN passes: no compass
+            raise SequenceFormatError(
+                f"{where}: column 'heading_rad' is {heading} rad, beyond +-{MAX_HEADING_RAD:g} rad: not a heading "
+                "(write nan where the compass gave no reading; headings are in radians)."
+            )
         sonar = float_cell(row, "sonar_altitude_m", where, optional=True, allow_nan=True)
         if sonar is not None and math.isnan(sonar):
             sonar = None  # nan = no reading, like an empty cell
