@@ -376,7 +376,7 @@ class SmootherConfig(_Checked):
     initial_position_sigma_m: float = _num(0.0, ge=0)
     initial_heading_sigma_rad: float = _num(0.0, ge=0)
     loose_turn_sigma_rad: float = _num(0.2, gt=0)
-    heading_bias_sigma_rad: float = _num(0.0087, ge=0)
+    heading_bias_sigma_rad: float = _num(0.0175, ge=0)  # the EKF's compass model ([slam]): 1 deg
     heading_bias_tau_s: float = _num(120.0, gt=0)
     bias_block_s: float = _num(5.0, gt=0)
     final_max_iterations: int = _num(10, ge=0)

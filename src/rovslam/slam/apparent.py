@@ -1,7 +1,7 @@
 """Errors of the frame an estimate lives in, which no image can see (beyond the paper).
 
 Both back ends estimate the vehicle and the map in an *apparent* frame: the one the images,
-the compass and the AHRS define together. Two errors move that whole frame against the world,
+the compass and the AHRS define together. Three errors move that whole frame against the world,
 and only the reported covariance can carry them, because no measurement of a run can reduce
 them:
 
