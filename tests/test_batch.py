@@ -66,6 +66,10 @@ frames = 50
         ('[[scenario]]\nname = "portofino-short"\nframes = 0\n', "frames: must be a whole number >= 1"),
         ('[[scenario]]\nname = "portofino-short"\nformat = "tiff"\n', 'format must be "png" or "jpg"'),
         ('[[scenario]]\nname = "portofino-short"\nframes = 5\nduration_s = 3\n', "frames or duration_s, not both"),
+        # 1e308 s was an OverflowError ("internal error"); 1e12 frames asked 149 GiB in the worker
+        ('[[scenario]]\nname = "portofino-short"\nduration_s = 1e308\n', "inf frames to simulate, more than the 1,000,000"),
+        ('[[scenario]]\nname = "portofino-short"\nframes = 1000000000000\n', "1e+12 frames to simulate"),
+        ('[[scenario]]\nname = "portofino-short"\nduration_s = 1e9\n', "give a shorter duration_s"),
         ('seeds = [1, 1]\n[[scenario]]\nname = "portofino-short"\n', "a seed appears twice"),
         ('seeds = [-1]\n[[scenario]]\nname = "portofino-short"\n', "list of whole numbers >= 0"),
         ('[[scenario]]\nname = "portofino-short"\n[[scenario]]\nname = "portofino-short"\n', "appears twice"),

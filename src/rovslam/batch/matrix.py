@@ -182,13 +182,22 @@ def _frames(entry: dict, scenario: Any, where: str) -> int | None:
     if "frames" in entry and "duration_s" in entry:
         raise ConfigError(f"{where}: give frames or duration_s, not both")
     if "frames" in entry:
-        return _positive_int(entry["frames"], f"{where}: frames")
-    if "duration_s" in entry:
+        n = _positive_int(entry["frames"], f"{where}: frames")
+    elif "duration_s" in entry:
         d = entry["duration_s"]
         if isinstance(d, bool) or not isinstance(d, (int, float)) or not math.isfinite(d) or d <= 0:
             raise ConfigError(f"{where}: duration_s must be a positive number of seconds, got {d!r}")
-        return max(1, round(d * scenario.frame_rate_hz))
-    return None
+        n = d * scenario.frame_rate_hz
+    else:
+        return None
+    if n > MAX_SIMULATED_FRAMES:  # 1e12 frames asked 149 GiB and failed in the worker; 1e308 s overflowed
+        raise ConfigError(f"{where}: {n:.3g} frames to simulate, more than the {MAX_SIMULATED_FRAMES:,} a cell may "
+                          f"hold ({MAX_SIMULATED_FRAMES / scenario.frame_rate_hz / 3600:.0f} h of this preset); "
+                          "give a shorter duration_s or fewer frames")
+    return max(1, round(n))
+
+
+MAX_SIMULATED_FRAMES = 1_000_000  # per simulated cell: 55 hours at 5 Hz
 
 
 MAX_SEEDS = 10_000  # per entry: a count beyond this is a typo (a billion seeds would fill the memory first)
