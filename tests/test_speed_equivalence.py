@@ -51,7 +51,7 @@ def _spot_candidates_reference(image_rgb, config, near_uv_px):
     if len(cents):
         close = np.any(np.linalg.norm(cents[:, None, :] - near[None, :, :], axis=2) <= config.search_radius_px, axis=1)
         cents, weights = cents[close], weights[close]
-    order = np.argsort(-weights, kind="stable")
+    order = np.lexsort((cents[:, 0], cents[:, 1], -weights)) if len(cents) else np.zeros(0, dtype=np.intp)  # ties: top, left
     return cents[order], weights[order]
 
 

@@ -214,7 +214,9 @@ def _spot_candidates(
         dist = np.linalg.norm(cents[:, None, :] - near[None, :, :], axis=2)
         close = np.any(dist <= config.search_radius_px, axis=1)
         cents, weights = cents[close], weights[close]
-    order = np.argsort(-weights, kind="stable")
+    # Strongest first; equal weights (saturated spots of the same size) top to bottom, then left to
+    # right: OpenCV's labels follow its block scan, whose order changes with the crop's offset.
+    order = np.lexsort((cents[:, 0], cents[:, 1], -weights)) if len(cents) else np.zeros(0, dtype=np.intp)
     return cents[order], weights[order]
 
 
