@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from rovslam.camera import rot2
-from rovslam.config import OdometryConfig
-from rovslam.slam.apparent import apparent_frame_cov_m2, shared_heading_sigma_rad
+from rovslam.config import OdometryConfig, RunConfig
+from rovslam.slam.apparent import apparent_frame_cov_m2, apparent_sigmas, shared_heading_sigma_rad
 
 
 def test_a_shared_heading_error_turns_the_estimate_about_the_start():
@@ -67,3 +67,15 @@ def test_the_drift_counts_only_when_the_back_end_does_not_estimate_it():
     assert shared_heading_sigma_rad(odo, drift_estimated=False) == pytest.approx(math.hypot(0.0087, 0.0175))
     paper = dataclasses.replace(odo, compass_sigma_rad=0.0)  # the compass as it is: no term
     assert shared_heading_sigma_rad(paper, drift_estimated=False) == 0.0
+
+
+def test_each_back_end_adds_what_it_does_not_hold():
+    cfg = RunConfig()
+    # The EKF estimates the drift (eps) and holds the altimeter's lasting error (b): the offset alone.
+    assert apparent_sigmas(cfg, graph=False) == (cfg.odometry.compass_offset_sigma_rad, 0.0)
+    # The graph estimates the drift too, but holds no altimeter error: that scales its whole dive.
+    assert apparent_sigmas(cfg, graph=True) == (cfg.odometry.compass_offset_sigma_rad, cfg.slam.altitude_bias_sigma_m)
+    no_drift = dataclasses.replace(cfg, slam=dataclasses.replace(cfg.slam, heading_bias_sigma_rad=0.0))
+    assert apparent_sigmas(no_drift, graph=False)[0] == pytest.approx(
+        math.hypot(cfg.odometry.compass_offset_sigma_rad, cfg.odometry.compass_drift_sigma_rad))
+    assert apparent_sigmas(no_drift, graph=True)[0] == cfg.odometry.compass_offset_sigma_rad  # the graph's own model

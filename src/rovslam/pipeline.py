@@ -38,7 +38,7 @@ from rovslam.landmarks import LandmarkRecord, most_distinctive, oriented_patch
 from rovslam.odometry import SpeedEstimator, SpeedMeasurement
 from rovslam.shutter import mn_at_frame_time, mn_rate_px_s, tokens_at_frame_time
 from rovslam.slam import EkfSlam
-from rovslam.slam.apparent import apparent_frame_cov_m2, shared_heading_sigma_rad
+from rovslam.slam.apparent import apparent_frame_cov_m2, apparent_sigmas
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 from rovslam.slam.motion import motion_step_m
 from rovslam.slam.observation import observation_noise_px2, pixels_to_mn
@@ -152,6 +152,8 @@ class SlamPipeline:
             from rovslam.slam.smoother import Isam2Smoother
 
             self.smoother = Isam2Smoother(config.smoother)
+        # What the reported covariance adds for the online back end (rovslam.slam.apparent): fixed by the config.
+        self._apparent_sigmas = apparent_sigmas(config, graph=self.smoother is not None)
         self.landmarks: list[LandmarkRecord] = []
         self.recovery = RecoveryMonitor(config.association)
         # Sunlight caustics: bright structures that do not move with the seabed, taken out while they are seen.
@@ -715,12 +717,10 @@ class SlamPipeline:
         which does not hold it, the altimeter's lasting error move the whole estimate, and no
         image can see them (:mod:`rovslam.slam.apparent`).
         """
-        isam2 = self.smoother is not None
-        drift_estimated = (self.config.smoother if isam2 else self.config.slam).heading_bias_sigma_rad > 0
-        rot = shared_heading_sigma_rad(self.config.odometry, drift_estimated) if meas.has_compass else 0.0
-        scale = self.config.slam.altitude_bias_sigma_m / meas.altitude_m if isam2 else 0.0
+        heading_sigma_rad, altitude_sigma_m = self._apparent_sigmas
         return np.asarray(cov_m2, dtype=np.float64) + apparent_frame_cov_m2(
-            xy_m, meas.altitude_m, meas.attitude_sigma_rad, rot, scale)
+            xy_m, meas.altitude_m, meas.attitude_sigma_rad, heading_sigma_rad if meas.has_compass else 0.0,
+            altitude_sigma_m / meas.altitude_m)
 
     def _inside(self, uv_px: np.ndarray, half_px: float) -> bool:
         return bool(

@@ -667,14 +667,13 @@ def write_smoothed_result(out_dir: Path, res, config=None) -> None:
     defaults). The landmarks take the last frame's tilt and scale terms.
     """
     from rovslam.io.results import write_smoothed
-    from rovslam.slam.apparent import apparent_frame_cov_m2, shared_heading_sigma_rad
+    from rovslam.slam.apparent import apparent_frame_cov_m2, apparent_sigmas
 
-    config = RunConfig() if config is None else config
-    rot = shared_heading_sigma_rad(config.odometry, config.smoother.heading_bias_sigma_rad > 0)
+    rot, altitude_sigma_m = apparent_sigmas(RunConfig() if config is None else config, graph=True)
     n = len(res.t_s)
     tilt = np.zeros(n) if res.attitude_sigma_rad is None else res.attitude_sigma_rad
     compass = np.zeros(n, dtype=bool) if res.has_compass is None else res.has_compass
-    scale = config.slam.altitude_bias_sigma_m / res.altitude_m
+    scale = altitude_sigma_m / res.altitude_m
     cov = res.cov_xy_m2 + apparent_frame_cov_m2(res.xy_m, res.altitude_m, tilt, np.where(compass, rot, 0.0), scale)
     lcov = res.landmarks_cov_m2
     if n and len(lcov):

@@ -28,9 +28,9 @@ import math
 
 import numpy as np
 
-from rovslam.config import OdometryConfig
+from rovslam.config import OdometryConfig, RunConfig
 
-__all__ = ["apparent_frame_cov_m2", "shared_heading_sigma_rad"]
+__all__ = ["apparent_frame_cov_m2", "apparent_sigmas", "shared_heading_sigma_rad"]
 
 
 def shared_heading_sigma_rad(odometry: OdometryConfig, drift_estimated: bool) -> float:
@@ -43,6 +43,18 @@ def shared_heading_sigma_rad(odometry: OdometryConfig, drift_estimated: bool) ->
     if odometry.compass_sigma_rad == 0:
         return 0.0
     return math.hypot(odometry.compass_offset_sigma_rad, 0.0 if drift_estimated else odometry.compass_drift_sigma_rad)
+
+
+def apparent_sigmas(config: RunConfig, graph: bool) -> tuple[float, float]:
+    """``(heading_rad, altitude_m)``: what a back end's estimate shares and does not hold.
+
+    The sigma of the heading error the whole estimate shares (frames with a compass), and of
+    the altimeter's lasting error: the EKF (``graph`` False) holds that one in its state ``b``,
+    the iSAM2 graph (``graph`` True) does not. Each back end's own drift model decides whether
+    the compass drift is shared.
+    """
+    drift_estimated = (config.smoother if graph else config.slam).heading_bias_sigma_rad > 0
+    return shared_heading_sigma_rad(config.odometry, drift_estimated), (config.slam.altitude_bias_sigma_m if graph else 0.0)
 
 
 def apparent_frame_cov_m2(xy_m, depth_m, tilt_sigma_rad, rotation_sigma_rad, scale_sigma=0.0) -> np.ndarray:
