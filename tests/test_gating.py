@@ -116,7 +116,7 @@ def test_relative_covariance_uses_the_cross_terms():
 
 
 def test_ekf_gate_and_new_landmark_test():
-    ekf = EkfSlam(SlamConfig(pixel_sigma_px=0.5, new_landmark_spacing_m=0.372, landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0))
+    ekf = EkfSlam(SlamConfig(pixel_sigma_px=0.5, new_landmark_spacing_m=0.372, landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0))
     assert ekf.may_add_landmark()  # no landmarks yet
     assert ekf.visible_landmarks(0.0, Z, F, W, H).size == 0
     # Landmark 0 just inside the image edge ahead (m = 0.95 * H/2), landmark 1 far ahead.

@@ -44,7 +44,7 @@ def test_tracker_reports_each_steps_heading_variance_as_a_walk():
 
 
 def test_eps_walks_without_decay_and_carries_the_position_error_of_a_heading_error():
-    cfg = SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0)
+    cfg = SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0)
     walk, ou = EkfSlam(cfg), EkfSlam(cfg)
     walk._x[walk._eps] = ou._x[ou._eps] = 0.02  # a learned heading error
     var0 = walk.heading_bias_sigma_rad**2

@@ -336,7 +336,7 @@ def test_held_speed_drives_the_filter_through_a_gap():
 
     rng = np.random.default_rng(18)
     est = SpeedEstimator(OdometryConfig(held_speed_drift_mps2=0.02))
-    ekf = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0, landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0))
+    ekf = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0, landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0))
     empty = np.zeros((0, 2))
     uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])
     growth = []

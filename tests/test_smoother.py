@@ -39,7 +39,7 @@ def smoother_config(noise: SurveyNoise = NOISE, **changes) -> SmootherConfig:
 
 def run_ekf(frames, noise: SurveyNoise = NOISE):
     """The EKF fed the records as the pipeline feeds it: (K, 2) positions, (K, 2, 2) covariances."""
-    ekf = EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, heading_bias_sigma_rad=noise.drift_sigma_rad, heading_bias_tau_s=noise.drift_tau_s,
+    ekf = EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=noise.drift_sigma_rad, heading_bias_tau_s=noise.drift_tau_s,
                              pixel_sigma_px=noise.pixel_sigma_px))
     xy, cov = np.zeros((len(frames), 2)), np.zeros((len(frames), 2, 2))
     prev = None

@@ -330,6 +330,8 @@ class SlamConfig(_Checked):
     altitude_bias_sigma_m: float = _num(0.01, ge=0)  # > 0: the measured altitude's offset from the seabed datum in the state
     altitude_bias_tau_s: float = _num(30.0, gt=0)  # its correlation time (the altimeter's calibration, the relief under the lasers)
     altitude_bias_consider: bool = True  # b a consider state (Schmidt): its uncertainty carried, never learned (False: learned)
+    speed_bias_sigma_mps: float = _num(0.002, ge=0)  # > 0: the odometry's slow world-frame speed error w in the state, while sunlight drags the tokens (0: none)
+    speed_bias_tau_s: float = _num(60.0, gt=0)  # its correlation time (Ornstein-Uhlenbeck)
 
 
 RobustLoss = Literal["huber", "cauchy", "none"]

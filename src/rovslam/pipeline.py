@@ -585,12 +585,16 @@ class SlamPipeline:
         self.recovery.recovered(RecoveryEvent(frame.index, frame.t_s, (float(offset[0]), float(offset[1])),
                                               tuple(t.record.id for t in strong), "refused matches"))
 
+    def _speed_bias_sigma_mps(self) -> float:
+        """The odometry's slow speed error: sunlight caustics drifting over the seabed drag the tokens."""
+        return self.config.slam.speed_bias_sigma_mps if self.sunlight is not None and self.sunlight.active else 0.0
+
     def _predict(self, speed: SpeedMeasurement, heading_rad: float, dt_s: float, heading_sigma_rad: float | None,
                  altitude_m: float | None = None, altitude_bias_sigma_m: float | None = None,
                  heading_walk_var_rad2: float | None = None) -> None:
         """Prediction (1) of the filter and of the dead reckoning reported beside it."""
         self.ekf.predict(speed.surge_mps, speed.sway_mps, speed.cov_mps2, heading_rad, dt_s, heading_sigma_rad,
-                         altitude_m, altitude_bias_sigma_m, heading_walk_var_rad2)
+                         altitude_m, altitude_bias_sigma_m, heading_walk_var_rad2, self._speed_bias_sigma_mps())
         self._dr += motion_step_m(speed.speed_mps, heading_rad, dt_s)
         if speed.ok:
             self._last_speed_mps = speed.speed_mps

@@ -1,4 +1,4 @@
-"""Augmented-state EKF-SLAM: state ``[x, y, (eps,) (b,) X1, Y1, (h1,) ..., XN, YN, (hN)]`` (metres, world frame).
+"""Augmented-state EKF-SLAM: state ``[x, y, (eps,) (b,) (wx, wy,) X1, Y1, (h1,) ..., XN, YN, (hN)]`` (metres, world frame).
 
 ``eps`` (radians, present when ``heading_bias_sigma_rad > 0``) is the slow error of the heading
 input, beyond the paper: the true heading is ``psi - eps``, ``eps`` an Ornstein-Uhlenbeck
@@ -28,6 +28,15 @@ spot centroid held half a pixel off by a video codec's blocks is a 1 % scale for
 ``altitude_bias_tau_s`` = 30 s) in the vehicle's and the landmarks' covariance. Learned, it
 was pulled by the relief's parallax to wrong values with a shrinking variance; with the earlier
 1 s correlation, the filter averaged a persistent error over many frames as if it were white.
+
+``w = [wx, wy]`` (m/s, world frame, present when ``speed_bias_sigma_mps > 0``) is a slow error of
+the measured speed that moves with the world, not with the vehicle: sunlight caustics drifting
+over the seabed drag a few per cent of their speed into the tokens even after the wide opening
+took most of the light out (-1.5 to -1.7 mm/s of surge on the swell preset, 0.5 m of drift over 5
+minutes). The true step is ``R(psi) [u, v] dt + w dt``; ``w`` is an Ornstein-Uhlenbeck process
+whose stationary sigma the caller gives per step (the pipeline: ``speed_bias_sigma_mps`` while the
+sunlight is being taken out, else 0, so ``w`` fades; without it ``w`` stays 0 with no variance);
+when that sigma rises, ``w``'s variance rises at once. The landmarks tracked from frame to frame estimate it; observations do not depend on it.
 
 * Prediction (1), (2) (:mod:`rovslam.slam.motion`): ``[x, y] += R(psi) [u, v] dt``; the speed covariance Q is projected
   through ``R(psi) dt``, an optional heading noise through ``dR/dpsi [u, v] dt``; landmarks
@@ -170,7 +179,8 @@ class EkfSlam:
             cov = _cov2("initial_cov_m2", initial_cov_m2)
         self._eps = 2 if config.heading_bias_sigma_rad > 0 else None  # state row of eps
         self._b = (2 + (self._eps is not None)) if config.altitude_bias_sigma_m > 0 else None  # state row of b
-        self._v = 2 + (self._eps is not None) + (self._b is not None)  # vehicle block: x, y (, eps) (, b)
+        self._w = (2 + (self._eps is not None) + (self._b is not None)) if config.speed_bias_sigma_mps > 0 else None
+        self._v = 2 + (self._eps is not None) + (self._b is not None) + 2 * (self._w is not None)  # x, y (, eps) (, b) (, w)
         self._lm = 3 if config.landmark_height_sigma_m > 0 else 2  # landmark block: X, Y (, h)
         self._n = self._v
         self._alloc(self._v + self._lm * max(int(initial_capacity), 1))
@@ -180,6 +190,7 @@ class EkfSlam:
             self._P[self._eps, self._eps] = config.heading_bias_sigma_rad**2
         if self._b is not None:
             self._P[self._b, self._b] = config.altitude_bias_sigma_m**2
+        self._w_sigma_mps = 0.0  # the speed error's stationary sigma over the last step (0: none yet)
 
     # ------------------------------------------------------------------ storage
     def _alloc(self, cap: int) -> None:
@@ -201,7 +212,7 @@ class EkfSlam:
     # ------------------------------------------------------------------ accessors
     @property
     def state_dim(self) -> int:
-        """2 (+1 with the heading-bias state) + 2N (3N with the landmark heights)."""
+        """2 (+1 with eps, +1 with b, +2 with w) + 2N (3N with the landmark heights)."""
         return self._n
 
     @property
@@ -229,6 +240,16 @@ class EkfSlam:
     @property
     def altitude_bias_sigma_m(self) -> float:
         return float(np.sqrt(max(self._P[self._b, self._b], 0.0))) if self._b is not None else 0.0
+
+    @property
+    def speed_bias_mps(self) -> np.ndarray:
+        """(2,) estimated world-frame speed error w (true step = measured step + w dt); zeros without the state."""
+        return self._x[self._w : self._w + 2].copy() if self._w is not None else np.zeros(2)
+
+    @property
+    def speed_bias_cov_mps2(self) -> np.ndarray:
+        """(2, 2) its covariance; zeros without the state."""
+        return self._P[self._w : self._w + 2, self._w : self._w + 2].copy() if self._w is not None else np.zeros((2, 2))
 
     def map_heading_rad(self, heading_rad: float) -> float:
         """The heading the filter believes for a heading input: ``psi - eps`` (the input without its slow bias)."""
@@ -328,6 +349,7 @@ class EkfSlam:
         altitude_m: float | None = None,
         altitude_bias_sigma_m: float | None = None,
         heading_walk_var_rad2: float | None = None,
+        speed_bias_sigma_mps: float = 0.0,
     ) -> None:
         """Prediction by (1) and (2) with the measured body speed and heading as inputs.
 
@@ -344,6 +366,9 @@ class EkfSlam:
             heading_walk_var_rad2: a heading input integrated from turns, without a compass: the
                 variance it gained over this step. ``eps`` is then a random walk (no decay towards
                 0) driven by it, instead of the compass's Ornstein-Uhlenbeck drift. None: a compass.
+            speed_bias_sigma_mps: the stationary sigma of the speed error ``w`` over this step: the
+                odometry is dragged only while something moves over the seabed (the pipeline gives
+                ``config.speed_bias_sigma_mps`` while it takes sunlight out); 0 (the default) lets ``w`` fade.
 
         Raises:
             InvalidMeasurementError: NaN/inf or invalid input; the state is unchanged.
@@ -361,6 +386,7 @@ class EkfSlam:
         sb = _finite("altitude_bias_sigma_m", sb, nonnegative=True)
         walk = None if heading_walk_var_rad2 is None else _finite("heading_walk_var_rad2", heading_walk_var_rad2,
                                                                   nonnegative=True)
+        sw = _finite("speed_bias_sigma_mps", speed_bias_sigma_mps, nonnegative=True)
 
         theta = self.map_heading_rad(psi)
         speed = np.array([u, v])
@@ -370,6 +396,8 @@ class EkfSlam:
         step = motion_step_m(speed * scale, theta, dt)
         self._x[:2] += step  # (1)
         n = self._n
+        if self._w is not None:  # the odometry's slow world-frame error: the true step is the measured one + w dt
+            self._x[:2] += self._x[self._w : self._w + 2] * dt
         p = self._P
         # F = I except d(position)/d(eps) = -j and d(position)/d(b) = step / (Z + b): P <- F P F^T.
         cols, coef = [], []
@@ -379,12 +407,24 @@ class EkfSlam:
         if self._b is not None and z is not None:
             cols.append(self._b)
             coef.append(step / (z * scale))
+        if self._w is not None:
+            cols += [self._w, self._w + 1]
+            coef += [np.array([dt, 0.0]), np.array([0.0, dt])]
         if cols:
             e = np.column_stack(coef)  # (2, k)
             p[0:2, :n] += e @ p[cols, :n]
             p[:n, 0:2] += p[:n, cols] @ e.T
+        w = self._w
+        if w is not None:
+            if sw > self._w_sigma_mps:  # a drag appeared (or grew): its variance at once, as a fresh unknown
+                rise = sw**2 - self._w_sigma_mps**2
+                p[w, w] += rise
+                p[w + 1, w + 1] += rise
+            self._w_sigma_mps = sw
         for row, tau, sigma in ((self._eps, self.config.heading_bias_tau_s, self.config.heading_bias_sigma_rad),
-                                (self._b, self.config.altitude_bias_tau_s, sb)):
+                                (self._b, self.config.altitude_bias_tau_s, sb),
+                                (w, self.config.speed_bias_tau_s, sw),
+                                (None if w is None else w + 1, self.config.speed_bias_tau_s, sw)):
             if row is None:
                 continue
             if row == self._eps and walk is not None:  # an integrated heading: its error walks, never decays
@@ -426,7 +466,7 @@ class EkfSlam:
         a, j_psi = observation_jacobians(h, theta, depth, f)
         # d h / d eps = -d h / d psi; d h / d b = -h / depth; d h / d h_i = h / depth.
         cols = ([-a] + ([-j_psi.T] if self._eps is not None else []) + ([-h[:, None] / depth] if self._b is not None else [])
-                + [a] + ([h[:, None] / depth] if self._lm == 3 else []))
+                + ([np.zeros((2, 2))] if self._w is not None else []) + [a] + ([h[:, None] / depth] if self._lm == 3 else []))
         idx = list(range(self._v)) + list(range(k, k + self._lm))
         return h, np.hstack(cols), np.array(idx), depth
 
@@ -488,7 +528,8 @@ class EkfSlam:
         a, j_psi = observation_jacobians(h, theta, depth[:, None, None], f)  # (K, 2, 2), (K, 2)
         # H_v (K, 2, v) and H_l (K, 2, lm), as in _observation_terms.
         hv = ([-a] + ([-j_psi[:, :, None]] if self._eps is not None else [])
-              + ([-(h / depth[:, None])[:, :, None]] if self._b is not None else []))
+              + ([-(h / depth[:, None])[:, :, None]] if self._b is not None else [])
+              + ([np.zeros((len(h), 2, 2))] if self._w is not None else []))
         hl = [a] + ([(h / depth[:, None])[:, :, None]] if self._lm == 3 else [])
         hv_m, hl_m = np.concatenate(hv, axis=2), np.concatenate(hl, axis=2)
         p = self._P
