@@ -33,6 +33,7 @@ Subpixel = Literal["parabolic", "gaussian", "none"]
 Augmentation = Literal["full", "paper"]
 GateCovariance = Literal["relative", "paper"]
 Backend = Literal["ekf", "isam2"]
+SpeedBiasWhen = Literal["sunlight", "always"]
 Auto = Literal["auto"]
 
 
@@ -332,6 +333,7 @@ class SlamConfig(_Checked):
     altitude_bias_consider: bool = True  # b a consider state (Schmidt): its uncertainty carried, never learned (False: learned)
     speed_bias_sigma_mps: float = _num(0.002, ge=0)  # > 0: the odometry's slow world-frame speed error w in the state, while sunlight drags the tokens (0: none)
     speed_bias_tau_s: float = _num(60.0, gt=0)  # its correlation time (Ornstein-Uhlenbeck)
+    speed_bias_when: SpeedBiasWhen = "sunlight"  # "sunlight": while it is taken out | "always" (slow caustics the watch misses)
 
 
 RobustLoss = Literal["huber", "cauchy", "none"]

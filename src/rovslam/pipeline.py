@@ -587,7 +587,9 @@ class SlamPipeline:
 
     def _speed_bias_sigma_mps(self) -> float:
         """The odometry's slow speed error: sunlight caustics drifting over the seabed drag the tokens."""
-        return self.config.slam.speed_bias_sigma_mps if self.sunlight is not None and self.sunlight.active else 0.0
+        cfg = self.config.slam
+        seen = cfg.speed_bias_when == "always" or (self.sunlight is not None and self.sunlight.active)
+        return cfg.speed_bias_sigma_mps if seen else 0.0
 
     def _predict(self, speed: SpeedMeasurement, heading_rad: float, dt_s: float, heading_sigma_rad: float | None,
                  altitude_m: float | None = None, altitude_bias_sigma_m: float | None = None,
