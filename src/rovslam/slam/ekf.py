@@ -36,7 +36,8 @@ took most of the light out (-1.5 to -1.7 mm/s of surge on the swell preset, 0.5 
 minutes). The true step is ``R(psi) [u, v] dt + w dt``; ``w`` is an Ornstein-Uhlenbeck process
 whose stationary sigma the caller gives per step (the pipeline: ``speed_bias_sigma_mps`` while the
 sunlight is being taken out, else 0, so ``w`` fades; without it ``w`` stays 0 with no variance);
-when that sigma rises, ``w``'s variance rises at once. The landmarks tracked from frame to frame estimate it; observations do not depend on it.
+when that sigma rises, ``w``'s variance rises at once. The landmarks tracked from frame to frame
+estimate it; observations do not depend on it.
 
 * Prediction (1), (2) (:mod:`rovslam.slam.motion`): ``[x, y] += R(psi) [u, v] dt``; the speed covariance Q is projected
   through ``R(psi) dt``, an optional heading noise through ``dR/dpsi [u, v] dt``; landmarks
@@ -399,7 +400,8 @@ class EkfSlam:
         if self._w is not None:  # the odometry's slow world-frame error: the true step is the measured one + w dt
             self._x[:2] += self._x[self._w : self._w + 2] * dt
         p = self._P
-        # F = I except d(position)/d(eps) = -j and d(position)/d(b) = step / (Z + b): P <- F P F^T.
+        # F = I except d(position)/d(eps) = -j, d(position)/d(b) = step / (Z + b) and d(position)/d(w) = dt I:
+        # P <- F P F^T.
         cols, coef = [], []
         if self._eps is not None:
             cols.append(self._eps)
