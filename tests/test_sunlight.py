@@ -141,6 +141,10 @@ def test_the_sunlight_is_taken_out_early_and_the_dive_keeps_its_accuracy(swell_r
     assert sun["opening_px"] == 31 and sun["changes"][0]["removed"] and sun["changes"][0]["frame"] <= 5
     assert len(sun["changes"]) == 1 and sun["frames_removed"] == 120 - sun["changes"][0]["frame"]  # then stays
     assert len(sun["warnings"]) == 1 and "sunlight caustics" in sun["warnings"][0]
+    # The filter's speed error w is driven from the prediction after the switch on (summary and warning say so).
+    drag = out_summary["speed_bias"]
+    assert sun["frames_removed"] - 2 <= drag["frames"] <= sun["frames_removed"]
+    assert all(0.0 < s <= 0.002 for s in drag["mean_sigma_mps"]) and "drag it leaves on the speed" in sun["warnings"][0]
     assert in_summary["sunlight"]["frames_removed"] == 0
     # The sunlight left in: the landmarks are rarely found again and the error grows.
     assert in_summary["map_use"]["found_fraction"] < 0.15
@@ -152,6 +156,7 @@ def test_the_sunlight_is_taken_out_early_and_the_dive_keeps_its_accuracy(swell_r
 def test_a_dive_without_sunlight_keeps_the_narrow_opening(swell_runs):
     summary, _ = swell_runs["control"]
     assert summary["sunlight"] == {"opening_px": 31, "frames_removed": 0, "changes": [], "warnings": []}
+    assert summary["speed_bias"] == {"frames": 0, "mean_mps": [0.0, 0.0], "mean_sigma_mps": [0.0, 0.0]}
     assert summary["map_use"]["found_fraction"] > 0.6 and summary["map_use"]["warnings"] == []
 
 
@@ -175,6 +180,7 @@ def test_slow_caustics_the_watch_misses_are_taken_by_the_speed_error_when_asked(
         run_sequence(tmp_path / "seq", tmp_path / key, cfg)
         summary = json.loads((tmp_path / key / "summary.json").read_text())
         assert summary["sunlight"]["frames_removed"] == 0  # not seen
+        assert summary["speed_bias"]["frames"] == (300 if key == "always" else 0)
         results[key] = evaluate_run(tmp_path / key, tmp_path / "seq" / "groundtruth.csv")
     d, a = results["default"], results["always"]
     print(f"\nslow caustics: ATE {d.slam.ate_rmse_m * 100:.2f} -> {a.slam.ate_rmse_m * 100:.2f} cm, inside 2-sigma "

@@ -160,6 +160,9 @@ class SlamPipeline:
         self.sunlight = SunlightMonitor() if config.bandpass.sunlight_px > config.bandpass.despeckle_px else None
         self.sunlight_events: list[SunlightEvent] = []
         self._sunlit_frames = 0
+        self._drag_frames = 0  # predictions that drove the filter's speed error w
+        self._drag_sum_mps = np.zeros(2)  # w summed over them, and its sigma
+        self._drag_sigma_sum_mps = np.zeros(2)
         self._bright_prev: np.ndarray | None = None  # (H, W) float32 bright structures of the last frame
         self._bright: np.ndarray | None = None  # ... and of this one
         self.skipped: list[tuple[int, float, str]] = []
@@ -280,6 +283,17 @@ class SlamPipeline:
                 "changes": [{"frame": e.frame, "t_s": e.t_s, "removed": e.removed, "share": e.share}
                             for e in self.sunlight_events]}
 
+    def _drag_means_mps(self) -> tuple[np.ndarray, np.ndarray]:
+        n = max(self._drag_frames, 1)
+        return self._drag_sum_mps / n, self._drag_sigma_sum_mps / n
+
+    def speed_bias_summary(self) -> dict:
+        """What ``summary.json`` says of the speed error w: the frames it was driven, its mean and mean sigma
+        over them (m/s, world frame x north, y east)."""
+        mean, sigma = self._drag_means_mps()
+        return {"frames": int(self._drag_frames), "mean_mps": [float(v) for v in mean],
+                "mean_sigma_mps": [float(v) for v in sigma]}
+
     def sunlight_warnings(self) -> list[str]:
         """One line for the run's warnings when the sunlight was taken out of any frame."""
         if not self._sunlit_frames:
@@ -288,7 +302,15 @@ class SlamPipeline:
         return [f"bright light that does not move with the seabed (sunlight caustics) was seen from t = "
                 f"{first.t_s:.1f} s: bright structures narrower than {self.config.bandpass.sunlight_px} px were "
                 f"removed from {self._sunlit_frames} of {self._n} frames before tracking ([bandpass] sunlight_px; "
-                "0 turns this off)"]
+                "0 turns this off)" + self._drag_note()]
+
+    def _drag_note(self) -> str:
+        if not self._drag_frames:
+            return ""
+        mean, sigma = self._drag_means_mps()
+        (wx, wy), (sx, sy) = mean * 1e3, sigma * 1e3
+        return (f"; the drag it leaves on the speed, as the filter estimated it (mean over those frames): "
+                f"{wx:+.1f} +- {sx:.1f} mm/s north, {wy:+.1f} +- {sy:.1f} mm/s east ([slam] speed_bias_sigma_mps)")
 
     # ------------------------------------------------------------------ step 1
     def _measure_altitude(self, frame: Frame, att: tuple[float, float]) -> AltitudeEstimate:
@@ -595,8 +617,13 @@ class SlamPipeline:
                  altitude_m: float | None = None, altitude_bias_sigma_m: float | None = None,
                  heading_walk_var_rad2: float | None = None) -> None:
         """Prediction (1) of the filter and of the dead reckoning reported beside it."""
+        drag_sigma = self._speed_bias_sigma_mps()
         self.ekf.predict(speed.surge_mps, speed.sway_mps, speed.cov_mps2, heading_rad, dt_s, heading_sigma_rad,
-                         altitude_m, altitude_bias_sigma_m, heading_walk_var_rad2, self._speed_bias_sigma_mps())
+                         altitude_m, altitude_bias_sigma_m, heading_walk_var_rad2, drag_sigma)
+        if drag_sigma > 0.0:
+            self._drag_frames += 1
+            self._drag_sum_mps += self.ekf.speed_bias_mps
+            self._drag_sigma_sum_mps += np.sqrt(np.maximum(np.diag(self.ekf.speed_bias_cov_mps2), 0.0))
         self._dr += motion_step_m(speed.speed_mps, heading_rad, dt_s)
         if speed.ok:
             self._last_speed_mps = speed.speed_mps

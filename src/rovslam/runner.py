@@ -608,6 +608,7 @@ class _Run:
             "source_warnings": list(getattr(self.seq, "warnings", [])),
             "map_use": {**self.map_use.summary(), "warnings": self.map_use.warnings()},
             "sunlight": {**pipe.sunlight_summary(), "warnings": pipe.sunlight_warnings()},
+            "speed_bias": pipe.speed_bias_summary(),
             "source_frames_left_out": int(getattr(self.seq, "left_out", 0)),
             "landmarks": pipe.ekf.n_landmarks,
             "processing": {"scale": pipe.scale.scale, "width_px": pipe.camera.width_px, "height_px": pipe.camera.height_px},
