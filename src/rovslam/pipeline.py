@@ -42,7 +42,7 @@ from rovslam.slam.apparent import apparent_frame_cov_m2, apparent_sigmas
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 from rovslam.slam.motion import motion_step_m
 from rovslam.slam.observation import observation_noise_px2, pixels_to_mn
-from rovslam.sunlight import SunlightEvent, SunlightMonitor, moving_light_share
+from rovslam.sunlight import BrightHistory, SunlightEvent, SunlightMonitor, moving_light_share
 from rovslam.vision.filters import (
     bandpass,
     contrast_std,
@@ -163,7 +163,7 @@ class SlamPipeline:
         self._drag_frames = 0  # predictions that drove the filter's speed error w
         self._drag_sum_mps = np.zeros(2)  # w summed over them, and its sigma
         self._drag_sigma_sum_mps = np.zeros(2)
-        self._bright_prev: np.ndarray | None = None  # (H, W) float32 bright structures of the last frame
+        self._bright_history = BrightHistory()  # (H, W) float32 bright structures of the last frames
         self._bright: np.ndarray | None = None  # ... and of this one
         self.skipped: list[tuple[int, float, str]] = []
         self._prev_t_s: float | None = None
@@ -222,7 +222,8 @@ class SlamPipeline:
         self._extract_tokens(track_img, mask)  # step 8
 
         self._prev_t_s, self._prev_altitude_m, self._prev_attitude = frame.t_s, alt.altitude_m, att
-        self._bright_prev = self._bright
+        if self._bright is not None:
+            self._bright_history.push(frame.t_s, self._bright, *self._consensus_tokens(tracks, speed))
         self._sunlit_frames += self.sunlight is not None and self.sunlight.active
         self._n += 1
         return self._result(
@@ -261,12 +262,13 @@ class SlamPipeline:
         Returns this frame's tracking image when the sunlight was just taken out (or left in
         again), so that steps 7 and 8 cut their templates from it; None when nothing changed.
         """
-        if self.sunlight is None or self._bright_prev is None or self._bright is None:
+        if self.sunlight is None or self._bright is None:
             return None
-        uv0, uv1 = tracks.uv_prev_px, tracks.uv_curr_px
-        if speed is not None and speed.ok and len(speed.inlier_mask) == len(uv0):  # the consensus's tokens only
-            uv0, uv1 = uv0[speed.inlier_mask], uv1[speed.inlier_mask]
-        share = moving_light_share(self._bright_prev, self._bright, uv0, uv1, self.config.speed_templates.size_px)
+        uv0, uv1 = self._consensus_tokens(tracks, speed)
+        earlier = self._bright_history.baseline(frame.t_s, uv0)  # over 0.2 s, whatever the frame rate
+        if earlier is None:
+            return None
+        share = moving_light_share(earlier[0], self._bright, earlier[1], uv1, self.config.speed_templates.size_px)
         if not self.sunlight.observe(share):
             return None
         img, reason = self._tracking_image(frame)
@@ -275,6 +277,14 @@ class SlamPipeline:
             return None
         self.sunlight_events.append(SunlightEvent(self._n, frame.t_s, self.sunlight.active, self.sunlight.share))
         return img
+
+    @staticmethod
+    def _consensus_tokens(tracks: TokenTracks, speed: SpeedMeasurement | None) -> tuple[np.ndarray, np.ndarray]:
+        """``(N, 2)`` previous and current centres of the tokens the speed consensus kept (all, without one)."""
+        uv0, uv1 = tracks.uv_prev_px, tracks.uv_curr_px
+        if speed is not None and speed.ok and len(speed.inlier_mask) == len(uv0):
+            uv0, uv1 = uv0[speed.inlier_mask], uv1[speed.inlier_mask]
+        return uv0, uv1
 
     def sunlight_summary(self) -> dict:
         """What ``summary.json`` says of the sunlight: frames it was taken out of, and when it changed."""

@@ -19,6 +19,8 @@ What tells the sunlight from the seabed's own bright specks is motion. The brigh
 between the two widths, ``B = open(I, despeckle_px) - open(I, sunlight_px)``, are compared around
 each speed token where it was in the previous frame and where it was found in this one
 (:func:`moving_light_share`): the seabed's own specks moved with the token, the sunlight did not.
+The comparison spans at least 0.15 s (:class:`BrightHistory`: at 10 Hz the frame 2 back, the tokens
+carried back through the frame between), as at the 5 Hz the thresholds were measured at.
 :class:`SunlightMonitor` smooths that share over about 10 frames and switches the wide opening
 on above ``SUNLIGHT_ON_SHARE`` and off below ``SUNLIGHT_OFF_SHARE``, from the third frame with a
 share on. The average is divided by the weight it has given the frames so far, so the first
@@ -33,6 +35,7 @@ relief, turbid), the smoothed share at most 0.028; 0.017 on the real Sparus vide
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import cv2
@@ -43,6 +46,10 @@ SUNLIGHT_OFF_SHARE = 0.015  # ... and below which it is left in again
 SUNLIGHT_SMOOTHING = 0.1  # exponential smoothing per frame (about 10 frames)
 SUNLIGHT_MIN_FRAMES = 3  # frames with a share before the first decision
 MIN_BRIGHT_RMS = 10.0  # grey levels: a token window with fainter bright structures says nothing
+# The light is compared over at least this much time (3/4 of it, for timestamps that jitter), whatever
+# the frame rate: the shares and thresholds above were measured between frames 0.2 s apart, and
+# caustics move half as far between frames at 10 Hz (the swell at 10 Hz: never seen, 40 cm of error).
+SUNLIGHT_BASELINE_S = 0.2
 
 
 def moving_light_share(
@@ -119,6 +126,55 @@ def _windows(img: np.ndarray, centres: np.ndarray, off: np.ndarray) -> np.ndarra
     out = cv2.remap(img, np.ascontiguousarray(pts[..., 0]), np.ascontiguousarray(pts[..., 1]), cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_REPLICATE)
     return out.astype(np.float32, copy=False)
+
+
+class BrightHistory:
+    """The bright structures of the last frames and how each frame's tokens moved, so that the watch
+    compares the light over :data:`SUNLIGHT_BASELINE_S` whatever the frame rate.
+
+    :meth:`push` adds a frame; :meth:`baseline` gives the bright structures of the newest frame at
+    least 3/4 of the baseline older than the current one (or the oldest frame the tokens' motion
+    links to it) and where the current frame's tokens were in it.
+    """
+
+    def __init__(self, baseline_s: float = SUNLIGHT_BASELINE_S, max_frames: int = 12):
+        self.baseline_s = float(baseline_s)
+        # (t_s, (H, W) bright, (A (2, 2), t (2,)) mapping the frame before it to it, or None)
+        self._frames: deque = deque(maxlen=max_frames)
+
+    def push(self, t_s: float, bright: np.ndarray, uv_prev_px: np.ndarray, uv_curr_px: np.ndarray) -> None:
+        """Add a frame with its tokens' positions in the frame before it and in it (``(N, 2)``, NaN rows left out)."""
+        self._frames.append((float(t_s), bright, _similarity_transform(uv_prev_px, uv_curr_px)))
+
+    def baseline(self, t_s: float, uv_prev_px: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(bright, uv)``: an earlier frame's bright structures and where the tokens were in it.
+
+        ``uv_prev_px`` ``(N, 2)``: the current frame's tokens in the newest pushed frame (their
+        previous positions). None before the first frame.
+        """
+        if not self._frames:
+            return None
+        uv = np.asarray(uv_prev_px, dtype=float).reshape(-1, 2)
+        i = len(self._frames) - 1
+        while t_s - self._frames[i][0] < 0.75 * self.baseline_s and i > 0 and self._frames[i][2] is not None:
+            a, t = self._frames[i][2]
+            uv = (uv - t) @ np.linalg.inv(a).T  # back into the frame before
+            i -= 1
+        return self._frames[i][1], uv
+
+
+def _similarity_transform(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(A, t)`` with ``q = A p + t`` (A a scaled rotation, :func:`_similarity`), or None from fewer than 2 points."""
+    p = np.asarray(p, dtype=float).reshape(-1, 2)
+    q = np.asarray(q, dtype=float).reshape(-1, 2)
+    ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(q), axis=1)
+    p, q = p[ok], q[ok]
+    if len(p) < 2:
+        return None
+    a = _similarity(p, q)
+    if not abs(np.linalg.det(a)) > 1e-6:
+        return None
+    return a, q.mean(axis=0) - a @ p.mean(axis=0)
 
 
 @dataclass(frozen=True)
