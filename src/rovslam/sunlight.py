@@ -71,10 +71,7 @@ def moving_light_share(
         unrelated), over the tokens whose windows' RMS reaches ``MIN_BRIGHT_RMS`` (fainter ones
         say nothing); NaN without such a token.
     """
-    p = np.asarray(uv_prev_px, dtype=float).reshape(-1, 2)
-    q = np.asarray(uv_curr_px, dtype=float).reshape(-1, 2)
-    ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(q), axis=1)
-    p, q = p[ok], q[ok]
+    p, q = _finite_pairs(uv_prev_px, uv_curr_px)
     if len(p) == 0:
         return float("nan")
     # Each window follows its token with the frame's turn and scale (a vehicle turning or climbing
@@ -139,12 +136,12 @@ class BrightHistory:
 
     def __init__(self, baseline_s: float = SUNLIGHT_BASELINE_S, max_frames: int = 12):
         self.baseline_s = float(baseline_s)
-        # (t_s, (H, W) bright, (A (2, 2), t (2,)) mapping the frame before it to it, or None)
+        # (t_s, (H, W) bright, (p, q): its tokens in the frame before it and in it, finite rows only)
         self._frames: deque = deque(maxlen=max_frames)
 
     def push(self, t_s: float, bright: np.ndarray, uv_prev_px: np.ndarray, uv_curr_px: np.ndarray) -> None:
         """Add a frame with its tokens' positions in the frame before it and in it (``(N, 2)``, NaN rows left out)."""
-        self._frames.append((float(t_s), bright, _similarity_transform(uv_prev_px, uv_curr_px)))
+        self._frames.append((float(t_s), bright, _finite_pairs(uv_prev_px, uv_curr_px)))
 
     def baseline(self, t_s: float, uv_prev_px: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """``(bright, uv)``: an earlier frame's bright structures and where the tokens were in it.
@@ -156,19 +153,27 @@ class BrightHistory:
             return None
         uv = np.asarray(uv_prev_px, dtype=float).reshape(-1, 2)
         i = len(self._frames) - 1
-        while t_s - self._frames[i][0] < 0.75 * self.baseline_s and i > 0 and self._frames[i][2] is not None:
-            a, t = self._frames[i][2]
+        while t_s - self._frames[i][0] < 0.75 * self.baseline_s and i > 0:
+            link = _similarity_transform(*self._frames[i][2])  # only when the frames are nearer than that
+            if link is None:
+                break
+            a, t = link
             uv = (uv - t) @ np.linalg.inv(a).T  # back into the frame before
             i -= 1
         return self._frames[i][1], uv
 
 
-def _similarity_transform(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """``(A, t)`` with ``q = A p + t`` (A a scaled rotation, :func:`_similarity`), or None from fewer than 2 points."""
-    p = np.asarray(p, dtype=float).reshape(-1, 2)
-    q = np.asarray(q, dtype=float).reshape(-1, 2)
+def _finite_pairs(uv_prev_px, uv_curr_px) -> tuple[np.ndarray, np.ndarray]:
+    """The ``(N, 2)`` rows of two point lists where both are finite (a lost token is a NaN row)."""
+    p = np.asarray(uv_prev_px, dtype=float).reshape(-1, 2)
+    q = np.asarray(uv_curr_px, dtype=float).reshape(-1, 2)
     ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(q), axis=1)
-    p, q = p[ok], q[ok]
+    return p[ok], q[ok]
+
+
+def _similarity_transform(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(A, t)`` with ``q = A p + t`` (A a scaled rotation, :func:`_similarity`) from finite point pairs, or None
+    from fewer than 2."""
     if len(p) < 2:
         return None
     a = _similarity(p, q)

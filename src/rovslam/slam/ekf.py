@@ -397,8 +397,9 @@ class EkfSlam:
         step = motion_step_m(speed * scale, theta, dt)
         self._x[:2] += step  # (1)
         n = self._n
-        if self._w is not None:  # the odometry's slow world-frame error: the true step is the measured one + w dt
-            self._x[:2] += self._x[self._w : self._w + 2] * dt
+        w = self._w
+        if w is not None:  # the odometry's slow world-frame error: the true step is the measured one + w dt
+            self._x[:2] += self._x[w : w + 2] * dt
         p = self._P
         # F = I except d(position)/d(eps) = -j, d(position)/d(b) = step / (Z + b) and d(position)/d(w) = dt I:
         # P <- F P F^T.
@@ -409,14 +410,13 @@ class EkfSlam:
         if self._b is not None and z is not None:
             cols.append(self._b)
             coef.append(step / (z * scale))
-        if self._w is not None:
-            cols += [self._w, self._w + 1]
+        if w is not None:
+            cols += [w, w + 1]
             coef += [np.array([dt, 0.0]), np.array([0.0, dt])]
         if cols:
             e = np.column_stack(coef)  # (2, k)
             p[0:2, :n] += e @ p[cols, :n]
             p[:n, 0:2] += p[:n, cols] @ e.T
-        w = self._w
         if w is not None:
             if sw > self._w_sigma_mps:  # a drag appeared (or grew): its variance at once, as a fresh unknown
                 rise = sw**2 - self._w_sigma_mps**2
