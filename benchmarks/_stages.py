@@ -24,7 +24,8 @@ from typing import Any
 # (label, targets); a target is "module:Attr.path". Order = the order of the table.
 STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("decode", ("rovslam.io.sequence:Sequence._load",)),
-    ("channel and despeckle", ("rovslam.pipeline:despeckled_channel",)),
+    ("channel and despeckle", ("rovslam.pipeline:despeckled_channels", "rovslam.pipeline:template_channel",
+                               "rovslam.pipeline:remove_specks")),
     ("band-pass (+ texture check)", ("rovslam.pipeline:bandpass", "rovslam.pipeline:contrast_std",
                                      "rovslam.pipeline:SlamPipeline._tracking_image")),
     ("local variance", ("rovslam.pipeline:local_variance",)),
@@ -38,6 +39,7 @@ STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
                                          "rovslam.pipeline:SlamPipeline._extract_tokens")),
     ("token tracking: phase correlation", ("rovslam.vision.tracking:global_shift", "rovslam.vision.tracking:reduce_image")),
     ("speed estimation", ("rovslam.pipeline:SlamPipeline._measure_speed",)),
+    ("sunlight watch", ("rovslam.pipeline:SlamPipeline._watch_sunlight", "rovslam.sunlight:BrightHistory.push")),
     ("heading", ("rovslam.heading:HeadingTracker.prior", "rovslam.pipeline:SlamPipeline._fuse_heading")),
     ("EKF (predict, update, augment)", ("rovslam.pipeline:SlamPipeline._predict_and_update",
                                         "rovslam.pipeline:SlamPipeline._add_landmark",
@@ -54,8 +56,9 @@ STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
 )
 PROGRESS = "progress display"
 GLUE = "loop and glue"
-# Targets a run may legitimately never call (no unusable frame, no AHRS).
+# Targets a run may legitimately never call (no unusable frame, no AHRS, frames at the processing scale).
 MAY_BE_UNCALLED = {"rovslam.pipeline:SlamPipeline._skip", "rovslam.pipeline:SlamPipeline._start_filter",
+                   "rovslam.pipeline:template_channel", "rovslam.pipeline:remove_specks",
                    "rovslam.io.results:ResultWriter.write_landmark_template"}
 
 
