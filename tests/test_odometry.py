@@ -388,6 +388,118 @@ def test_heading_filter_smooths_compass_noise_with_token_rotations():
     assert f.update(1.0) == pytest.approx(1.0)
 
 
+def _heading_run(sigma_true_rad, sigma_config_rad, learn, n=1500, glitch_at=None, seed=23):
+    rng = np.random.default_rng(seed)
+    true = np.cumsum(rng.normal(0.0, 1e-3, n))
+    compass = true + rng.normal(0.0, sigma_true_rad, n)
+    if glitch_at is not None:
+        compass[glitch_at] += np.deg2rad(20.0)
+    dpsi_meas = np.diff(true) + rng.normal(0.0, 3e-4, n - 1)
+    f = HeadingFilter(sigma_config_rad, learn_noise=learn)
+    est, sig = [f.update(compass[0])], [f.sigma_rad]
+    for k in range(1, n):
+        est.append(f.update(compass[k], dpsi_meas[k - 1], 3e-4))
+        sig.append(f.sigma_rad)
+    err = np.asarray(est[300:]) - true[300:]
+    return f, float(np.std(err)), float(np.sqrt(np.mean(np.square(sig[300:]))))
+
+
+def test_a_compass_noisier_than_configured_is_learned_and_the_heading_sigma_covers_it():
+    one, half = np.deg2rad(1.0), np.deg2rad(0.5)
+    f, err, sigma = _heading_run(one, half, learn=True)
+    assert f.learned_compass_sigma_rad == pytest.approx(one, rel=0.2)
+    assert f.compass_var_rad2 == pytest.approx(f.learned_compass_sigma_rad**2)
+    assert sigma == pytest.approx(err, rel=0.3)  # consistent
+    # Trusting the configured 0.5 deg, the filter claims 0.6 times its real error or less.
+    _, err_fixed, sigma_fixed = _heading_run(one, half, learn=False)
+    assert sigma_fixed < 0.7 * err_fixed
+
+
+def test_a_compass_quieter_than_configured_keeps_the_configured_noise():
+    f, err, sigma = _heading_run(np.deg2rad(0.25), np.deg2rad(0.5), learn=True)
+    assert f.learned_compass_sigma_rad == pytest.approx(np.deg2rad(0.25), rel=0.25)
+    assert f.compass_var_rad2 == np.deg2rad(0.5) ** 2  # never below what the user said
+    assert sigma >= err  # conservative, as configured
+
+
+def test_one_compass_glitch_is_not_learned_as_noise():
+    f, _, _ = _heading_run(np.deg2rad(0.5), np.deg2rad(0.5), learn=True, glitch_at=1400)
+    # One 20 degree reading among 100 would add 2 degrees of sigma; capped at 3 sigma it adds 0.15.
+    assert f.learned_compass_sigma_rad < np.deg2rad(0.7)
+
+
+def test_no_compass_noise_is_learned_before_twenty_readings():
+    f = HeadingFilter(np.deg2rad(0.5), learn_noise=True)
+    f.update(0.0)
+    for k in range(1, 20):
+        f.update(np.deg2rad(3.0) * (-1) ** k, 0.0, 3e-4)
+    assert f.learned_compass_sigma_rad is None and f.compass_var_rad2 == np.deg2rad(0.5) ** 2
+    f.update(np.deg2rad(3.0), 0.0, 3e-4)
+    # Readings 3 degrees off either way: learned well above the configured 0.5 (each capped at 3 sigma)
+    assert np.deg2rad(1.0) < f.learned_compass_sigma_rad < np.deg2rad(3.0)
+
+
+def _noisy_steps(dof0: float, n_tokens: int, steps: int = 700, noise_px: float = 0.4, seed: int = 3):
+    """Speed NEES, turn z^2 and inliers per step of an estimator fed ``n_tokens`` tokens with ``noise_px`` noise."""
+    cfg = OdometryConfig(token_noise_prior_dof=dof0, token_sigma_px=0.05, common_sigma_px=0.0,
+                         relief_prior_sigma=0.0, relief_scale_gain=0.0)
+    est, rng = SpeedEstimator(cfg), np.random.default_rng(seed)
+    nees, turn, inliers = [], [], []
+    for k in range(steps):
+        dpsi = rng.normal(0.0, 0.003)
+        uv0, uv1 = make_tokens(CAM, rng, n_tokens, [0.02, 0.005], dpsi)
+        m = est.measure(CAM, uv0, uv1 + rng.normal(0.0, noise_px, uv1.shape), Z, Z, DT, 0.0, dpsi_sigma_rad=0.02)
+        if m.ok and k >= 100:  # after the pool has filled
+            e = m.speed_mps - np.array([0.1, 0.025])
+            nees.append(float(e @ np.linalg.solve(m.cov_mps2, e)))
+            turn.append(((m.dpsi_rad - dpsi) / m.dpsi_sigma_rad) ** 2)
+            inliers.append(m.n_inliers)
+    return est, float(np.mean(nees)), float(np.mean(turn)), float(np.mean(inliers))
+
+
+def test_three_tokens_borrow_the_dives_token_noise():
+    # Three tokens leave three degrees of freedom: a step where they happen to agree claims a
+    # turn and a speed far better than they are. Pooled with the dive's scatter they do not.
+    est, nees, turn, _ = _noisy_steps(4.0, 3)
+    _, nees_alone, turn_alone, _ = _noisy_steps(0.0, 3)
+    assert np.sqrt(est.token_var_px2) == pytest.approx(0.4, rel=0.2)  # the pool finds the noise
+    assert turn < 2.0 < 5.0 < turn_alone  # 1 expected
+    assert nees < 6.5 and nees_alone > 9.0  # 2 expected (three tokens: a heavy tail remains)
+
+
+def test_the_outlier_threshold_stays_the_configured_one_however_noisy_the_dive():
+    # A gate widened to 3 sigmas of the dive's token noise (0.44 px on the real Sparus video, so
+    # 1.33 px) admitted wrong matches there: one step's speed went wrong, the next frame's tokens
+    # were searched in the wrong place and lost, and the video decimated by 3 drifted by 13 % of
+    # its path. The pool raises the noise of Q only; a token 1.2 px off stays refused.
+    rng = np.random.default_rng(9)
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.005], 0.0)
+    uv1 = uv1 + rng.normal(0.0, 0.05, uv1.shape)
+    uv1[3] += [1.2, 0.0]
+    for pool_px in (0.0, 0.44):
+        m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, 0.0, dpsi_sigma_rad=0.02, token_var_px2=pool_px**2)
+        assert m.n_inliers == 7 and not m.inlier_mask[3]
+    pooled = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, 0.0, dpsi_sigma_rad=0.02, token_var_px2=0.44**2)
+    alone = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, 0.0, dpsi_sigma_rad=0.02)
+    # 11 dof of 0.05 px and 4 of 0.44 px: 0.23 px a token, 0.09 px for the mean of 7, beside the
+    # common 0.15 px floor every step has: Q grows by about 16 %
+    assert np.trace(pooled.cov_mps2) > 1.1 * np.trace(alone.cov_mps2)
+
+
+def test_quiet_tokens_change_nothing():
+    # Tokens quieter than the floor: the pool never raises a step, the result is the step's alone.
+    rng = np.random.default_rng(8)
+    uv0, uv1 = make_tokens(CAM, rng, 3, [0.02, 0.005], 0.001)
+    uv1 = uv1 + rng.normal(0.0, 0.02, uv1.shape)
+    alone = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, 0.0, dpsi_sigma_rad=0.02)
+    pooled = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, 0.0, dpsi_sigma_rad=0.02, token_var_px2=0.01**2)
+    np.testing.assert_array_equal(pooled.cov_mps2, alone.cov_mps2)
+    assert pooled.dpsi_sigma_rad == alone.dpsi_sigma_rad and pooled.surge_mps == alone.surge_mps
+    noisy = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, 0.0, dpsi_sigma_rad=0.02, token_var_px2=0.5**2)
+    # 3 dof of 0.02 px and 4 of 0.5 px: the noise is 0.38 px, less the floors every step has anyway
+    assert np.trace(noisy.cov_mps2) > 2 * np.trace(alone.cov_mps2) and noisy.dpsi_sigma_rad > 2 * alone.dpsi_sigma_rad
+
+
 def test_implausible_jump_in_speed_is_held_not_used():
     # Three steady steps at 0.1 m/s, then tokens that agree on 0.16 m/s: a 6 cm/s jump in
     # 0.2 s (0.3 m/s^2) is a wrong consensus, not an ROV.

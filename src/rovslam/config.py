@@ -290,6 +290,7 @@ class OdometryConfig(_Checked):
     min_inliers: int = _num(2, ge=1)
     min_speed_sigma_mps: float = _num(0.0005, gt=0)  # floor of the speed standard deviation
     token_sigma_px: float = _num(0.15, gt=0)  # one token's displacement noise (floor)
+    token_noise_prior_dof: float = _num(4.0, ge=0)  # the dive's recent token scatter counts as this many degrees of freedom in each step's noise (0: each step alone)
     common_sigma_px: float = _num(0.15, ge=0)  # an error all tokens of a step share (compression, lighting): not / n
     gap_speed_sigma_mps: float = _num(0.02, ge=0)  # landmark search: the speed may change by this per second
     # a held speed's error grows by at least this per second (a manoeuvre), by more when the dive's
@@ -303,6 +304,7 @@ class OdometryConfig(_Checked):
     relief_prior_sigma: float = _num(0.02, ge=0)  # relief height spread / altitude assumed before the tokens measured it
     relief_prior_s: float = _num(2.0, ge=0)  # ... its share fades as exp(-seconds measured / this) (0: no prior, start as flat)
     compass_sigma_rad: float = _num(0.0087, ge=0)  # compass white noise (0.5 deg); 0 uses the compass as it is (paper)
+    compass_sigma_learned: bool = True  # the compass noise its readings show is used when above compass_sigma_rad
     compass_drift_sigma_rad: float = _num(0.0175, ge=0)  # slow compass error no smoothing removes (magnetic disturbance, 1 deg)
     compass_offset_sigma_rad: float = _num(0.0087, ge=0)  # the compass's constant error (deviation, 0.5 deg calibrated): turns the whole estimate
     attitude_sigma_rad: float = _num(0.0035, ge=0)  # AHRS roll / pitch accuracy (0.2 deg), when frames.csv has them

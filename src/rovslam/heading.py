@@ -30,6 +30,13 @@ __all__ = ["HeadingEstimate", "HeadingFilter", "HeadingPrior", "HeadingTracker"]
 
 # Prior standard deviation of one step's heading change when no compass is given.
 NO_COMPASS_STEP_SIGMA_RAD = 0.2
+# The compass's white noise is learned from the heading filter's innovations, averaged over about
+# this many readings (20 s at 5 Hz: the estimate's own scatter is then about 15 % of the variance),
+# and used once this many readings were averaged.
+COMPASS_NOISE_READINGS = 100
+COMPASS_NOISE_MIN_READINGS = 20
+# The run's warnings say so when the compass is this many times noisier than configured.
+COMPASS_NOISIER_WARNING = 1.5
 
 
 class HeadingFilter:
@@ -38,16 +45,50 @@ class HeadingFilter:
     Predict ``psi += dpsi`` (the fused rotation of :func:`rovslam.odometry.speed_from_tokens`,
     variance ``dpsi_sigma^2``), update with the compass reading (variance ``compass_sigma^2``).
     Without token rotations it follows the compass.
+
+    The compass's white noise is also learned from the innovations ``y`` of the steps the tokens
+    measured (``E[y^2] = P_pred + r``, averaged over about :data:`COMPASS_NOISE_READINGS`
+    readings); with ``learn_noise`` the update uses it when it is larger than ``compass_sigma_rad``
+    (a compass noisier than its datasheet; never smaller than configured).
     """
 
-    def __init__(self, compass_sigma_rad: float):
+    def __init__(self, compass_sigma_rad: float, learn_noise: bool = False):
         self.compass_sigma_rad = float(compass_sigma_rad)
+        self.learn_noise = bool(learn_noise)
         self.heading_rad: float | None = None
         self.var_rad2 = 0.0
+        self._noise_ema_rad2 = 0.0  # exponential average of the compass variance the innovations show
+        self._noise_readings = 0
 
     @property
     def sigma_rad(self) -> float:
         return math.sqrt(self.var_rad2)
+
+    @property
+    def learned_compass_sigma_rad(self) -> float | None:
+        """The compass's white noise its readings show (None before :data:`COMPASS_NOISE_MIN_READINGS`)."""
+        if self._noise_readings < COMPASS_NOISE_MIN_READINGS:
+            return None
+        weight = 1.0 - (1.0 - 1.0 / COMPASS_NOISE_READINGS) ** self._noise_readings
+        return math.sqrt(max(self._noise_ema_rad2 / weight, 0.0))
+
+    @property
+    def compass_var_rad2(self) -> float:
+        """The compass variance the update uses: the configured one, or the learned one when larger."""
+        r = self.compass_sigma_rad**2
+        learned = self.learned_compass_sigma_rad if self.learn_noise else None
+        return r if learned is None else max(r, learned**2)
+
+    def _learn_noise(self, innovation_rad: float, predicted_var_rad2: float, compass_var_rad2: float) -> None:
+        """One innovation of a measured step: ``E[y^2] = P_pred + r``, so ``y^2 - P_pred`` estimates ``r``.
+
+        ``y^2`` is capped at 9 times its expected value (a 3-sigma reading), so that one glitch of
+        the compass does not count as noise for the next hundred readings.
+        """
+        y2 = min(innovation_rad**2, 9.0 * (predicted_var_rad2 + compass_var_rad2))
+        a = 1.0 / COMPASS_NOISE_READINGS
+        self._noise_ema_rad2 += a * (y2 - predicted_var_rad2 - self._noise_ema_rad2)
+        self._noise_readings += 1
 
     def update(self, compass_rad: float, dpsi_rad: float | None = None, dpsi_sigma_rad: float = math.inf) -> float:
         """One step: the compass reading of this frame and the measured change since the last one.
@@ -66,7 +107,7 @@ class HeadingFilter:
                 self.var_rad2 += NO_COMPASS_STEP_SIGMA_RAD**2
             return self.heading_rad
         c = finite_scalar("heading_rad", compass_rad)
-        r = self.compass_sigma_rad**2
+        r = self.compass_var_rad2
         if self.heading_rad is None or r == 0.0:
             self.heading_rad, self.var_rad2 = c, r
             return c
@@ -75,8 +116,11 @@ class HeadingFilter:
             var = self.var_rad2 + float(dpsi_sigma_rad) ** 2
         else:
             psi, var = c, r  # nothing but the compass bridges this step
+        innovation = wrap_angle(c - psi)
+        if measured:  # learned always (for the run's warnings), used only when learn_noise
+            self._learn_noise(innovation, var, r)
         k = var / (var + r)
-        self.heading_rad = wrap_angle(psi + k * wrap_angle(c - psi))
+        self.heading_rad = wrap_angle(psi + k * innovation)
         self.var_rad2 = (1.0 - k) * var
         return self.heading_rad
 
@@ -140,7 +184,7 @@ class HeadingTracker:
     def __init__(self, odometry: OdometryConfig = OdometryConfig(), slam: SlamConfig = SlamConfig()):
         self.odometry = odometry
         self.slam = slam
-        self.filter = HeadingFilter(odometry.compass_sigma_rad)
+        self.filter = HeadingFilter(odometry.compass_sigma_rad, learn_noise=odometry.compass_sigma_learned)
         self._previous_rad: float | None = None  # filtered heading of the previous frame
         self._previous_compass_rad: float | None = None
         self.has_compass = True  # whether the last frame had a compass reading
@@ -148,6 +192,28 @@ class HeadingTracker:
     @property
     def previous_rad(self) -> float | None:
         return self._previous_rad
+
+    @property
+    def compass_sigma_rad(self) -> float:
+        """The compass's white noise as used: configured, or learned from its readings when larger."""
+        return math.sqrt(self.filter.compass_var_rad2)
+
+    def compass_summary(self) -> dict:
+        """What ``summary.json`` says of the compass noise: configured and learned (degrees; None: not learned)."""
+        learned = self.filter.learned_compass_sigma_rad
+        return {"sigma_configured_deg": math.degrees(self.odometry.compass_sigma_rad),
+                "sigma_learned_deg": None if learned is None else math.degrees(learned),
+                "sigma_used_deg": math.degrees(self.compass_sigma_rad), "learning": self.filter.learn_noise}
+
+    def compass_warnings(self) -> list[str]:
+        """One line when the compass was found much noisier than configured."""
+        learned, configured = self.filter.learned_compass_sigma_rad, self.odometry.compass_sigma_rad
+        if learned is None or configured == 0 or learned < COMPASS_NOISIER_WARNING * configured:
+            return []
+        return [f"the compass readings scatter by {math.degrees(learned):.2f} deg against the turns the tokens "
+                f"measure, more than the {math.degrees(configured):.2f} deg configured ([odometry] compass_sigma_rad "
+                f"= {configured:g}); " + ("the learned value was used" if self.filter.learn_noise else
+                                          "set compass_sigma_rad = {:.4f} or compass_sigma_learned = true".format(learned))]
 
     def prior(self, compass_rad: float) -> HeadingPrior:
         """The heading before the tokens: previous heading and compass step (first frame: the compass, or 0)."""
@@ -159,7 +225,7 @@ class HeadingTracker:
         else:
             previous = self._previous_rad
         step = wrap_angle(compass_rad - previous_compass) if has_compass and math.isfinite(previous_compass) else 0.0
-        sigma_c = self.odometry.compass_sigma_rad if has_compass else 0.0
+        sigma_c = self.compass_sigma_rad if has_compass else 0.0
         if sigma_c > 0:
             step_sigma: float | None = math.sqrt(2.0) * sigma_c  # difference of two readings
         else:

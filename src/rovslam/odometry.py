@@ -42,6 +42,8 @@ __all__ = ["SpeedMeasurement", "SpeedEstimator", "speed_from_tokens"]
 RELIEF_TAU_S = 5.0
 ACCEL_TAU_S = 30.0
 """Seconds over which :class:`SpeedEstimator` averages the accelerations its speeds show."""
+TOKEN_NOISE_TAU_S = 10.0
+"""Seconds over which :class:`SpeedEstimator` pools the tokens' residual scatter (``token_var_px2``)."""
 
 # At most this many single-token hypotheses are scored (plus the median); the pairwise
 # residual table is then at most 65 x N, whatever N.
@@ -76,6 +78,8 @@ class SpeedMeasurement:
     dpsi_rad: float = 0.0  # heading change used (the tokens' turn with the compass as a weak prior)
     dpsi_sigma_rad: float = float("inf")  # its standard deviation (inf: nothing measured it)
     relief_sample: float = float("nan")  # this frame's relief variance sample (:func:`relief_sample`)
+    token_var_px2: float = float("nan")  # this step's per-axis token residual variance after the fit, pixels^2
+    token_dof: float = 0.0  # its degrees of freedom
 
     @property
     def speed_mps(self) -> np.ndarray:
@@ -148,6 +152,7 @@ def speed_from_tokens(
     altitude_samples: int = 1,
     relief_var: float = 0.0,
     attitude_noise_rad: float = 0.0,
+    token_var_px2: float = 0.0,
 ) -> SpeedMeasurement:
     """Surge and sway (and the turn) from token displacements between two consecutive frames.
 
@@ -176,6 +181,10 @@ def speed_from_tokens(
         attitude_noise_rad: reading-to-reading noise of the roll and pitch given: an error
             ``e`` in one frame's attitude moves all its seabed points by ``Z e``, the same for
             every token (so their scatter cannot show it).
+        token_var_px2: the tokens' residual variance (pixels^2, per axis) over recent steps, as
+            pooled by :class:`SpeedEstimator`; it counts as ``config.token_noise_prior_dof``
+            degrees of freedom in this step's noise when larger than what this step's tokens
+            show (0: each step alone).
 
     Returns:
         A :class:`SpeedMeasurement`; ``ok=False`` (zero speed, covariance
@@ -215,6 +224,9 @@ def speed_from_tokens(
     joint = dpsi_sigma_rad is not None and n_valid >= 2
     prior_var = float(dpsi_sigma_rad) ** 2 if joint else 0.0
     sigma0 = config.token_sigma_px / px_per_m  # one token's displacement noise, metres (the floor)
+    pool_var = _scalar("token_var_px2", token_var_px2, nonnegative=True) / px_per_m**2
+    if config.token_noise_prior_dof <= 0:
+        pool_var = 0.0
     thr = config.outlier_threshold_px / px_per_m
 
     # Consensus: rigid hypotheses scored by truncated residuals and the compass prior (MSAC, MAP).
@@ -224,11 +236,12 @@ def speed_from_tokens(
     for _ in range(3):  # refit on the inliers; the threshold follows the residuals they show
         if int(inl.sum()) < config.min_inliers:
             break
-        fit = _rigid_fit(a[inl], b[inl], theta, dpsi, prior_var, joint, sigma0)
+        fit = _rigid_fit(a[inl], b[inl], theta, dpsi, prior_var, joint, sigma0, pool_var, config.token_noise_prior_dof)
         theta, d = fit.theta_rad, fit.d_m
         res = a - b @ rot2(theta).T - d
         r2 = np.einsum("mj,mj->m", res, res)
-        sigma = math.sqrt(max(fit.residual_var_m2, sigma0**2))
+        # the dive's pooled scatter keeps a step whose few tokens happen to agree from gating out its own inliers
+        sigma = math.sqrt(max(fit.residual_var_m2, pool_var, sigma0**2))
         gate = min(thr, max(_CHI2_2DOF_99 ** 0.5 * sigma, 3.0 * sigma0))
         new = r2 <= gate**2
         if np.array_equal(new, inl):
@@ -271,6 +284,7 @@ def speed_from_tokens(
     return SpeedMeasurement(
         True, float(speed[0]), float(speed[1]), cov, n_tokens, n_inl, mask, "",
         float(theta if joint else dpsi), theta_sigma, relief_sample(a[inl], b[inl], theta, d),
+        fit.residual_var_m2 * px_per_m**2, fit.residual_dof,
     )
 
 
@@ -286,11 +300,12 @@ class _RigidFit:
     d_m: np.ndarray  # (2,)
     theta_var_rad2: float  # variance of the turn (0 when it was fixed)
     cov_d_m2: np.ndarray  # (2, 2) covariance of d
-    residual_var_m2: float  # per-axis residual variance (floored later)
+    residual_var_m2: float  # per-axis residual variance of this step's tokens (floored later)
+    residual_dof: float  # its degrees of freedom, both axes: 2 (m - p)
 
 
 def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, prior_var: float,
-               joint: bool, sigma0_m: float) -> _RigidFit:
+               joint: bool, sigma0_m: float, noise_prior_var_m2: float = 0.0, noise_prior_dof: float = 0.0) -> _RigidFit:
     """Rotation and translation from (M, 2) matched points, the rotation fixed when not ``joint``.
 
     The turn is the least-squares rotation of the centred points (Gauss-Newton from
@@ -299,6 +314,12 @@ def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, pr
     along the motion) over the degrees of freedom left, each eigenvalue floored at one token's
     noise ``sigma0_m^2``, divided by the number of points; plus what the turn's uncertainty
     moves ``d = mean(a) - R mean(b)`` by.
+
+    A few tokens show their noise poorly (two tokens leave one degree of freedom): with
+    ``noise_prior_dof > 0`` the per-axis noise variance is the pooled estimate
+    ``(dof s^2 + dof0 s0^2) / (dof + dof0)`` of this step's ``s^2`` and the dive's recent
+    ``noise_prior_var_m2`` (:attr:`SpeedEstimator.token_var_px2`), when that is larger than
+    ``s^2`` alone (it never makes a step's tokens look better than they are).
     """
     m = len(a)
     theta = float(theta0)
@@ -318,16 +339,26 @@ def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, pr
                 break
     p = 1.5 if joint else 1.0  # parameters per axis: (d, theta) or d
 
+    dof_axis = max(m - p, 0.5)
+
     def residuals(th: float) -> tuple[np.ndarray, np.ndarray, float]:
         dd = a_bar - rot2(th) @ b_bar
         res = a - b @ rot2(th).T - dd
-        sc = res.T @ res / max(m - p, 0.5)  # (2, 2)
+        sc = res.T @ res / dof_axis  # (2, 2)
         return dd, sc, float(np.trace(sc)) / 2.0
+
+    def pooled(sc: np.ndarray, var: float) -> tuple[np.ndarray, float]:
+        """The scatter and per-axis variance raised towards the dive's recent token noise, if larger."""
+        if noise_prior_dof <= 0.0 or noise_prior_var_m2 <= var:
+            return sc, var
+        dof = 2.0 * dof_axis
+        raised = (dof * var + noise_prior_dof * noise_prior_var_m2) / (dof + noise_prior_dof)
+        return sc + (raised - var) * np.eye(2), raised
 
     d, scatter, resid_var = residuals(theta)
     theta_var = 0.0
     if joint:
-        info_theta = float(np.sum(bc * bc)) / max(resid_var, sigma0_m**2)
+        info_theta = float(np.sum(bc * bc)) / max(pooled(scatter, resid_var)[1], sigma0_m**2)
         if prior_var > 0.0:
             w = info_theta / (info_theta + 1.0 / prior_var)
             theta = prior_rad + wrap_angle(theta - prior_rad) * w
@@ -335,11 +366,11 @@ def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, pr
             theta_var = 1.0 / (info_theta + 1.0 / prior_var)
         else:
             theta_var = 1.0 / info_theta if info_theta > 0 else math.inf
-    cov_d = _floor_eigenvalues(scatter, sigma0_m**2) / m
+    cov_d = _floor_eigenvalues(pooled(scatter, resid_var)[0], sigma0_m**2) / m
     if joint and math.isfinite(theta_var):
         jrb = drot2(theta) @ b_bar  # d d / d theta = -dR/dtheta mean(b)
         cov_d = cov_d + theta_var * np.outer(jrb, jrb)
-    return _RigidFit(theta, d, theta_var, cov_d, resid_var)
+    return _RigidFit(theta, d, theta_var, cov_d, resid_var, 2.0 * dof_axis)
 
 
 @lru_cache(maxsize=64)
@@ -456,6 +487,8 @@ class SpeedEstimator:
         self._relief_seen_s = 0.0  # seconds of relief samples since the start: the prior fades with them
         self._accel_num = 0.0  # exponential average of the per-axis acceleration variance, m^2/s^4
         self._accel_den = 0.0
+        self._token_num = 0.0  # exponential average of the tokens' residual variance, px^2, weighted by dof
+        self._token_den = 0.0
 
     @property
     def relief_var(self) -> float:
@@ -482,6 +515,19 @@ class SpeedEstimator:
         w = (1.0 - a) * step_m2 * step_m2
         self._relief_num = a * self._relief_num + w * sample
         self._relief_den = a * self._relief_den + w
+
+    @property
+    def token_var_px2(self) -> float:
+        """The tokens' per-axis residual variance after the fit (pixels^2), pooled over the last
+        ``TOKEN_NOISE_TAU_S`` seconds of steps, each weighted by its degrees of freedom (0 before any)."""
+        return self._token_num / self._token_den if self._token_den > 0 else 0.0
+
+    def _learn_token_noise(self, m: SpeedMeasurement, dt_s: float) -> None:
+        if not (math.isfinite(m.token_var_px2) and m.token_dof > 0 and dt_s > 0):
+            return
+        a = math.exp(-dt_s / TOKEN_NOISE_TAU_S)
+        self._token_num = a * self._token_num + m.token_dof * m.token_var_px2
+        self._token_den = a * self._token_den + m.token_dof
 
     @property
     def accel_sigma_mps2(self) -> float:
@@ -551,10 +597,11 @@ class SpeedEstimator:
         m = speed_from_tokens(
             camera, uv_prev_px, uv_curr_px, altitude_prev_m, altitude_curr_m, dt_s, dpsi_rad,
             altitude_sigma_m, attitude_prev_rad, attitude_curr_rad, self.config, dpsi_sigma_rad, altitude_samples,
-            self.relief_var, attitude_noise_rad,
+            self.relief_var, attitude_noise_rad, self.token_var_px2,
         )
         if m.ok:
             self._learn_relief(m.relief_sample, float(dt_s), float(np.sum((m.speed_mps * dt_s) ** 2)))
+            self._learn_token_noise(m, float(dt_s))
         if m.ok and self._plausible(m, float(dt_s)):
             self._learn_acceleration(m, float(dt_s))
             self._last, self._last_dt_s = m, float(dt_s)

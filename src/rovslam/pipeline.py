@@ -728,7 +728,7 @@ class SlamPipeline:
             speed_mps=speed.speed_mps if speed else np.zeros(2), speed_cov_mps2=speed.cov_mps2 if speed else _NO_COV,
             speed_ok=bool(speed.ok) if speed else False, heading_rad=heading.heading_rad,
             heading_sigma_rad=heading.sigma_rad if heading.sigma_rad is not None else slam.heading_sigma_rad,
-            compass_rad=frame.heading_rad, compass_sigma_rad=self.config.odometry.compass_sigma_rad,
+            compass_rad=frame.heading_rad, compass_sigma_rad=self.heading.compass_sigma_rad,
             heading_step_rad=speed.dpsi_rad if turn else math.nan,
             heading_step_sigma_rad=speed.dpsi_sigma_rad if turn else math.nan,
             altitude_m=altitude_m, altitude_sigma_m=sigma_z, focal_px=self.scale.full.focal_px, landmarks=landmarks,

@@ -609,6 +609,7 @@ class _Run:
             "map_use": {**self.map_use.summary(), "warnings": self.map_use.warnings()},
             "sunlight": {**pipe.sunlight_summary(), "warnings": pipe.sunlight_warnings()},
             "speed_bias": pipe.speed_bias_summary(),
+            "compass": {**pipe.heading.compass_summary(), "warnings": pipe.heading.compass_warnings()},
             "source_frames_left_out": int(getattr(self.seq, "left_out", 0)),
             "landmarks": pipe.ekf.n_landmarks,
             "processing": {"scale": pipe.scale.scale, "width_px": pipe.camera.width_px, "height_px": pipe.camera.height_px},
@@ -628,7 +629,8 @@ class _Run:
             self.n, self.total, list(self.pipe.skipped), self.pipe.ekf.n_landmarks, wall, interrupted, self.out,
             signal=self.stop.name if interrupted else None, signum=self.stop.signum if interrupted else None,
             status=self.status, reason=self.reason, sonar_rejected=list(self.sonar_rejected),
-            warnings=list(getattr(self.seq, "warnings", [])) + self.pipe.sunlight_warnings() + self.map_use.warnings(),
+            warnings=(list(getattr(self.seq, "warnings", [])) + self.pipe.sunlight_warnings()
+                      + self.pipe.heading.compass_warnings() + self.map_use.warnings()),
         )
 
 
