@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from rovslam.averages import DecayingMean
 from rovslam.camera import wrap_angle
 from rovslam.config import OdometryConfig, SlamConfig
 from rovslam.errors import finite_scalar
@@ -57,8 +58,7 @@ class HeadingFilter:
         self.learn_noise = bool(learn_noise)
         self.heading_rad: float | None = None
         self.var_rad2 = 0.0
-        self._noise_ema_rad2 = 0.0  # exponential average of the compass variance the innovations show
-        self._noise_readings = 0
+        self._noise = DecayingMean()  # the compass variance the innovations show, over ~COMPASS_NOISE_READINGS
 
     @property
     def sigma_rad(self) -> float:
@@ -67,10 +67,9 @@ class HeadingFilter:
     @property
     def learned_compass_sigma_rad(self) -> float | None:
         """The compass's white noise its readings show (None before :data:`COMPASS_NOISE_MIN_READINGS`)."""
-        if self._noise_readings < COMPASS_NOISE_MIN_READINGS:
+        if self._noise.count < COMPASS_NOISE_MIN_READINGS:
             return None
-        weight = 1.0 - (1.0 - 1.0 / COMPASS_NOISE_READINGS) ** self._noise_readings
-        return math.sqrt(max(self._noise_ema_rad2 / weight, 0.0))
+        return math.sqrt(max(self._noise.mean(), 0.0))
 
     @property
     def compass_var_rad2(self) -> float:
@@ -87,8 +86,7 @@ class HeadingFilter:
         """
         y2 = min(innovation_rad**2, 9.0 * (predicted_var_rad2 + compass_var_rad2))
         a = 1.0 / COMPASS_NOISE_READINGS
-        self._noise_ema_rad2 += a * (y2 - predicted_var_rad2 - self._noise_ema_rad2)
-        self._noise_readings += 1
+        self._noise.add(y2 - predicted_var_rad2, a, 1.0 - a)
 
     def update(self, compass_rad: float, dpsi_rad: float | None = None, dpsi_sigma_rad: float = math.inf) -> float:
         """One step: the compass reading of this frame and the measured change since the last one.

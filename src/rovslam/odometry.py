@@ -32,6 +32,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from rovslam.averages import DecayingMean
 from rovslam.camera import Camera, drot2, pixels_to_ground, rot2, wrap_angle
 from rovslam.config import OdometryConfig
 from rovslam.errors import InvalidArgumentError, InvalidMeasurementError, finite_scalar
@@ -482,18 +483,15 @@ class SpeedEstimator:
         self._last_dt_s = 0.0  # the step of the last good speed
         self._gap_s = 0.0  # seconds since the last good speed (T)
         self._gap_sum_s2 = 0.0  # sum over the gap's steps of T_k dt_k (S)
-        self._relief_num = 0.0
-        self._relief_den = 0.0
+        self._relief = DecayingMean()  # relief samples, weighted by |d|^4
         self._relief_seen_s = 0.0  # seconds of relief samples since the start: the prior fades with them
-        self._accel_num = 0.0  # exponential average of the per-axis acceleration variance, m^2/s^4
-        self._accel_den = 0.0
-        self._token_num = 0.0  # exponential average of the tokens' residual variance, px^2, weighted by dof
-        self._token_den = 0.0
+        self._accel = DecayingMean()  # the per-axis acceleration variance, m^2/s^4
+        self._token = DecayingMean()  # the tokens' residual variance, px^2, weighted by dof
 
     @property
     def relief_var(self) -> float:
         """The relief's relative height variance under the tokens, averaged over the last seconds (>= 0)."""
-        data = max(self._relief_num / self._relief_den, 0.0) if self._relief_den > 0 else 0.0
+        data = max(self._relief.mean(), 0.0)
         cfg = self.config
         if cfg.relief_prior_s <= 0.0 or cfg.relief_prior_sigma <= 0.0:
             return data
@@ -512,27 +510,23 @@ class SpeedEstimator:
             return
         self._relief_seen_s += dt_s
         a = math.exp(-dt_s / RELIEF_TAU_S)
-        w = (1.0 - a) * step_m2 * step_m2
-        self._relief_num = a * self._relief_num + w * sample
-        self._relief_den = a * self._relief_den + w
+        self._relief.add(sample, (1.0 - a) * step_m2 * step_m2, a)
 
     @property
     def token_var_px2(self) -> float:
         """The tokens' per-axis residual variance after the fit (pixels^2), pooled over the last
         ``TOKEN_NOISE_TAU_S`` seconds of steps, each weighted by its degrees of freedom (0 before any)."""
-        return self._token_num / self._token_den if self._token_den > 0 else 0.0
+        return self._token.mean()
 
     def _learn_token_noise(self, m: SpeedMeasurement, dt_s: float) -> None:
         if not (math.isfinite(m.token_var_px2) and m.token_dof > 0 and dt_s > 0):
             return
-        a = math.exp(-dt_s / TOKEN_NOISE_TAU_S)
-        self._token_num = a * self._token_num + m.token_dof * m.token_var_px2
-        self._token_den = a * self._token_den + m.token_dof
+        self._token.add(m.token_var_px2, m.token_dof, math.exp(-dt_s / TOKEN_NOISE_TAU_S))
 
     @property
     def accel_sigma_mps2(self) -> float:
         """The vehicle's acceleration per axis (RMS over the last ``ACCEL_TAU_S`` seconds) its speeds show (>= 0)."""
-        return math.sqrt(self._accel_num / self._accel_den) if self._accel_den > 0 else 0.0
+        return math.sqrt(self._accel.mean())
 
     def _learn_acceleration(self, m: SpeedMeasurement, dt_s: float) -> None:
         """Average the speed change since the last good speed, less what their noise explains.
@@ -551,8 +545,7 @@ class SpeedEstimator:
         if not math.isfinite(sample):
             return
         a = math.exp(-dt_s / ACCEL_TAU_S)
-        self._accel_num = a * self._accel_num + (1.0 - a) * sample
-        self._accel_den = a * self._accel_den + (1.0 - a)
+        self._accel.add(sample, 1.0 - a, a)
 
     @property
     def last_good(self) -> SpeedMeasurement | None:

@@ -212,7 +212,8 @@ class SlamPipeline:
         n_events = len(self.recovery.events)
         observations = self._predict_and_update(speed, tracked, alt, prior, heading, dt_s, frame)  # step 6
         event = self.recovery.events[-1] if len(self.recovery.events) > n_events else None
-        relit = self._watch_sunlight(frame, tracks, speed)
+        consensus = self._consensus_tokens(tracks, speed)
+        relit = self._watch_sunlight(frame, *consensus)
         if relit is not None:  # the sunlight was taken out (or left in again): steps 7 and 8 cut from that image
             track_img = relit
         new_id = None
@@ -223,7 +224,7 @@ class SlamPipeline:
 
         self._prev_t_s, self._prev_altitude_m, self._prev_attitude = frame.t_s, alt.altitude_m, att
         if self._bright is not None:
-            self._bright_history.push(frame.t_s, self._bright, *self._consensus_tokens(tracks, speed))
+            self._bright_history.push(frame.t_s, self._bright, *consensus)
         self._sunlit_frames += self.sunlight is not None and self.sunlight.active
         self._n += 1
         return self._result(
@@ -256,15 +257,15 @@ class SlamPipeline:
             img *= np.float32(cfg.min_contrast_std / std)
         return img, None
 
-    def _watch_sunlight(self, frame: Frame, tracks: TokenTracks, speed: SpeedMeasurement | None) -> np.ndarray | None:
+    def _watch_sunlight(self, frame: Frame, uv0: np.ndarray, uv1: np.ndarray) -> np.ndarray | None:
         """After step 6: did the bright structures around the tokens move with them? (:mod:`rovslam.sunlight`)
 
-        Returns this frame's tracking image when the sunlight was just taken out (or left in
+        ``uv0``, ``uv1``: ``(N, 2)`` the consensus's tokens in the previous frame and in this one
+        (:meth:`_consensus_tokens`). Returns this frame's tracking image when the sunlight was just taken out (or left in
         again), so that steps 7 and 8 cut their templates from it; None when nothing changed.
         """
         if self.sunlight is None or self._bright is None:
             return None
-        uv0, uv1 = self._consensus_tokens(tracks, speed)
         earlier = self._bright_history.baseline(frame.t_s, uv0)  # over 0.2 s, whatever the frame rate
         if earlier is None:
             return None

@@ -41,6 +41,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from rovslam.averages import DecayingMean
+
 SUNLIGHT_ON_SHARE = 0.03  # the smoothed moving share above which the sunlight is taken out
 SUNLIGHT_OFF_SHARE = 0.015  # ... and below which it is left in again
 SUNLIGHT_SMOOTHING = 0.1  # exponential smoothing per frame (about 10 frames)
@@ -210,18 +212,19 @@ class SunlightMonitor:
         self.smoothing = float(smoothing)
         self.share = 0.0
         self.active = False
-        self.frames = 0  # frames with a share so far
-        self._ema = 0.0  # the exponential average, from 0
-        self._weight = 0.0  # the weight it has given those frames: 1 - (1 - smoothing)^frames
+        self._mean = DecayingMean()  # the exponential average over its own weight
+
+    @property
+    def frames(self) -> int:
+        """Frames with a share so far."""
+        return self._mean.count
 
     def observe(self, share: float) -> bool:
         """Fold one frame in (a NaN share changes nothing); True when :attr:`active` flipped."""
         if not np.isfinite(share):
             return False
-        self._ema += self.smoothing * (float(share) - self._ema)
-        self._weight += self.smoothing * (1.0 - self._weight)
-        self.share = self._ema / self._weight  # the first frames' mean, not pulled towards 0
-        self.frames += 1
+        self._mean.add(float(share), self.smoothing, 1.0 - self.smoothing)
+        self.share = self._mean.mean()  # the first frames' mean, not pulled towards 0
         if self.frames < SUNLIGHT_MIN_FRAMES:
             return False
         if not self.active and self.share > self.on_share:
