@@ -211,7 +211,7 @@ class HeadingTracker:
         return [f"the compass readings scatter by {math.degrees(learned):.2f} deg against the turns the tokens "
                 f"measure, more than the {math.degrees(configured):.2f} deg configured ([odometry] compass_sigma_rad "
                 f"= {configured:g}); " + ("the learned value was used" if self.filter.learn_noise else
-                                          "set compass_sigma_rad = {:.4f} or compass_sigma_learned = true".format(learned))]
+                                          f"set compass_sigma_rad = {learned:.4f} or compass_sigma_learned = true")]
 
     def prior(self, compass_rad: float) -> HeadingPrior:
         """The heading before the tokens: previous heading and compass step (first frame: the compass, or 0)."""
