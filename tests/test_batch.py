@@ -158,6 +158,7 @@ path = "no/such/sequence"
     for r in ok.values():
         assert r["frames"] == 60 and 0 < r["ate_rmse_m"] < 0.01
         assert r["pc_ate_rmse_m"] > 0 and r["dr_ate_rmse_m"] > 0 and r["max_error_jump_sigma"] > 0
+        assert 0 < r["max_error_jump_before_sigma"] <= r["max_error_jump_sigma"] * (1 + 1e-9)  # the ellipse before is never smaller
         assert 0.5 < r["landmarks_found"] <= 1.0  # the paper's seabed: landmarks in view are found again
     (bad,) = report.failed
     assert bad["cell"] == "missing" and "not found" in bad["error"]

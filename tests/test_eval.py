@@ -72,6 +72,55 @@ def test_error_jump_is_the_step_of_the_error_in_sigmas_of_the_ellipse():
 def test_consistency_of_one_frame_has_no_jump():
     c = consistency(np.zeros((1, 2)), np.zeros((1, 2, 2)))
     assert c.max_error_jump_sigma is None and c.max_error_jump_t_s is None
+    assert c.max_error_jump_before_sigma is None and c.max_error_jump_before_t_s is None
+
+
+def test_a_correction_inside_the_ellipse_before_is_no_jump_before_but_is_after():
+    """A landmark seen again removes a 0.8-sigma error while the ellipse shrinks from 10 mm to 2 mm."""
+    from rovslam.eval.metrics import error_jump_before_sigma, error_jump_sigma
+
+    cov = np.array([np.eye(2) * 0.010**2, np.eye(2) * 0.002**2])
+    err = np.array([[0.008, 0.0], [0.0, 0.0]])
+    assert error_jump_sigma(err, cov)[0] == pytest.approx(4.0)  # 8 mm in sigmas of 2 mm
+    assert error_jump_before_sigma(err, cov)[0] == pytest.approx(0.8)  # in sigmas of 10 mm
+
+
+def test_a_pull_to_a_wrong_place_is_a_jump_before_as_after():
+    """A wrong match moves the estimate by 4 cm in x while the ellipse (1 cm) shrinks a little in y."""
+    from rovslam.eval.metrics import error_jump_before_sigma, error_jump_sigma
+
+    cov = np.array([np.eye(2) * 1e-4, np.diag([1e-4, 0.5e-4])])
+    err = np.array([[0.0, 0.0], [0.04, 0.0]])
+    assert error_jump_before_sigma(err, cov)[0] == pytest.approx(4.0)
+    assert error_jump_sigma(err, cov)[0] == pytest.approx(4.0)
+
+
+def test_the_jump_before_takes_the_larger_ellipse_axis_by_axis():
+    """From a known start (P = 0) the first step is judged against the ellipse it grew to; a covariance
+    that grows along x and shrinks along y is judged against the after-ellipse in x, the before in y."""
+    from rovslam.eval.metrics import error_jump_before_sigma
+
+    cov = np.array([np.zeros((2, 2)), np.diag([4e-4, 1e-4]), np.diag([16e-4, 0.25e-4])])
+    err = np.array([[0.0, 0.0], [0.02, 0.01], [0.02 + 0.04, 0.01 + 0.01]])
+    j = error_jump_before_sigma(err, cov)
+    assert j[0] == pytest.approx(np.hypot(0.02 / 0.02, 0.01 / 0.01))
+    assert j[1] == pytest.approx(np.hypot(0.04 / 0.04, 0.01 / 0.01))
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(50, 2, 2)) * 0.01
+    p = a @ np.swapaxes(a, 1, 2) + 1e-6 * np.eye(2)  # random covariances
+    same = np.repeat(p[:1], 2, axis=0)
+    e = rng.normal(size=(2, 2)) * 0.01
+    from rovslam.eval.metrics import error_jump_sigma
+
+    assert error_jump_before_sigma(e, same)[0] == pytest.approx(error_jump_sigma(e, same)[0])  # unchanged ellipse
+    # B_k is at least both ellipses, so the jump before is never larger than the jump after, nor than
+    # the jump in sigmas of the ellipse before alone.
+    errs = rng.normal(size=(50, 2)) * 0.01
+    jb, ja = error_jump_before_sigma(errs, p), error_jump_sigma(errs, p)
+    jprev = error_jump_sigma(errs[::-1], p[::-1])[::-1]  # de_k against P_(k-1)
+    assert jb.shape == ja.shape == (49,)
+    assert np.all(jb <= ja * (1 + 1e-9)) and np.all(jb <= jprev * (1 + 1e-9))
+    assert np.mean(jb < 0.9 * np.minimum(ja, jprev)) > 0.3  # and often smaller than both
 
 
 def test_trajectory_errors_of_a_standing_vehicle_are_none_not_nan():

@@ -744,14 +744,15 @@ def _print_eval(f) -> None:
     cons = [f.consistency] + ([f.smoothed_consistency] if f.smoothed is not None else [])
     pad = [""] * (len(runs) - len(cons))
 
-    def jump(c) -> str:
-        text = _fig(c.max_error_jump_sigma, 1, "sigma", 2)
-        return text + (f" at {c.max_error_jump_t_s:.1f} s" if c.max_error_jump_t_s is not None else "")
+    def jump(value: float | None, t_s: float | None) -> str:
+        return _fig(value, 1, "sigma", 2) + (f" at {t_s:.1f} s" if t_s is not None else "")
 
     t.add_row("distance travelled", f"{f.slam.distance_m:.2f} m", *[""] * (len(runs) - 1))
     t.add_row("inside 2-sigma ellipse", *(f"{100 * c.coverage_2sigma:.1f} %" for c in cons), *pad)
     t.add_row("NEES mean (2 dof)", *(f"{c.nees_mean:.2f}" for c in cons), *pad)
-    t.add_row("largest error jump", *(jump(c) for c in cons), *pad)
+    t.add_row("largest error jump", *(jump(c.max_error_jump_sigma, c.max_error_jump_t_s) for c in cons), *pad)
+    t.add_row("... in sigmas of the ellipse before",
+              *(jump(c.max_error_jump_before_sigma, c.max_error_jump_before_t_s) for c in cons), *pad)
     t.add_row("skipped frames", str(f.skipped_frames), *[""] * (len(runs) - 1))
     console.print(t)
     for note in f.notes:

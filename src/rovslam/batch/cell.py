@@ -159,6 +159,8 @@ def cell_figures(ev) -> dict[str, Any]:
         "nees_mean": ev.consistency.nees_mean,
         "max_error_jump_sigma": ev.consistency.max_error_jump_sigma,
         "max_error_jump_t_s": ev.consistency.max_error_jump_t_s,
+        "max_error_jump_before_sigma": ev.consistency.max_error_jump_before_sigma,
+        "max_error_jump_before_t_s": ev.consistency.max_error_jump_before_t_s,
     }
     for prefix, e in (("", ev.slam), ("dr_", ev.dead_reckoning), ("pc_", ev.phase_correlation)):
         for key in ("ate_rmse_m", "ate_max_m", "final_error_m", "final_error_pct"):

@@ -117,6 +117,27 @@ def error_jump_sigma(err_m: np.ndarray, cov_m2: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("ni,nij,nj->n", de, np.linalg.inv(P), de))
 
 
+def error_jump_before_sigma(err_m: np.ndarray, cov_m2: np.ndarray) -> np.ndarray:
+    """Frame-to-frame jump of the error in sigmas of the ellipse claimed *before* it. (N, 2), (N, 2, 2) -> (N-1,).
+
+    ``j_k = sqrt(de_k^T B_k^-1 de_k)`` with ``B_k = P_(k-1) + [P_k - P_(k-1)]_+`` (the positive
+    part: along each axis, the larger of the two ellipses). :func:`error_jump_sigma` judges the
+    change against the ellipse *after* it, which also counts a correct correction as a jump: a
+    landmark seen again that removes an error of 0.8 sigma while the ellipse shrinks five times is a
+    "4 sigma jump" there. Here that correction is 0.8, and a match that pulls the estimate to a
+    wrong place is as large as before (the ellipse does not grow to meet it). For a consistent
+    filter the estimate's change at an update has covariance ``P^- - P^+ <= P^-``, so this is the
+    test of the claim a pilot saw. The positive part keeps the start (``P_0 = 0``) and a
+    covariance that grows in a step judged against what the step itself allowed.
+    """
+    de = np.diff(err_m, axis=0)
+    before, after = cov_m2[:-1], cov_m2[1:]
+    w, v = np.linalg.eigh(after - before)  # (N-1, 2), (N-1, 2, 2)
+    grow = np.einsum("nij,nj,nkj->nik", v, np.maximum(w, 0.0), v)
+    B = before + grow + _COV_FLOOR_M2 * np.eye(2)
+    return np.sqrt(np.einsum("ni,nij,nj->n", de, np.linalg.inv(B), de))
+
+
 @dataclass(frozen=True)
 class Consistency:
     """How well the reported 2x2 position covariance describes the actual error (2 dof)."""
@@ -128,6 +149,8 @@ class Consistency:
     nees_95_interval: tuple[float, float]
     max_error_jump_sigma: float | None = None  # largest :func:`error_jump_sigma`; None: one frame
     max_error_jump_t_s: float | None = None  # when it happened (time of the later frame)
+    max_error_jump_before_sigma: float | None = None  # largest :func:`error_jump_before_sigma`; None: one frame
+    max_error_jump_before_t_s: float | None = None
 
 
 def consistency(err_m: np.ndarray, cov_m2: np.ndarray, t_s: np.ndarray | None = None) -> Consistency:
@@ -137,12 +160,10 @@ def consistency(err_m: np.ndarray, cov_m2: np.ndarray, t_s: np.ndarray | None = 
     """
     e = nees(err_m, cov_m2)
     lo, hi = float(chi2.ppf(0.025, 2)), float(chi2.ppf(0.975, 2))
-    jump = jump_t = None
+    jump = jump_t = before = before_t = None
     if len(err_m) >= 2:
-        j = error_jump_sigma(err_m, cov_m2)
-        k = int(np.argmax(j))
-        jump = float(j[k])
-        jump_t = float(t_s[k + 1]) if t_s is not None else None
+        jump, jump_t = _largest(error_jump_sigma(err_m, cov_m2), t_s)
+        before, before_t = _largest(error_jump_before_sigma(err_m, cov_m2), t_s)
     return Consistency(
         coverage_2sigma=float(np.mean(e <= 4.0)),
         nees_mean=float(np.mean(e)),
@@ -151,7 +172,15 @@ def consistency(err_m: np.ndarray, cov_m2: np.ndarray, t_s: np.ndarray | None = 
         nees_95_interval=(lo, hi),
         max_error_jump_sigma=jump,
         max_error_jump_t_s=jump_t,
+        max_error_jump_before_sigma=before,
+        max_error_jump_before_t_s=before_t,
     )
+
+
+def _largest(jumps: np.ndarray, t_s: np.ndarray | None) -> tuple[float, float | None]:
+    """The largest frame-to-frame jump (N-1,) and the time of the frame after it."""
+    k = int(np.argmax(jumps))
+    return float(jumps[k]), (float(t_s[k + 1]) if t_s is not None else None)
 
 
 @dataclass(frozen=True)
