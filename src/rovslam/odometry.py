@@ -229,17 +229,23 @@ def speed_from_tokens(
     if config.token_noise_prior_dof <= 0:
         pool_var = 0.0
     thr = config.outlier_threshold_px / px_per_m
+    # Each frame's altitude is measured on its own: an error in their ratio zooms one frame against the
+    # other about the nadir, moving off-centre tokens (over relief the lasers' step-to-step noise is 2 to 3
+    # times their sigma). The tokens see that zoom far better than the lasers: a similarity fit, the
+    # measured ratio its prior.
+    scale_var = 2.0 * (sigma_z / (0.5 * (z_prev + z_curr))) ** 2 if config.token_scale else 0.0
 
     # Consensus: rigid hypotheses scored by truncated residuals and the compass prior (MSAC, MAP).
-    theta, d, support = _best_hypothesis(a, b, dpsi, prior_var, thr, sigma0, joint)
+    theta, d, support = _best_hypothesis(a, b, dpsi, prior_var, thr, sigma0, joint, scale_var)
     inl = support
     fit = None
     for _ in range(3):  # refit on the inliers; the threshold follows the residuals they show
         if int(inl.sum()) < config.min_inliers:
             break
-        fit = _rigid_fit(a[inl], b[inl], theta, dpsi, prior_var, joint, sigma0, pool_var, config.token_noise_prior_dof)
+        fit = _rigid_fit(a[inl], b[inl], theta, dpsi, prior_var, joint, sigma0, pool_var, config.token_noise_prior_dof,
+                         scale_var)
         theta, d = fit.theta_rad, fit.d_m
-        res = a - b @ rot2(theta).T - d
+        res = a - fit.scale * (b @ rot2(theta).T) - d
         r2 = np.einsum("mj,mj->m", res, res)
         # the dive's pooled scatter keeps a step whose few tokens happen to agree from gating out its own inliers
         sigma = math.sqrt(max(fit.residual_var_m2, pool_var, sigma0**2))
@@ -252,11 +258,12 @@ def speed_from_tokens(
     if fit is None or n_inl < config.min_inliers:
         return _failure(n_tokens, "no consensus", config)
     # Two groups with equal support: refuse rather than pick one.
-    rival = _rival_consensus(a[~inl], b[~inl], theta, dpsi, prior_var, thr, sigma0, joint)
+    rival = _rival_consensus(a[~inl], b[~inl], theta, dpsi, prior_var, thr, sigma0, joint, scale_var)
     if rival is not None and rival[1] >= n_inl:
         return _failure(n_tokens, "ambiguous consensus", config)
 
-    speed = d / dt
+    # d is in the previous frame's scale (its altitude); the fitted zoom splits the ratio's error between both
+    speed = d * (0.5 * (1.0 + fit.scale)) / dt
     if float(np.hypot(speed[0], speed[1])) > config.max_speed_mps:
         return _failure(n_tokens, "implausible speed", config)
     # The tokens' scatter shows their independent errors; an error they all share (block artefacts of
@@ -284,7 +291,7 @@ def speed_from_tokens(
     theta_sigma = math.sqrt(fit.theta_var_rad2) if joint else math.inf
     return SpeedMeasurement(
         True, float(speed[0]), float(speed[1]), cov, n_tokens, n_inl, mask, "",
-        float(theta if joint else dpsi), theta_sigma, relief_sample(a[inl], b[inl], theta, d),
+        float(theta if joint else dpsi), theta_sigma, relief_sample(a[inl], b[inl], theta, d, fit.scale),
         fit.residual_var_m2 * px_per_m**2, fit.residual_dof,
     )
 
@@ -303,10 +310,13 @@ class _RigidFit:
     cov_d_m2: np.ndarray  # (2, 2) covariance of d
     residual_var_m2: float  # per-axis residual variance of this step's tokens (floored later)
     residual_dof: float  # its degrees of freedom, both axes: 2 (m - p)
+    scale: float = 1.0  # the zoom ``s`` of ``a ~ s R(theta) b + d`` (1: rigid)
+    scale_var: float = 0.0  # its variance (0 when it was fixed)
 
 
 def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, prior_var: float,
-               joint: bool, sigma0_m: float, noise_prior_var_m2: float = 0.0, noise_prior_dof: float = 0.0) -> _RigidFit:
+               joint: bool, sigma0_m: float, noise_prior_var_m2: float = 0.0, noise_prior_dof: float = 0.0,
+               scale_var: float = 0.0) -> _RigidFit:
     """Rotation and translation from (M, 2) matched points, the rotation fixed when not ``joint``.
 
     The turn is the least-squares rotation of the centred points (Gauss-Newton from
@@ -321,6 +331,11 @@ def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, pr
     ``(dof s^2 + dof0 s0^2) / (dof + dof0)`` of this step's ``s^2`` and the dive's recent
     ``noise_prior_var_m2`` (:attr:`SpeedEstimator.token_var_px2`), when that is larger than
     ``s^2`` alone (it never makes a step's tokens look better than they are).
+
+    With ``scale_var > 0`` the fit is a similarity ``a ~ s R b + d``: the least-squares zoom of the
+    centred points (the rotation is the same as the rigid one's), fused with the prior ``s = 1``
+    of variance ``scale_var`` by precision. Its variance moves ``d`` along ``R mean(b)``, and the
+    share of it the tokens decided costs half a degree of freedom per axis.
     """
     m = len(a)
     theta = float(theta0)
@@ -342,9 +357,9 @@ def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, pr
 
     dof_axis = max(m - p, 0.5)
 
-    def residuals(th: float) -> tuple[np.ndarray, np.ndarray, float]:
-        dd = a_bar - rot2(th) @ b_bar
-        res = a - b @ rot2(th).T - dd
+    def residuals(th: float, zoom: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]:
+        dd = a_bar - zoom * (rot2(th) @ b_bar)
+        res = a - zoom * (b @ rot2(th).T) - dd
         sc = res.T @ res / dof_axis  # (2, 2)
         return dd, sc, float(np.trace(sc)) / 2.0
 
@@ -356,22 +371,34 @@ def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, pr
         raised = (dof * var + noise_prior_dof * noise_prior_var_m2) / (dof + noise_prior_dof)
         return sc + (raised - var) * np.eye(2), raised
 
-    d, scatter, resid_var = residuals(theta)
+    spread = float(np.sum(bc * bc))
+    zoom, zoom_var = 1.0, 0.0
+    if scale_var > 0.0 and spread > 0.0:
+        zoom_ls = float(np.sum((bc @ rot2(theta).T) * ac)) / spread
+        info_zoom = spread / max(pooled(*residuals(theta, zoom_ls)[1:])[1], sigma0_m**2)
+        zoom_var = 1.0 / (info_zoom + 1.0 / scale_var)
+        w_zoom = info_zoom * zoom_var  # the tokens' share of the zoom (the prior's: 1 - w)
+        zoom = 1.0 + w_zoom * (zoom_ls - 1.0)
+        dof_axis = max(m - p - 0.5 * w_zoom, 0.5)
+    d, scatter, resid_var = residuals(theta, zoom)
     theta_var = 0.0
     if joint:
-        info_theta = float(np.sum(bc * bc)) / max(pooled(scatter, resid_var)[1], sigma0_m**2)
+        info_theta = spread / max(pooled(scatter, resid_var)[1], sigma0_m**2)
         if prior_var > 0.0:
             w = info_theta / (info_theta + 1.0 / prior_var)
             theta = prior_rad + wrap_angle(theta - prior_rad) * w
-            d, scatter, resid_var = residuals(theta)
+            d, scatter, resid_var = residuals(theta, zoom)
             theta_var = 1.0 / (info_theta + 1.0 / prior_var)
         else:
             theta_var = 1.0 / info_theta if info_theta > 0 else math.inf
     cov_d = _floor_eigenvalues(pooled(scatter, resid_var)[0], sigma0_m**2) / m
     if joint and math.isfinite(theta_var):
-        jrb = drot2(theta) @ b_bar  # d d / d theta = -dR/dtheta mean(b)
+        jrb = zoom * (drot2(theta) @ b_bar)  # d d / d theta = -s dR/dtheta mean(b)
         cov_d = cov_d + theta_var * np.outer(jrb, jrb)
-    return _RigidFit(theta, d, theta_var, cov_d, resid_var, 2.0 * dof_axis)
+    if zoom_var > 0.0:
+        rb = rot2(theta) @ b_bar  # d d / d s = -R mean(b)
+        cov_d = cov_d + zoom_var * np.outer(rb, rb)
+    return _RigidFit(theta, d, theta_var, cov_d, resid_var, 2.0 * dof_axis, zoom, zoom_var)
 
 
 @lru_cache(maxsize=64)
@@ -383,13 +410,16 @@ def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
     return i, j
 
 
-def _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint):
+def _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint, scale_var=0.0):
     """(theta, d, inlier mask) of the best rigid hypothesis: MSAC residuals plus the compass prior.
 
     Hypotheses: the prior turn with the median and with every single-token translation; in
     ``joint`` mode also the rigid motion of every token pair whose baseline is long enough to
     fix the turn (at least a quarter of the tokens' extent, and 8 thresholds). Each is scored
-    by ``sum(min(r^2, thr^2)) / sigma0^2 + (theta - prior)^2 / prior_var``.
+    by ``sum(min(r^2, thr^2)) / sigma0^2 + (theta - prior)^2 / prior_var``. With ``scale_var > 0``
+    a pair's hypothesis is the similarity it fixes (its zoom ``s = |da| / |db|``; at the prior's
+    turn when not ``joint``), scored by ``(s - 1)^2 / scale_var`` more: a zoom between the frames
+    does not split the consensus.
     """
     if len(a) > _MAX_HYPOTHESES:
         pick = np.linspace(0, len(a) - 1, _MAX_HYPOTHESES).astype(np.intp)
@@ -399,7 +429,8 @@ def _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint):
     singles = a[pick] - rb_prior[pick]
     thetas = [np.full(1 + len(singles), prior_rad)]
     ds = [np.median(a - rb_prior, axis=0)[None], singles]
-    if joint and len(a) >= 2:
+    zooms = [np.ones(1 + len(singles))]
+    if (joint or scale_var > 0.0) and len(a) >= 2:
         i, j = _pairs(len(a))
         da, db = a[i] - a[j], b[i] - b[j]
         base2 = np.einsum("kj,kj->k", db, db)
@@ -407,8 +438,11 @@ def _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint):
         keep = base2 >= max((8.0 * thr) ** 2, extent2 / 16.0)
         if np.any(keep) and len(keep) > _MAX_HYPOTHESES:
             keep &= base2 >= np.sort(base2)[-_MAX_HYPOTHESES]
-        th = np.arctan2(da[keep, 1], da[keep, 0]) - np.arctan2(db[keep, 1], db[keep, 0])
-        th = prior_rad + wrap_angle(th - prior_rad)
+        if joint:
+            th = np.arctan2(da[keep, 1], da[keep, 0]) - np.arctan2(db[keep, 1], db[keep, 0])
+            th = prior_rad + wrap_angle(th - prior_rad)
+        else:  # the turn is the prior's: a pair fixes only the zoom
+            th = np.full(int(np.count_nonzero(keep)), float(prior_rad))
         ii, jj = i[keep], j[keep]
         # Each pair's translation mid(a) - R(t) mid(b); a stacked matmul gives R(t) @ v bit for bit.
         c, s = np.cos(th), np.sin(th)
@@ -416,30 +450,43 @@ def _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint):
         rots[:, 0, 0], rots[:, 0, 1], rots[:, 1, 0], rots[:, 1, 1] = c, -s, s, c
         mid_b = 0.5 * (b[ii] + b[jj])
         thetas.append(th)
-        ds.append(0.5 * (a[ii] + a[jj]) - np.matmul(rots, mid_b[:, :, None])[:, :, 0])
+        moved = np.matmul(rots, mid_b[:, :, None])[:, :, 0]
+        if scale_var > 0.0:
+            if joint:  # the similarity through the pair
+                zoom = np.sqrt(np.einsum("kj,kj->k", da[keep], da[keep]) / base2[keep])
+            else:  # the least-squares zoom at the prior's turn
+                zoom = np.einsum("kj,kj->k", da[keep], db[keep] @ rot2(prior_rad).T) / base2[keep]
+            zooms.append(zoom)
+            moved = moved * zoom[:, None]
+        ds.append(0.5 * (a[ii] + a[jj]) - moved)
     thetas_a = np.concatenate(thetas)
     ds_a = np.concatenate(ds)
     c, s = np.cos(thetas_a)[:, None], np.sin(thetas_a)[:, None]
     rb = np.stack([c * b[None, :, 0] - s * b[None, :, 1], s * b[None, :, 0] + c * b[None, :, 1]], axis=-1)
+    if scale_var > 0.0:
+        zooms_a = np.concatenate(zooms)
+        rb = rb * zooms_a[:, None, None]
     r = a[None] - rb - ds_a[:, None, :]  # (K, M, 2)
     r2 = np.einsum("kmj,kmj->km", r, r)
     score = np.minimum(r2, thr**2).sum(axis=1) / sigma0**2
     if joint and prior_var > 0:
         score = score + wrap_angle(thetas_a - prior_rad) ** 2 / prior_var
+    if scale_var > 0.0:
+        score = score + (zooms_a - 1.0) ** 2 / scale_var
     k = int(np.argmin(score))
     return float(thetas_a[k]), ds_a[k], r2[k] <= thr**2
 
 
-def _rival_consensus(a, b, theta, prior_rad, prior_var, thr, sigma0, joint):
+def _rival_consensus(a, b, theta, prior_rad, prior_var, thr, sigma0, joint, scale_var=0.0):
     """The best consensus among the outliers: ``(d (2,), support)`` when at least two agree, else None."""
     if len(a) < 2:
         return None
-    _, d, support = _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint)
+    _, d, support = _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint, scale_var)
     n = int(support.sum())
     return (d, n) if n >= 2 else None
 
 
-def relief_sample(a_m: np.ndarray, b_m: np.ndarray, theta_rad: float, d_m: np.ndarray) -> float:
+def relief_sample(a_m: np.ndarray, b_m: np.ndarray, theta_rad: float, d_m: np.ndarray, scale: float = 1.0) -> float:
     """One frame's sample of the relative variance of the seabed heights under the tokens (NaN: none).
 
     Over relief each token moves as its own depth says, ``d_i = d Z / Z_i``: the relief spreads
@@ -453,7 +500,7 @@ def relief_sample(a_m: np.ndarray, b_m: np.ndarray, theta_rad: float, d_m: np.nd
     dd = float(d_m @ d_m)
     if n < 3 or dd <= 0.0:
         return math.nan
-    res = a_m - b_m @ rot2(theta_rad).T - d_m  # (n, 2) residuals of the fit
+    res = a_m - scale * (b_m @ rot2(theta_rad).T) - d_m  # (n, 2) residuals of the fit (``scale``: its zoom)
     along = res @ d_m
     across = res @ np.array([-d_m[1], d_m[0]])
     return float(np.mean(along**2) - np.mean(across**2)) / (dd * dd) * n / (n - 1.5)
