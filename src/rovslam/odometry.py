@@ -235,7 +235,8 @@ def speed_from_tokens(
     # measured ratio its prior.
     scale_var = 2.0 * (sigma_z / (0.5 * (z_prev + z_curr))) ** 2 if config.token_scale else 0.0
 
-    # Consensus: rigid hypotheses scored by truncated residuals and the compass prior (MSAC, MAP).
+    # Consensus: rigid hypotheses (similarities with token_scale) scored by truncated residuals and the
+    # compass prior (MSAC, MAP).
     theta, d, support = _best_hypothesis(a, b, dpsi, prior_var, thr, sigma0, joint, scale_var)
     inl = support
     fit = None
@@ -311,7 +312,6 @@ class _RigidFit:
     residual_var_m2: float  # per-axis residual variance of this step's tokens (floored later)
     residual_dof: float  # its degrees of freedom, both axes: 2 (m - p)
     scale: float = 1.0  # the zoom ``s`` of ``a ~ s R(theta) b + d`` (1: rigid)
-    scale_var: float = 0.0  # its variance (0 when it was fixed)
 
 
 def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, prior_var: float,
@@ -398,7 +398,7 @@ def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, pr
     if zoom_var > 0.0:
         rb = rot2(theta) @ b_bar  # d d / d s = -R mean(b)
         cov_d = cov_d + zoom_var * np.outer(rb, rb)
-    return _RigidFit(theta, d, theta_var, cov_d, resid_var, 2.0 * dof_axis, zoom, zoom_var)
+    return _RigidFit(theta, d, theta_var, cov_d, resid_var, 2.0 * dof_axis, zoom)
 
 
 @lru_cache(maxsize=64)

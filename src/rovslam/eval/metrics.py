@@ -112,9 +112,7 @@ def error_jump_sigma(err_m: np.ndarray, cov_m2: np.ndarray) -> np.ndarray:
     A filter whose error drifts smoothly has jumps far below 1; a landmark that pulls the
     estimate to a wrong place in one update shows as a jump of several sigmas.
     """
-    de = np.diff(err_m, axis=0)
-    P = cov_m2[1:] + _COV_FLOOR_M2 * np.eye(2)
-    return np.sqrt(np.einsum("ni,nij,nj->n", de, np.linalg.inv(P), de))
+    return _sigmas(np.diff(err_m, axis=0), cov_m2[1:])
 
 
 def error_jump_before_sigma(err_m: np.ndarray, cov_m2: np.ndarray) -> np.ndarray:
@@ -130,12 +128,16 @@ def error_jump_before_sigma(err_m: np.ndarray, cov_m2: np.ndarray) -> np.ndarray
     test of the claim a pilot saw. The positive part keeps the start (``P_0 = 0``) and a
     covariance that grows in a step judged against what the step itself allowed.
     """
-    de = np.diff(err_m, axis=0)
     before, after = cov_m2[:-1], cov_m2[1:]
     w, v = np.linalg.eigh(after - before)  # (N-1, 2), (N-1, 2, 2)
     grow = np.einsum("nij,nj,nkj->nik", v, np.maximum(w, 0.0), v)
-    B = before + grow + _COV_FLOOR_M2 * np.eye(2)
-    return np.sqrt(np.einsum("ni,nij,nj->n", de, np.linalg.inv(B), de))
+    return _sigmas(np.diff(err_m, axis=0), before + grow)
+
+
+def _sigmas(de_m: np.ndarray, cov_m2: np.ndarray) -> np.ndarray:
+    """``sqrt(de^T P^-1 de)`` per row: (K, 2) changes in sigmas of (K, 2, 2) covariances (floored)."""
+    P = cov_m2 + _COV_FLOOR_M2 * np.eye(2)
+    return np.sqrt(np.einsum("ni,nij,nj->n", de_m, np.linalg.inv(P), de_m))
 
 
 @dataclass(frozen=True)
