@@ -233,3 +233,48 @@ def test_spots_far_from_the_prediction_are_found_by_the_altitude_search():
     assert est.source == "laser" and est.n_spots == 4
     assert est.altitude_m == pytest.approx(0.6, rel=0.01)
     assert alt.last_altitude_m == pytest.approx(0.6, rel=0.01)
+
+
+def _smeared_spot(centre_uv, pedestal: int = 0, neighbour_uv=None) -> np.ndarray:
+    """(60, 60, 3) a Gaussian red spot (sigma 1.2 px, peak 230) smeared by a zero-mean but lopsided
+    kernel (the light's centroid stays at ``centre_uv``; 40 % of it lands in a faint tail on one
+    side, 1-4 px away, mostly below the 60 threshold), on a grey seabed with a red pedestal."""
+    h = w = 60
+    vv, uu = np.indices((h, w), dtype=np.float64)
+    # kernel taps along u: 0.6 at -1.5 px, 0.4 spread over +1..+4 px, shifted to a first moment of 0
+    taps = [(-1.5, 0.6)] + [(d, 0.4 / 4) for d in (1.0, 2.0, 3.0, 4.0)]
+    shift = -sum(d * a for d, a in taps)  # put the first moment back at exactly 0
+    smeared = sum(a * np.exp(-((uu - centre_uv[0] - d - shift) ** 2 + (vv - centre_uv[1]) ** 2) / (2 * 1.2**2))
+                  for d, a in taps) * 230.0
+    red = 60.0 + pedestal + smeared
+    if neighbour_uv is not None:  # another red blob nearby (a second pointer, a red sponge)
+        red += 200.0 * (((uu - neighbour_uv[0]) ** 2 + (vv - neighbour_uv[1]) ** 2) <= 4.0)
+    img = np.full((h, w, 3), 60, np.uint8)
+    img[..., 0] = np.clip(np.rint(red), 0, 255).astype(np.uint8)
+    return img
+
+
+def _light_centroid(img: np.ndarray, pedestal: int = 0) -> np.ndarray:
+    ex = np.maximum(red_excess(img).astype(np.float64) - pedestal, 0.0)
+    vv, uu = np.indices(ex.shape)
+    return np.array([(ex * uu).sum() / ex.sum(), (ex * vv).sum() / ex.sum()])
+
+
+@pytest.mark.parametrize("centre", [(30.0, 30.0), (29.3, 31.6), (30.5, 30.25)])
+def test_a_lopsided_smear_does_not_move_the_spot_centre(centre):
+    img = _smeared_spot(centre)
+    truth = _light_centroid(img)  # (the rounding to 8 bits moves it by a few thousandths)
+    assert np.allclose(truth, centre, atol=0.02)
+    got = detect_laser_spots(img, np.array([centre]), CFG)[0]
+    assert np.all(np.abs(got - truth) < 0.05), (got, truth)
+    # control: the thresholded pixels alone (the detector before) lose the faint tail
+    old = detect_laser_spots(img, np.array([centre]), dataclasses.replace(CFG, spot_skirt_px=0.0))[0]
+    assert old[0] - truth[0] < -0.3, (old, truth)
+
+
+def test_the_spot_centre_ignores_a_red_pedestal_and_a_neighbouring_blob():
+    centre = (30.0, 30.0)
+    img = _smeared_spot(centre, pedestal=25, neighbour_uv=(30.0, 38.0))
+    truth = _light_centroid(_smeared_spot(centre), pedestal=0)
+    got = detect_laser_spots(img, np.array([centre]), CFG)[0]
+    assert np.all(np.abs(got - truth) < 0.05), (got, truth)

@@ -47,10 +47,13 @@ def _spot_candidates_reference(image_rgb, config, near_uv_px):
         cv = np.bincount(lab, weight * vs, minlength=n) / total + v0
     keep = (area >= config.min_spot_area_px) & (area <= config.max_spot_area_px) & (total > 0)
     keep[0] = False
-    cents, weights = np.column_stack([cu, cv])[keep], total[keep]
+    ids, cents, weights = np.flatnonzero(keep), np.column_stack([cu, cv])[keep], total[keep]
     if len(cents):
         close = np.any(np.linalg.norm(cents[:, None, :] - near[None, :, :], axis=2) <= config.search_radius_px, axis=1)
-        cents, weights = cents[close], weights[close]
+        ids, cents, weights = ids[close], cents[close], weights[close]
+    if config.spot_skirt_px > 0 and len(ids):  # the centre with the fade beyond the threshold, labels of the whole window
+        cents = np.array([laser._skirt_centre(excess, labels, mask, (0, 0), int(i), int(area[i]), config.spot_skirt_px)
+                          for i in ids]) + (u0, v0)
     order = np.lexsort((cents[:, 0], cents[:, 1], -weights)) if len(cents) else np.zeros(0, dtype=np.intp)  # ties: top, left
     return cents[order], weights[order]
 

@@ -267,6 +267,9 @@ class LaserConfig(_Checked):
     inhibit_radius_px: int = _num(14, ge=0)  # templates keep this far from a spot centre
     max_relative_disagreement: float = _num(0.05, gt=0)  # a spot whose altitude differs more is an outlier
     spot_sigma_px: float = _num(0.3, gt=0)  # centroid noise used for the altitude variance
+    # a spot's centre weighs its red beyond the threshold this far (plus its radius) around the blob:
+    # a codec's lopsided smear moved the thresholded centroid (0: the thresholded pixels only, before)
+    spot_skirt_px: float = _num(3.0, ge=0)
     sonar_sigma_m: float = _num(0.05, gt=0)
     fixed_altitude_sigma_m: float = _num(0.10, gt=0)
     min_altitude_m: float = _num(0.05, gt=0)  # altitudes (laser or sonar) outside this range are rejected
@@ -309,6 +312,8 @@ class OdometryConfig(_Checked):
     relief_prior_sigma: float = _num(0.02, ge=0)  # relief height spread / altitude assumed before the tokens measured it
     relief_prior_s: float = _num(2.0, ge=0)  # ... its share fades as exp(-seconds measured / this) (0: no prior, start as flat)
     compass_sigma_rad: float = _num(0.0087, ge=0)  # compass white noise (0.5 deg); 0 uses the compass as it is (paper)
+    # without a compass: a step whose turn the tokens did not measure turns the heading by up to this rate (14 deg/s)
+    unmeasured_turn_rate_sigma_radps: float = _num(0.25, gt=0)
     compass_sigma_learned: bool = True  # the compass noise its readings show is used when above compass_sigma_rad
     compass_drift_sigma_rad: float = _num(0.0175, ge=0)  # slow compass error no smoothing removes (magnetic disturbance, 1 deg)
     compass_offset_sigma_rad: float = _num(0.0087, ge=0)  # the compass's constant error (deviation, 0.5 deg calibrated): turns the whole estimate

@@ -88,11 +88,13 @@ class HeadingFilter:
         a = 1.0 / COMPASS_NOISE_READINGS
         self._noise.add(y2 - predicted_var_rad2, a, 1.0 - a)
 
-    def update(self, compass_rad: float, dpsi_rad: float | None = None, dpsi_sigma_rad: float = math.inf) -> float:
+    def update(self, compass_rad: float, dpsi_rad: float | None = None, dpsi_sigma_rad: float = math.inf,
+               unmeasured_sigma_rad: float = NO_COMPASS_STEP_SIGMA_RAD) -> float:
         """One step: the compass reading of this frame and the measured change since the last one.
 
         A NaN compass (a video without navigation) leaves the tokens alone: the heading is
-        then their integrated rotation from 0 at the first frame, its variance growing.
+        then their integrated rotation from 0 at the first frame, its variance growing (by
+        ``unmeasured_sigma_rad`` squared over a step whose turn nothing measured).
         """
         measured = dpsi_rad is not None and math.isfinite(dpsi_sigma_rad)
         if compass_rad is None or not math.isfinite(compass_rad):
@@ -102,7 +104,7 @@ class HeadingFilter:
                 self.heading_rad = wrap_angle(self.heading_rad + float(dpsi_rad))
                 self.var_rad2 += float(dpsi_sigma_rad) ** 2
             else:  # nothing measured the turn of this step
-                self.var_rad2 += NO_COMPASS_STEP_SIGMA_RAD**2
+                self.var_rad2 += float(unmeasured_sigma_rad) ** 2
             return self.heading_rad
         c = finite_scalar("heading_rad", compass_rad)
         r = self.compass_var_rad2
@@ -230,10 +232,15 @@ class HeadingTracker:
             step_sigma = None if has_compass else NO_COMPASS_STEP_SIGMA_RAD
         return HeadingPrior(compass_rad, previous, step, step_sigma)
 
-    def update(self, prior: HeadingPrior, dpsi_rad: float | None, dpsi_sigma_rad: float) -> HeadingEstimate:
-        """Fuse the compass with the turn the tokens measured (``dpsi_rad`` None: not measured)."""
+    def update(self, prior: HeadingPrior, dpsi_rad: float | None, dpsi_sigma_rad: float,
+               dt_s: float | None = None) -> HeadingEstimate:
+        """Fuse the compass with the turn the tokens measured (``dpsi_rad`` None: not measured).
+
+        ``dt_s``: the step's duration, which bounds an unmeasured turn without a compass
+        (:meth:`unmeasured_turn_sigma_rad`).
+        """
         var_before = self.filter.var_rad2
-        psi = self.filter.update(prior.compass_rad, dpsi_rad, dpsi_sigma_rad)
+        psi = self.filter.update(prior.compass_rad, dpsi_rad, dpsi_sigma_rad, self.unmeasured_turn_sigma_rad(dt_s))
         smoothing = self.odometry.compass_sigma_rad > 0 and prior.has_compass
         sigma = self.filter.sigma_rad if smoothing or not prior.has_compass else None
         if smoothing and self.slam.heading_bias_sigma_rad == 0:
@@ -246,13 +253,26 @@ class HeadingTracker:
             return HeadingEstimate(psi, sigma, 0.0, walk)  # the whole heading error is eps's
         return HeadingEstimate(psi, sigma, obs_sigma)
 
-    def skip(self, compass_rad: float) -> HeadingEstimate:
+    def skip(self, compass_rad: float, dt_s: float | None = None) -> HeadingEstimate:
         """An unusable frame: follow the compass alone (without one, the heading is held and its error grows)."""
         var_before = self.filter.var_rad2
-        psi = self.filter.update(compass_rad)
+        psi = self.filter.update(compass_rad, unmeasured_sigma_rad=self.unmeasured_turn_sigma_rad(dt_s))
         walk = self._walk_var_rad2(math.isfinite(compass_rad), var_before)
         self._remember(psi, compass_rad)
         return HeadingEstimate(psi, None, None, walk)
+
+    def unmeasured_turn_sigma_rad(self, dt_s: float | None) -> float:
+        """Standard deviation of a turn nothing measured over ``dt_s`` seconds, without a compass.
+
+        ``[odometry] unmeasured_turn_rate_sigma_radps`` times the step (at most pi): the vehicle
+        turns at most so fast. Before, 0.2 rad a step whatever its length (57 degrees/s at 5 Hz):
+        after two such steps the filter's heading error ``eps`` was free to take whatever the next
+        landmark's short track suggested, and the bare-video survey with turns went 6 to 16 cm
+        wrong outside its ellipse. ``dt_s`` None (or not positive): :data:`NO_COMPASS_STEP_SIGMA_RAD`.
+        """
+        if dt_s is None or not dt_s > 0:
+            return NO_COMPASS_STEP_SIGMA_RAD
+        return min(math.pi, self.odometry.unmeasured_turn_rate_sigma_radps * float(dt_s))
 
     def _walk_var_rad2(self, has_compass: bool, var_before_rad2: float) -> float | None:
         """Without a compass and with ``eps`` in the filter: what this step added to the integrated heading's variance."""

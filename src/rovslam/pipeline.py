@@ -205,7 +205,7 @@ class SlamPipeline:
         new_template = self._choose_new_landmark(track_img, mask, tracked)
         self._inhibit_landmarks(mask, tracked, new_template)  # step 4
         tracks, speed = self._measure_speed(track_img, mask, alt, att, prior, dt_s, frame.has_attitude)  # step 5
-        heading = self._fuse_heading(prior, speed)
+        heading = self._fuse_heading(prior, speed, dt_s)
         tracked = self._landmarks_at_frame_time(tracked, speed, prior, alt, dt_s)  # rolling shutter, if any
         if self._n == 0 and frame.has_attitude:
             self._start_filter(alt.altitude_m)
@@ -528,11 +528,11 @@ class SlamPipeline:
         step = speed.dpsi_rad if speed.ok and math.isfinite(speed.dpsi_rad) else prior.step_rad
         return float(step) / dt_s if math.isfinite(step) else 0.0
 
-    def _fuse_heading(self, prior: HeadingPrior, speed: SpeedMeasurement | None) -> HeadingEstimate:
+    def _fuse_heading(self, prior: HeadingPrior, speed: SpeedMeasurement | None, dt_s: float) -> HeadingEstimate:
         """Step 5, heading: the compass smoothed with the turn the tokens measured."""
         if speed is not None and speed.ok and math.isfinite(speed.dpsi_sigma_rad):
-            return self.heading.update(prior, speed.dpsi_rad, speed.dpsi_sigma_rad)
-        return self.heading.update(prior, None, math.inf)
+            return self.heading.update(prior, speed.dpsi_rad, speed.dpsi_sigma_rad, dt_s)
+        return self.heading.update(prior, None, math.inf, dt_s)
 
     def _start_filter(self, altitude_m: float) -> None:
         """First frame with an AHRS: the start is known only up to the tilt offset, x_apparent = x - R b, |b| ~ Z sigma_att."""
@@ -668,7 +668,7 @@ class SlamPipeline:
         """An unusable frame: predict with the held speed, follow the compass, reset the token tracks."""
         self.skipped.append((frame.index, frame.t_s, reason))
         speed = None
-        heading = self.heading.skip(frame.heading_rad)
+        heading = self.heading.skip(frame.heading_rad, dt_s)
         if self._prev_t_s is not None and dt_s > 0:
             speed = self.speed.hold(dt_s)
             self._predict(speed, prior.previous_rad, dt_s, None, heading_walk_var_rad2=heading.walk_var_rad2)
