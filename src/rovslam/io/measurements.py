@@ -19,6 +19,7 @@ tail of an interrupted run) and rejects anything else that does not add up with 
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 from collections.abc import Iterable
@@ -137,14 +138,22 @@ class MeasurementWriter:
 
     def flush(self) -> None:
         """Observations first: a frame row on disk always has its observations before it."""
-        self._obs_fh.flush()
-        self._frames_fh.flush()
+        from rovslam.io.results import output_errors
+
+        with output_errors(self.out / LANDMARK_MEASUREMENTS_FILE):
+            self._obs_fh.flush()
+        with output_errors(self.out / MEASUREMENTS_FILE):
+            self._frames_fh.flush()
 
     def close(self) -> None:
+        """Flush and close both files (closed even when the flush fails: the error names the file)."""
         if not self._frames_fh.closed:
-            self.flush()
-            self._obs_fh.close()
-            self._frames_fh.close()
+            try:
+                self.flush()
+            finally:
+                for fh in (self._obs_fh, self._frames_fh):
+                    with contextlib.suppress(OSError, ValueError):
+                        fh.close()
 
     def __enter__(self) -> MeasurementWriter:
         return self

@@ -393,9 +393,12 @@ class GalleryWriter:
 
     def __init__(self, out_dir: str | Path, flush_every: int = 50):
         self.out = Path(out_dir)
-        self._fh = (self.out / "tokens.csv").open("w", newline="", encoding="utf-8")
+        self._path = self.out / "tokens.csv"
+        with output_errors(self._path, "cannot create"):
+            self._fh = self._path.open("w", newline="", encoding="utf-8")
         self._w = csv.writer(self._fh, lineterminator="\n")
-        self._w.writerow(TOKEN_COLUMNS)
+        with output_errors(self._path):
+            self._w.writerow(TOKEN_COLUMNS)
         self._last_seen: dict[int, float] = {}
         self.flush_every = max(1, flush_every)
         self._n = 0
@@ -405,7 +408,8 @@ class GalleryWriter:
         t = _f(r.t_s)
         uv = np.asarray(getattr(r, "token_uv_px", np.zeros((0, 2)))).reshape(-1, 2).tolist()  # Python floats: faster to format
         if uv:
-            self._w.writerows([t, r.index, _f(u), _f(v)] for u, v in uv)
+            with output_errors(self._path):
+                self._w.writerows([t, r.index, _f(u), _f(v)] for u, v in uv)
         for ob in r.observations:
             if not ob.accepted:
                 continue
@@ -415,7 +419,8 @@ class GalleryWriter:
                 self._save_crop(image, ob.landmark_id, r.index, ob.uv_px)
         self._n += 1
         if self._n % self.flush_every == 0:
-            self._fh.flush()
+            with output_errors(self._path):
+                self._fh.flush()
 
     def _save_crop(self, image: np.ndarray, landmark_id: int, frame: int, uv_px: np.ndarray) -> None:
         import cv2
@@ -423,11 +428,21 @@ class GalleryWriter:
         n = REVISIT_CROP_PX
         crop = cv2.getRectSubPix(np.ascontiguousarray(image), (n, n), (float(uv_px[0]), float(uv_px[1])))
         folder = self.out / "revisits" / str(int(landmark_id))
-        folder.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(folder / f"{int(frame)}.png"), cv2.cvtColor(crop, cv2.COLOR_RGB2BGR))
+        with output_errors(folder, "cannot create the folder"):
+            folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"{int(frame)}.png"
+        if not cv2.imwrite(str(path), cv2.cvtColor(crop, cv2.COLOR_RGB2BGR)):
+            raise OutputError(f"{path}: cannot write the revisit crop (the disk may be full or the folder read-only); "
+                              "free space or choose another --out.")
 
     def close(self) -> None:
-        self._fh.close()
+        """Flush and close tokens.csv; an error names it (the file is closed all the same)."""
+        try:
+            with output_errors(self._path):
+                self._fh.close()
+        finally:
+            with contextlib.suppress(OSError, ValueError):
+                self._fh.close()  # the buffer is dropped on the second try
 
 
 def _json_default(o: Any) -> Any:

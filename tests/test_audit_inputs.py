@@ -1,0 +1,109 @@
+"""The bad-input defects of the CLI audit (D1 to D9): each one a refusal or a note, never a traceback."""
+
+from __future__ import annotations
+
+import csv
+import errno
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from rovslam.cli import app
+
+runner = CliRunner()
+
+
+def _one_error_line(res, *needles: str) -> str:
+    """The single `rovslam: error:` line of a refused command (exit 2, no traceback), holding every needle."""
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output
+    lines = [line for line in res.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("rovslam: error:"), res.output
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def dive(tmp_path_factory):
+    """A 60-frame simulated dive and its run (6 landmarks): (sequence folder, results folder)."""
+    root = tmp_path_factory.mktemp("audit")
+    res = runner.invoke(app, ["simulate", "--scenario", "portofino-short", "--frames", "60", "--out", str(root / "seq"), "-q"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["run", str(root / "seq"), "--out", str(root / "out"), "-q"])
+    assert res.exit_code == 0, res.output
+    return root / "seq", root / "out"
+
+
+# --------------------------------------------------------------------------- D3: a full disk names the file
+
+
+class _FullDisk:
+    """A text file that takes ``budget`` characters, then fails like a full disk on every write, flush and close."""
+
+    def __init__(self, fh, budget: int):
+        self.fh, self.budget = fh, budget
+
+    def _full(self):
+        return OSError(errno.ENOSPC, "No space left on device")
+
+    def write(self, text: str) -> int:
+        if len(text) > self.budget:
+            self.budget = -1
+            raise self._full()
+        self.budget -= len(text)
+        return self.fh.write(text)
+
+    def flush(self) -> None:
+        if self.budget < 0:
+            raise self._full()
+        self.fh.flush()
+
+    def close(self) -> None:
+        self.fh.close()
+        if self.budget < 0 or self.at_close:
+            raise self._full()
+
+    at_close = False
+
+
+@pytest.mark.parametrize("at_close", [False, True], ids=["while-writing", "at-close"])
+def test_a_full_disk_while_writing_tokens_names_the_file_and_finishes_the_others(dive, tmp_path, monkeypatch, at_close):
+    import rovslam.io.results as results
+
+    init = results.GalleryWriter.__init__
+
+    def full_after_a_while(self, out_dir, flush_every=50):
+        init(self, out_dir, flush_every)
+        self._fh = _FullDisk(self._fh, 10**9 if at_close else 5_000)  # tokens.csv of this dive: 12 kB
+        self._fh.at_close = at_close
+        self._w = csv.writer(self._fh, lineterminator="\n")
+
+    monkeypatch.setattr(results.GalleryWriter, "__init__", full_after_a_while)
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["run", str(dive[0]), "--out", str(out), "-q"])
+    _one_error_line(res, str(out / "tokens.csv"), "the disk is full")
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and "tokens.csv" in summary["reason"]
+    n = summary["frames_processed"]
+    assert n == 60 if at_close else 0 < n < 60
+    rows = (out / "trajectory.csv").read_text().splitlines()
+    # every processed frame is there (and the one in hand when tokens.csv failed), each row complete
+    assert 1 + n <= len(rows) <= 2 + n and rows[-1].count(",") == rows[0].count(",")
+    assert len((out / "trajectory.tum").read_text().splitlines()) == len(rows)
+    assert (out / "landmarks.csv").read_text().startswith("id,x_m,y_m")
+
+
+def test_a_revisit_crop_opencv_cannot_write_names_the_file(dive, tmp_path, monkeypatch):
+    import cv2
+
+    monkeypatch.setattr(cv2, "imwrite", lambda path, img, *a: False)  # what imwrite does on a full disk
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["run", str(dive[0]), "--out", str(out), "-q"])
+    line = _one_error_line(res, str(out / "revisits"), ".png: cannot write the revisit crop", "free space")
+    assert "choose another --out" in line
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and "revisit crop" in summary["reason"]
+    assert 1 + summary["frames_processed"] <= len((out / "trajectory.csv").read_text().splitlines())
