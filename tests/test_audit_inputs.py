@@ -107,3 +107,38 @@ def test_a_revisit_crop_opencv_cannot_write_names_the_file(dive, tmp_path, monke
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "failed" and "revisit crop" in summary["reason"]
     assert 1 + summary["frames_processed"] <= len((out / "trajectory.csv").read_text().splitlines())
+
+
+# --------------------------------------------------------------------------- D2: an interrupted batch keeps finished cells
+
+
+def test_an_interrupted_batch_tables_hold_a_cell_finished_but_not_gathered(tmp_path, monkeypatch):
+    import rovslam.batch as batch
+    from rovslam.batch import load_matrix, run_matrix
+
+    class Closable:
+        def close(self):
+            pass
+
+    monkeypatch.setattr(batch, "_connect", lambda scheduler, workers: (Closable(), None))
+
+    def interrupted(client, todo, cells_dir, keep, rows, report, on_cell, save):
+        # the worker wrote the first cell's result.json; Ctrl-C came before the client gathered it
+        done = {**batch.pending_row(todo[0]), "status": "ok", "ate_rmse_m": 0.02}
+        (cells_dir / todo[0].cell_id).mkdir(parents=True)
+        (cells_dir / todo[0].cell_id / "result.json").write_text(json.dumps({"row": done, "evaluation": {}}))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(batch, "_run_cells", interrupted)
+    m = tmp_path / "m.toml"
+    m.write_text('seeds = [0, 1, 2]\n[[scenario]]\nname = "portofino-short"\nframes = 5\n')
+    report = run_matrix(load_matrix(m), tmp_path / "o")
+    assert report.interrupted and report.computed == ["portofino-short_s0"]
+    assert [r["status"] for r in report.rows] == ["ok", "pending", "pending"]
+    with open(tmp_path / "o" / "matrix.csv", newline="") as fh:
+        table = {r["cell"]: r for r in csv.DictReader(fh)}
+    assert table["portofino-short_s0"]["status"] == "ok" and float(table["portofino-short_s0"]["ate_rmse_m"]) == 0.02
+    assert table["portofino-short_s1"]["status"] == "pending"
+    md = (tmp_path / "o" / "matrix.md").read_text()
+    assert "| portofino-short | 1/3 |" in md
+    assert "Not run yet (the batch was interrupted): portofino-short_s1, portofino-short_s2." in md
