@@ -142,3 +142,42 @@ def test_an_interrupted_batch_tables_hold_a_cell_finished_but_not_gathered(tmp_p
     md = (tmp_path / "o" / "matrix.md").read_text()
     assert "| portofino-short | 1/3 |" in md
     assert "Not run yet (the batch was interrupted): portofino-short_s1, portofino-short_s2." in md
+
+
+# --------------------------------------------------------------------------- D4: unknown frames.csv columns
+
+
+def _add_columns(seq: Path, names: str, value: str) -> None:
+    p = seq / "frames.csv"
+    lines = p.read_text().splitlines()
+    p.write_text("\n".join([lines[0] + "," + names] + [x + "," + value for x in lines[1:]]) + "\n")
+
+
+@pytest.mark.parametrize("names,value", [("roll_deg,pitch_deg", "5,0"), ("rol_rad,pich_rad", "0.2,0.2"), ("roll_rad,pich_rad", "0.2,0.2")])
+def test_unknown_frames_columns_are_refused_with_the_known_ones_listed(tmp_path, names, value):
+    import shutil
+
+    import fuzz_corpus as fc
+
+    seq = fc.write_sequence(tmp_path / "seq")
+    _add_columns(seq, names, value)
+    res = runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"])
+    unknown = [n for n in names.split(",") if n not in ("roll_rad", "pitch_rad")]
+    _one_error_line(res, str(seq / "frames.csv"), *(f"'{n}'" for n in unknown), "optional roll_rad,pitch_rad",
+                    "rename or remove")
+    assert not (tmp_path / "o").exists()
+    shutil.rmtree(seq)
+
+
+def test_every_sequence_rovslam_writes_is_still_read(tmp_path):
+    import fuzz_corpus as fc
+    from rovslam.io.sequence import open_sequence
+    from rovslam.sim import simulate
+
+    simulate("portofino-short", tmp_path / "level", frames=3, seed=0)
+    simulate("swell", tmp_path / "tilted", frames=3, seed=0)  # writes roll_rad, pitch_rad
+    assert open_sequence(tmp_path / "tilted").has_attitude
+    assert len(open_sequence(tmp_path / "level")) == 3
+    seq = fc.write_sequence(tmp_path / "with_att")
+    _add_columns(seq, "roll_rad,pitch_rad", "0.01,-0.02")
+    assert open_sequence(seq).rows[0].roll_rad == 0.01

@@ -406,6 +406,12 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
     root = Path(os.path.realpath(folder))
     _inside(root, path.name, str(path))
     header, rows = read_csv_table(path, FRAMES_COLUMNS)
+    unknown = [c for c in header if c not in FRAMES_COLUMNS + ATTITUDE_COLUMNS]
+    if unknown:  # a misspelt roll_rad would leave the tilt uncompensated without a word
+        raise SequenceFormatError(
+            f"{path}: unknown column(s) {', '.join(repr(c) for c in unknown)} in the header. The columns are "
+            f"{','.join(FRAMES_COLUMNS)} and the optional {','.join(ATTITUDE_COLUMNS)} (radians); rename or remove the others."
+        )
     has_att = all(c in header for c in ATTITUDE_COLUMNS)
     if any(c in header for c in ATTITUDE_COLUMNS) and not has_att:
         raise SequenceFormatError(f"{path}: give both roll_rad and pitch_rad columns, or neither.")
