@@ -804,6 +804,10 @@ def bag_cases() -> list[Case]:
     ]
 
 
+def _status(summary: Path, status: str) -> None:
+    _bytes(summary, json.dumps({**json.loads(summary.read_text(encoding="utf-8")), "status": status}).encode())
+
+
 def _results_table_edit(name: str, fn: Callable[[list[str]], list[str]]) -> Callable[[Path], None]:
     return lambda res: edit_lines(res / name, fn)
 
@@ -816,7 +820,10 @@ def results_cases() -> list[Case]:
         if cmd == "eval":  # readable variants: the reader is shared, the report's plots are slow (one-row plots)
             cases += [
                 R("valid", lambda r: None, "ok"),
-                R("torn-last-line", lambda r: _bytes(r / tr, (r / tr).read_bytes()[:-7]), "ok"),
+                # a line torn by a crash (SIGKILL, power loss): summary.json still says "running"
+                R("torn-last-line", lambda r: (_bytes(r / tr, (r / tr).read_bytes()[:-7]), _status(r / su, "running")), "ok"),
+                R("torn-last-line-of-complete-run", lambda r: _bytes(r / tr, (r / tr).read_bytes()[:-7]), "error",
+                  "the file was cut short"),
                 R("extra-column", _results_table_edit(tr, lambda ls: [ls[0] + ",note"] + [x + ",hello" for x in ls[1:]]), "ok"),
             ]
         cases += [

@@ -181,3 +181,45 @@ def test_every_sequence_rovslam_writes_is_still_read(tmp_path):
     seq = fc.write_sequence(tmp_path / "with_att")
     _add_columns(seq, "roll_rad,pitch_rad", "0.01,-0.02")
     assert open_sequence(seq).rows[0].roll_rad == 0.01
+
+
+# --------------------------------------------------------------------------- D6, D7: damaged results folders
+
+
+def _copy_run(out: Path, dest: Path) -> Path:
+    import shutil
+
+    shutil.copytree(out, dest)
+    return dest
+
+
+def test_a_cut_trajectory_of_a_complete_run_is_refused(dive, tmp_path):
+    r = _copy_run(dive[1], tmp_path / "r")
+    (r / "trajectory.csv").write_bytes((dive[1] / "trajectory.csv").read_bytes()[:3000])
+    res = runner.invoke(app, ["eval", str(r), "-g", str(dive[0] / "groundtruth.csv")])
+    _one_error_line(res, str(r / "trajectory.csv"), "rows, but summary.json says the run (complete) processed 60 frames",
+                    "cut short", "--overwrite")
+
+
+def test_a_missing_landmarks_file_is_refused_when_the_run_mapped_some(dive, tmp_path):
+    r = _copy_run(dive[1], tmp_path / "r")
+    (r / "landmarks.csv").unlink()
+    for args in (["eval", str(r), "-g", str(dive[0] / "groundtruth.csv")], ["report", str(r), "-q"]):
+        res = runner.invoke(app, args)
+        _one_error_line(res, str(r / "landmarks.csv"), "missing, but summary.json says the run mapped 6 landmarks",
+                        "copy the file back")
+
+
+def test_eval_of_an_interrupted_run_says_it_was_partial(dive, tmp_path):
+    r = _copy_run(dive[1], tmp_path / "r")
+    lines = (r / "trajectory.csv").read_text().splitlines()
+    (r / "trajectory.csv").write_text("\n".join(lines[:31]) + "\n")  # 30 frames, as an interrupted run leaves them
+    summary = json.loads((r / "summary.json").read_text())
+    summary.update(status="interrupted", complete=False, interrupted=True, signal="SIGINT", frames_processed=30)
+    (r / "summary.json").write_text(json.dumps(summary))
+    res = runner.invoke(app, ["eval", str(r), "-g", str(dive[0] / "groundtruth.csv")])
+    assert res.exit_code == 0, res.output
+    assert ("note: the run was interrupted by SIGINT after 30 of 60 frames: these figures cover those 30 frames only"
+            in " ".join(res.output.split()))  # rich wraps the line at the terminal's width
+    figures = json.loads((r / "eval.json").read_text())
+    assert figures["frames"] == 30 and "interrupted by SIGINT after 30 of 60 frames" in figures["partial_run"]

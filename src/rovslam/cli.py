@@ -757,6 +757,8 @@ def _print_eval(f) -> None:
     console.print(t)
     for note in f.notes:
         console.print(f"n/a: {note}", markup=False, highlight=False)
+    if f.partial_run is not None:
+        console.print(f"note: {f.partial_run}", markup=False, highlight=False)
     if f.run_frame_turn_rad != 0.0:
         console.print(f"note: no compass in this run: its frame is its first heading; the ground truth was turned "
                       f"by {math.degrees(f.run_frame_turn_rad):+.2f} deg into it", markup=False, highlight=False)

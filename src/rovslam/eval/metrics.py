@@ -253,6 +253,7 @@ class Evaluation:
     smoothed: TrajectoryErrors | None = None  # the smoothed path (trajectory_smoothed.csv), if the run was smoothed
     smoothed_consistency: Consistency | None = None  # its marginal covariances against the truth
     run_frame_turn_rad: float = 0.0  # a run without compass: the ground truth was turned by this into its frame
+    partial_run: str | None = None  # how a run that stopped before its end stopped (interrupted, unusable, failed)
 
     @property
     def dead_reckoning_over_slam_rmse(self) -> float | None:
@@ -304,6 +305,18 @@ def _notes(frames: int, slam: TrajectoryErrors) -> tuple[str, ...]:
             f"the path ({slam.distance_m:.2f} m) is shorter than one {slam.segment_m:g} m segment: no drift per metre"
         )
     return tuple(notes)
+
+
+def partial_run(summary: dict[str, Any], frames: int) -> str | None:
+    """What a run that did not complete covers (from its summary.json), or None for a complete run."""
+    status = summary.get("status")
+    how = {"interrupted": f"interrupted by {summary.get('signal') or 'a signal'}", "unusable": "judged unusable",
+           "failed": "stopped by an error", "running": "cut off (summary.json still says running: killed or a power loss)"}
+    if status not in how:
+        return None
+    total = summary.get("frames_in_sequence")
+    of = f" of {total}" if isinstance(total, int) and total > 0 else ""
+    return f"the run was {how[status]} after {frames}{of} frames: these figures cover those {frames} frames only"
 
 
 def run_frame_turn_rad(results: RunResults, gt_heading_at_first_rad: float) -> float:
@@ -373,6 +386,7 @@ def evaluate(
         smoothed=sm,
         smoothed_consistency=sm_cons,
         run_frame_turn_rad=turn,
+        partial_run=partial_run(results.summary, int(len(est))),
     )
 
 

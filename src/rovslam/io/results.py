@@ -627,12 +627,34 @@ def read_results(out_dir: str | Path) -> RunResults:
     lm_path = out / "landmarks.csv"
     lms = _read_table(lm_path, LANDMARK_COLUMNS)[0] if lm_path.is_file() else {}
     summary = read_summary(out / "summary.json")
+    _check_against_summary(out, len(traj["t_s"]), lm_path.is_file(), summary)
     smoothed = None
     sm_path = out / "trajectory_smoothed.csv"
     if sm_path.is_file():
         smoothed, lines = _read_table(sm_path, SMOOTHED_TRAJECTORY_COLUMNS)
         _check_time(sm_path, smoothed, lines, strict=True)
     return RunResults(out, traj, obs, lms, summary, smoothed)
+
+
+# Statuses whose files were all closed complete: trajectory.csv holds a row for every frame processed.
+_CLOSED_STATUSES = ("complete", "interrupted", "unusable")
+
+
+def _check_against_summary(out: Path, rows: int, has_landmarks_file: bool, summary: dict[str, Any]) -> None:
+    """ResultsFormatError when trajectory.csv is shorter, or landmarks.csv missing, against what summary.json says."""
+    status, processed, landmarks = summary.get("status"), summary.get("frames_processed"), summary.get("landmarks")
+    rerun = "run `rovslam run` again with --overwrite to rewrite the results"
+    if status in _CLOSED_STATUSES and isinstance(processed, int) and rows < processed:
+        raise ResultsFormatError(
+            f"{out / 'trajectory.csv'}: {rows} rows, but summary.json says the run ({status}) processed {processed} "
+            f"frames; the file was cut short (copied while written, or edited). Copy it again, or {rerun}."
+        )
+    # A failed run (a full disk) may not have written landmarks.csv: it is then read as no map.
+    if status != "failed" and not has_landmarks_file and isinstance(landmarks, int) and landmarks > 0:
+        raise ResultsFormatError(
+            f"{out / 'landmarks.csv'}: missing, but summary.json says the run mapped {landmarks} landmarks; "
+            f"copy the file back, or {rerun}."
+        )
 
 
 # ---------------------------------------------------------------------------------------------
