@@ -223,3 +223,53 @@ def test_eval_of_an_interrupted_run_says_it_was_partial(dive, tmp_path):
             in " ".join(res.output.split()))  # rich wraps the line at the terminal's width
     figures = json.loads((r / "eval.json").read_text())
     assert figures["frames"] == 30 and "interrupted by SIGINT after 30 of 60 frames" in figures["partial_run"]
+
+
+# --------------------------------------------------------------------------- D5: another dive's sequence
+
+
+@pytest.fixture(scope="module")
+def other_dive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("other")
+    res = runner.invoke(app, ["simulate", "--scenario", "rough-turns-short", "--frames", "60", "--seed", "1",
+                              "--out", str(root / "seq"), "-q"])
+    assert res.exit_code == 0, res.output
+    return root / "seq"
+
+
+def _fewer_frames(seq: Path, dest: Path, n: int) -> Path:
+    import shutil
+
+    shutil.copytree(seq, dest)
+    lines = (dest / "frames.csv").read_text().splitlines()
+    (dest / "frames.csv").write_text("\n".join(lines[: n + 1]) + "\n")
+    return dest
+
+
+@pytest.mark.parametrize("command", ["mosaic", "report", "eval"])
+def test_another_dives_sequence_is_refused_naming_both(dive, other_dive, tmp_path, command):
+    seq, out = dive
+    option = "--sequence" if command == "eval" else "--seq"
+    args = {"mosaic": ["mosaic", str(out), "--seq", str(other_dive), "--out", str(tmp_path / "m.png"), "-q"],
+            "report": ["report", str(out), "--seq", str(other_dive), "-q"],
+            "eval": ["eval", str(out), "-g", str(seq / "groundtruth.csv"), "-s", str(other_dive),
+                     "--json", str(tmp_path / "e.json")]}[command]
+    _one_error_line(runner.invoke(app, args), f"{option} {other_dive}: not the sequence of the run in {out}",
+                    "named 'rovslam simulate rough-turns-short (seed 1)'",
+                    "the run's sequence 'rovslam simulate portofino-short (seed 0)'", f"summary.json names {seq}",
+                    "give that run's own sequence folder")
+    assert not (tmp_path / "m.png").exists() and not (tmp_path / "e.json").exists()
+    short = _fewer_frames(seq, tmp_path / "short", 40)  # the same dive's name, 40 of its 60 frames
+    line = _one_error_line(runner.invoke(app, [a if a != str(other_dive) else str(short) for a in args]),
+                           "it has 40 frames, the run's sequence 60")
+    assert "named" not in line
+
+
+def test_the_runs_sequence_moved_elsewhere_is_accepted(dive, tmp_path):
+    import shutil
+
+    seq, out = dive
+    moved = shutil.copytree(seq, tmp_path / "moved")
+    res = runner.invoke(app, ["mosaic", str(out), "--seq", str(moved), "--out", str(tmp_path / "m.png"), "-q"])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "m.png").stat().st_size > 1000

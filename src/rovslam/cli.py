@@ -374,6 +374,7 @@ def eval_cmd(
     if json_out is not None:
         _check_output_file(json_out, "--json")
     path = json_out or (results / "eval.json")
+    _check_sequence_of_run(results, sequence, "--sequence")
     _evaluate(results, groundtruth, path, sequence)
     typer.echo(f"wrote {path}")
 
@@ -504,6 +505,7 @@ def report(
 
     if mosaic_every is not None and mosaic_every < 1:
         raise InvalidArgumentError(f"--mosaic-every must be a whole number >= 1, got {mosaic_every}")
+    _check_sequence_of_run(results, seq, "--seq")
     with _progress(quiet, "mosaic") as bar:
         path = write_report(results, groundtruth, seq=seq, landmarks=_landmark_ids(landmarks), mosaic=mosaic,
                             mosaic_every=mosaic_every, progress=(lambda d, n: bar(d, n)) if bar else None,
@@ -536,6 +538,7 @@ def mosaic_cmd(
         raise InvalidArgumentError(f"--every must be a whole number >= 1, got {every}")
     if mm_per_px is not None and not (mm_per_px > 0):
         raise InvalidArgumentError(f"--mm-per-px must be a positive number, got {mm_per_px}")
+    _check_sequence_of_run(results, seq, "--seq")
     with _progress(quiet, "mosaic") as bar:
         m = mosaic_of_run(results, out_png, seq=seq, mm_per_px=mm_per_px, every=every, groundtruth=groundtruth,
                           overlay=overlay, progress=(lambda d, n: bar(d, n)) if bar else None, camera_file=camera)
@@ -574,6 +577,14 @@ def _check_output_file(path: Path, what: str) -> None:
     if not parent.is_dir():
         state = "is not a folder" if parent.exists() else "does not exist"
         raise OutputError(f"{path}: the folder {parent} {state}; create it or choose another place for {what}.")
+
+
+def _check_sequence_of_run(results: Path, seq: Optional[Path], option: str) -> None:
+    """Refuse a --seq / --sequence that is clearly another dive's (name or frame count unlike summary.json's)."""
+    if seq is not None:
+        from rovslam.io.results import check_sequence_of_run
+
+        check_sequence_of_run(results, seq, option)
 
 
 def _is_simulated_sequence(seq: Path) -> bool:

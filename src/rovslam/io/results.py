@@ -598,6 +598,29 @@ def read_summary(path: Path) -> dict[str, Any]:
     return summary
 
 
+def check_sequence_of_run(results_dir: Path, seq: Path, option: str) -> None:
+    """SequenceFormatError when the sequence folder ``seq`` (given with ``option``) is clearly not the one the
+    run read: another name or frame count than its summary.json records. A video, or a summary without them, passes."""
+    from rovslam.errors import SequenceFormatError
+    from rovslam.io.sequence import open_sequence
+
+    summary = read_summary(Path(results_dir) / "summary.json")
+    if not (Path(seq) / "sequence.toml").is_file():
+        return
+    s = open_sequence(seq, check_images=False)
+    name, frames = summary.get("sequence_name"), summary.get("frames_in_sequence")
+    differ = []
+    if isinstance(name, str) and name != s.info.name:
+        differ.append(f"it is named {s.info.name!r}, the run's sequence {name!r}")
+    if isinstance(frames, int) and frames != len(s):
+        differ.append(f"it has {len(s)} frames, the run's sequence {frames}")
+    if differ:
+        raise SequenceFormatError(
+            f"{option} {seq}: not the sequence of the run in {results_dir} ({'; '.join(differ)}; summary.json names "
+            f"{summary.get('sequence')}); give that run's own sequence folder."
+        )
+
+
 # The keys of summary.json that eval, report and mosaic read, and their JSON types (null allowed).
 _SUMMARY_TYPES: dict[str, type] = {
     "software": dict, "source": dict, "sources": dict, "map_use": dict, "config": dict, "inputs": dict,
