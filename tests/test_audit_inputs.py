@@ -273,3 +273,29 @@ def test_the_runs_sequence_moved_elsewhere_is_accepted(dive, tmp_path):
     res = runner.invoke(app, ["mosaic", str(out), "--seq", str(moved), "--out", str(tmp_path / "m.png"), "-q"])
     assert res.exit_code == 0, res.output
     assert (tmp_path / "m.png").stat().st_size > 1000
+
+
+# --------------------------------------------------------------------------- D8: a ground truth not at the origin
+
+
+def test_a_ground_truth_in_other_coordinates_is_shifted_to_the_runs_origin_with_a_note(dive, tmp_path):
+    seq, out = dive
+    moved = tmp_path / "gt_utm.csv"  # the same truth in UTM-like coordinates: 500 km east, 4.9e6 m north
+    with open(seq / "groundtruth.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    with open(moved, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]), lineterminator="\n")
+        w.writeheader()
+        w.writerows({**r, "x_m": repr(float(r["x_m"]) + 4_900_000.0), "y_m": repr(float(r["y_m"]) + 500_000.5)} for r in rows)
+    res = runner.invoke(app, ["eval", str(out), "-g", str(seq / "groundtruth.csv"), "--json", str(tmp_path / "a.json")])
+    assert res.exit_code == 0, res.output
+    assert "shifted" not in res.output
+    res = runner.invoke(app, ["eval", str(out), "-g", str(moved), "--json", str(tmp_path / "b.json")])
+    assert res.exit_code == 0, res.output
+    assert ("note: the ground truth's first row is at x = 4900000.000 m, y = 500000.500 m, not at the origin where the "
+            "run starts: it was shifted by (-4900000.000, -500000.500) m to start there") in " ".join(res.output.split())
+    a, b = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
+    assert b["groundtruth_shift_m"] == [-4_900_000.0, -500_000.5] and a["groundtruth_shift_m"] == [0.0, 0.0]
+    assert a["slam"]["ate_rmse_m"] < 0.01
+    assert b["slam"]["ate_rmse_m"] == pytest.approx(a["slam"]["ate_rmse_m"], abs=1e-6)  # not 4.9e6 m
+    assert b["consistency"]["coverage_2sigma"] == a["consistency"]["coverage_2sigma"]

@@ -768,6 +768,10 @@ def _print_eval(f) -> None:
     console.print(t)
     for note in f.notes:
         console.print(f"n/a: {note}", markup=False, highlight=False)
+    if f.groundtruth_shift_m != (0.0, 0.0):
+        dx, dy = f.groundtruth_shift_m
+        console.print(f"note: the ground truth's first row is at x = {-dx:.3f} m, y = {-dy:.3f} m, not at the origin where "
+                      f"the run starts: it was shifted by ({dx:+.3f}, {dy:+.3f}) m to start there", markup=False, highlight=False)
     if f.partial_run is not None:
         console.print(f"note: {f.partial_run}", markup=False, highlight=False)
     if f.run_frame_turn_rad != 0.0:
