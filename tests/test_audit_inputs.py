@@ -299,3 +299,38 @@ def test_a_ground_truth_in_other_coordinates_is_shifted_to_the_runs_origin_with_
     assert a["slam"]["ate_rmse_m"] < 0.01
     assert b["slam"]["ate_rmse_m"] == pytest.approx(a["slam"]["ate_rmse_m"], abs=1e-6)  # not 4.9e6 m
     assert b["consistency"]["coverage_2sigma"] == a["consistency"]["coverage_2sigma"]
+
+
+# --------------------------------------------------------------------------- D1: Ctrl-C during the start-up imports
+
+
+def test_ctrl_c_while_the_cli_is_imported_exits_130_without_a_traceback(monkeypatch, capsys):
+    import builtins
+    import sys
+    import tomllib
+
+    import rovslam.cli as cli
+    import rovslam.__main__ as entry
+
+    with open(Path(__file__).parents[1] / "pyproject.toml", "rb") as fh:
+        assert tomllib.load(fh)["project"]["scripts"]["rovslam"] == "rovslam.__main__:main"
+    real_import = builtins.__import__
+
+    def interrupted(name, *args, **kwargs):
+        if name == "rovslam.cli":
+            raise KeyboardInterrupt  # Ctrl-C while typer and rich load
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.delitem(sys.modules, "rovslam.cli", raising=False)
+    monkeypatch.setattr(builtins, "__import__", interrupted)
+    with pytest.raises(SystemExit) as stop:
+        entry.main()
+    assert stop.value.code == 130
+    monkeypatch.setattr(builtins, "__import__", real_import)
+    monkeypatch.setitem(sys.modules, "rovslam.cli", cli)  # the module the other tests use, not a second copy
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == ""
+    monkeypatch.setattr(sys, "argv", ["rovslam", "--version"])
+    with pytest.raises(SystemExit) as done:
+        entry.main()
+    assert done.value.code == 0 and capsys.readouterr().out.startswith("rovslam 0.")
