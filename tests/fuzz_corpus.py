@@ -321,7 +321,7 @@ def sequence_cases() -> list[Case]:
         C("path-groundtruth-symlink", lambda s, sh: _link(sh.outside / "groundtruth.csv", s / gt), "error", "outside"),
         C("path-inside-symlink", lambda s, sh: _link(Path("000001.png"), s / "images" / "000002.png"), "ok"),
         C("path-nul", lambda s, sh: set_cell(s / fr, 1, "image", "images/a\x00b.png"), "error", "frames.csv"),
-        C("path-is-folder", lambda s, sh: set_cell(s / fr, 1, "image", "images"), "error", "not found"),
+        C("path-is-folder", lambda s, sh: set_cell(s / fr, 1, "image", "images"), "error", "is a folder, not an image file"),
         C("path-missing-image", lambda s, sh: (s / "images" / "000004.png").unlink(), "error", "line 6"),
         # Encodings and CSV structure.
         C("frames-latin1", lambda s, sh: _bytes(s / fr, (s / fr).read_bytes().replace(b"images/000002", b"images/\xe9002")), "error", "not UTF-8"),
@@ -477,7 +477,7 @@ def config_cases() -> list[Case]:
         Case("missing", "config", lambda d, sh: ["run", str(sh.base_seq), "--out", str(d / "out"), "-c", str(d / "none.toml")],
              "error", "not found"),
         Case("is-folder", "config", lambda d, sh: ["run", str(sh.base_seq), "--out", str(d / "out"), "-c", str(d)],
-             "error", "not found"),
+             "error", "is a folder; -c needs a TOML file"),
     ]
 
 

@@ -334,3 +334,110 @@ def test_ctrl_c_while_the_cli_is_imported_exits_130_without_a_traceback(monkeypa
     with pytest.raises(SystemExit) as done:
         entry.main()
     assert done.value.code == 0 and capsys.readouterr().out.startswith("rovslam 0.")
+
+
+# --------------------------------------------------------------------------- D9: messages that said the wrong thing
+
+
+@pytest.fixture
+def image_folder(tmp_path):
+    import fuzz_corpus as fc
+
+    folder = fc.write_image_folder(tmp_path / "imgs")
+    (tmp_path / "cam.toml").write_text(fc.CAMERA_FILE)
+    return folder, tmp_path / "cam.toml"
+
+
+def _run_folder(folder, cam, out, *extra):
+    return runner.invoke(app, ["run", str(folder), "--camera", str(cam), "--out", str(out), "-q", *extra])
+
+
+def test_d9a_a_times_file_with_only_a_header_is_named(image_folder, tmp_path):
+    times = tmp_path / "t.csv"
+    times.write_text("image,t_s\n")
+    _one_error_line(_run_folder(*image_folder, tmp_path / "o", "--times", str(times)),
+                    f"{times}: lists no images (only a header)", "add one row image,t_s per image")
+
+
+@pytest.mark.parametrize("fps", ["0", "-5"])
+def test_d9i_fps_must_be_above_zero(image_folder, tmp_path, fps):
+    _one_error_line(_run_folder(*image_folder, tmp_path / "o", "--fps", fps), "above 0 and at most 10000")
+
+
+def test_d9j_fps_and_times_together_are_told_apart_from_neither(image_folder, tmp_path):
+    times = tmp_path / "t.csv"
+    times.write_text("image,t_s\nframe1.png,0\n")
+    _one_error_line(_run_folder(*image_folder, tmp_path / "o", "--fps", "5", "--times", str(times)),
+                    "give --fps or --times, one of the two, not both")
+    line = _one_error_line(_run_folder(*image_folder, tmp_path / "o"), "--fps F or --times FILE")
+    assert "not both" not in line
+
+
+def test_d9b_the_coarser_scale_suggested_is_one_the_mosaic_accepts(dive, tmp_path):
+    line = _one_error_line(runner.invoke(app, ["mosaic", str(dive[1]), "--mm-per-px", "0.0001",
+                                               "--out", str(tmp_path / "m.png"), "-q"]), "give a coarser --mm-per-px")
+    suggested = float(line.rsplit("(e.g. ", 1)[1].rstrip(")"))  # was "0.0", itself refused
+    side_px = max(int(v) for v in line.split("would be ", 1)[1].split(" px", 1)[0].split("x"))
+    assert 0.0001 * side_px / 40_000 < suggested < 0.0001 * side_px / 30_000  # fits, and not much coarser
+
+
+def test_d9c_a_file_where_the_report_folder_goes_is_named(dive, tmp_path):
+    r = _copy_run(dive[1], tmp_path / "r")
+    (r / "report").write_text("notes")
+    _one_error_line(runner.invoke(app, ["report", str(r), "-q"]), f"{r / 'report'}: is a file", "move or delete it")
+
+
+@pytest.mark.parametrize("header,needle", [
+    ("t_s;image;heading_rad;sonar_altitude_m", "separated by ';': use commas"),
+    ("t_s\timage\theading_rad\tsonar_altitude_m", "separated by tabs: use commas"),
+    ("T_S,IMAGE,HEADING_RAD,SONAR_ALTITUDE_M", "Column names are lower case"),
+])
+def test_d9d_a_header_of_another_dialect_is_quoted_with_a_hint(tmp_path, header, needle):
+    import fuzz_corpus as fc
+
+    seq = fc.write_sequence(tmp_path / "seq")
+    lines = (seq / "frames.csv").read_text().splitlines()
+    sep = ";" if ";" in header else "\t" if "\t" in header else ","
+    (seq / "frames.csv").write_text("\n".join([header] + [x.replace(",", sep) for x in lines[1:]]) + "\n")
+    _one_error_line(runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]),
+                    f"{seq / 'frames.csv'}: header is missing column(s)", "it reads 'T_S" if "T_S" in header else "it reads 't_s",
+                    needle)
+
+
+def test_d9e_a_ground_truth_that_does_not_cover_the_run_is_named(dive, tmp_path):
+    gt = tmp_path / "gt.csv"
+    gt.write_text("\n".join((dive[0] / "groundtruth.csv").read_text().splitlines()[:30]) + "\n")
+    _one_error_line(runner.invoke(app, ["eval", str(dive[1]), "-g", str(gt), "--json", str(tmp_path / "e.json")]),
+                    f"{gt}: ground truth has no row at t_s=", "give the groundtruth.csv of the sequence that was run")
+
+
+def test_d9f_an_image_cell_naming_a_folder_says_so(tmp_path):
+    import fuzz_corpus as fc
+
+    seq = fc.write_sequence(tmp_path / "seq")
+    fc.set_cell(seq / "frames.csv", 3, "image", "images")
+    _one_error_line(runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]),
+                    "line 4: image file 'images' is a folder, not an image file")
+
+
+def test_d9g_smooth_tells_a_sequence_folder_and_a_cut_file_from_an_old_run(dive, tmp_path):
+    _one_error_line(runner.invoke(app, ["smooth", str(dive[0]), "-q"]),
+                    f"{dive[0]}: not the --out folder of a `rovslam run` (no trajectory.csv, no summary.json)")
+    r = _copy_run(dive[1], tmp_path / "r")
+    (r / "measurements.csv").write_bytes(b"")
+    _one_error_line(runner.invoke(app, ["smooth", str(r), "-q"]), f"{r / 'measurements.csv'}: empty file",
+                    "cut short", "--overwrite")
+    (r / "measurements.csv").unlink()  # a run folder without the file: made by an older rovslam
+    _one_error_line(runner.invoke(app, ["smooth", str(r), "-q"]), "does not write measurements")
+
+
+def test_d9h_a_missing_summary_is_not_called_a_summary_naming_no_sequence(dive, tmp_path):
+    r = _copy_run(dive[1], tmp_path / "r")
+    (r / "summary.json").unlink()
+    _one_error_line(runner.invoke(app, ["mosaic", str(r), "-q"]),
+                    f"{r / 'summary.json'} is missing (or empty), so the run's sequence is unknown", "--seq")
+
+
+def test_d9k_a_folder_given_as_configuration_is_called_a_folder(dive, tmp_path):
+    _one_error_line(runner.invoke(app, ["run", str(dive[0]), "-c", str(tmp_path), "--out", str(tmp_path / "o"), "-q"]),
+                    f"{tmp_path}: is a folder; -c needs a TOML file")

@@ -238,7 +238,7 @@ def run(
 ) -> None:
     """Run vision-based SLAM on a sequence folder, a video, a ROS bag or a folder of images: trajectory with
     covariance, landmark map, summary (with where the altitude and the heading came from)."""
-    from rovslam.config import RunConfig, load_config
+    from rovslam.config import RunConfig
     from rovslam.errors import InvalidArgumentError
     from rovslam.runner import StopRequest, run_sequence
 
@@ -248,7 +248,7 @@ def run(
         raise InvalidArgumentError(f"--min-usable-fraction must be from 0 to 1, got {min_usable_fraction}")
     if max_distance_m is not None and not (max_distance_m > 0 and max_distance_m != float("inf")):
         raise InvalidArgumentError(f"--max-distance-m must be a positive number of metres, got {max_distance_m}")
-    cfg = load_config(config) if config is not None else RunConfig()
+    cfg = _load_config(config) if config is not None else RunConfig()
     min_usable_fraction = cfg.run.min_usable_fraction if min_usable_fraction is None else min_usable_fraction
     max_distance_m = cfg.run.max_distance_m if max_distance_m is None else max_distance_m
     _quiet_native_logs()
@@ -579,6 +579,16 @@ def _check_output_file(path: Path, what: str) -> None:
         raise OutputError(f"{path}: the folder {parent} {state}; create it or choose another place for {what}.")
 
 
+def _load_config(path: Path):
+    """:func:`rovslam.config.load_config`, with a folder given to -c told so (it said "not found")."""
+    from rovslam.config import load_config
+    from rovslam.errors import ConfigError
+
+    if path.is_dir():
+        raise ConfigError(f"{path}: is a folder; -c needs a TOML file (`rovslam config FILE.toml` writes one to edit).")
+    return load_config(path)
+
+
 def _check_sequence_of_run(results: Path, seq: Optional[Path], option: str) -> None:
     """Refuse a --seq / --sequence that is clearly another dive's (name or frame count unlike summary.json's)."""
     if seq is not None:
@@ -842,7 +852,7 @@ def navigate(
     Writes the usual results plus arrivals.csv (true and estimated error at each point),
     navigation.csv, groundtruth.csv and navigation.png. Ctrl-C keeps what is written.
     """
-    from rovslam.config import RunConfig, load_config
+    from rovslam.config import RunConfig
     from rovslam.errors import InvalidArgumentError
     from rovslam.io.poi import read_poi_csv
     from rovslam.nav.estimate import check_estimator
@@ -859,7 +869,7 @@ def navigate(
     if seed < 0:
         raise InvalidArgumentError(f"--seed must be a whole number >= 0, got {seed}")
     pois = read_poi_csv(poi)
-    cfg = load_config(config) if config is not None else RunConfig()
+    cfg = _load_config(config) if config is not None else RunConfig()
     rate = SCENARIOS[scenario].frame_rate_hz
     _quiet_native_logs()
     with StopRequest() as late, _progress(quiet, f"navigate ({estimator})", extra=True) as bar:

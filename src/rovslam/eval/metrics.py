@@ -421,4 +421,7 @@ def evaluate_run(
 
         seq = open_sequence(sequence_dir)
         pc = phase_correlation_path(seq, results.trajectory.get("altitude_m"), results.t_s)
-    return evaluate(results, read_groundtruth(groundtruth), segment_m, pc)
+    try:
+        return evaluate(results, read_groundtruth(groundtruth), segment_m, pc)
+    except SequenceFormatError as exc:  # the ground truth's times do not cover the run's
+        raise SequenceFormatError(f"{groundtruth}: {exc}") from None

@@ -318,9 +318,12 @@ def read_csv_table(
             raise error(f"{path}: header names column(s) {', '.join(dup)} more than once.")
         missing = [c for c in required if c not in header]
         if missing:
+            read = ",".join(header)
+            sep = next((f" It is separated by {n}: use commas." for c, n in ((";", "';'"), ("\t", "tabs")) if c in read), "")
+            case = " Column names are lower case." if not sep and any(c.lower() in read.lower() for c in missing) else ""
             raise error(
                 f"{path}: header is missing column(s) {', '.join(missing)}. "
-                f"The header must start with: {','.join(required)}."
+                f"The header must start with: {','.join(required)}; it reads {read[:80]!r}.{sep}{case}"
             )
         rows = []
         for fields in reader:
@@ -437,7 +440,8 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
                 f"the folders of {folder}."
             ) from None
         if not present:
-            raise SequenceFormatError(f"{where}: image file '{image}' not found in {folder}.")
+            why = "is a folder, not an image file" if resolved.is_dir() else "not found"
+            raise SequenceFormatError(f"{where}: image file '{image}' {why} in {folder}.")
         text = (row.get("heading_rad") or "").strip()
         if text == "":
             raise SequenceFormatError(f"{where}: column 'heading_rad' is empty; write nan when there is no compass.")
