@@ -82,7 +82,7 @@ def test_bad_image_folders(folder, tmp_path):
     assert "missing: --camera CAMERA.toml and --fps F or --times FILE." in line
     assert "missing: --fps F or --times FILE." in _error(["run", d, "--camera", cam, *out])
     assert "missing: --camera CAMERA.toml." in _error(["run", d, "--fps", "5", *out])
-    assert "give --fps F" in _error(["run", d, "--camera", cam, "--fps", "5", "--times", tmp_path / "t.csv", *out])
+    assert "give --fps or --times, one of the two, not both" in _error(["run", d, "--camera", cam, "--fps", "5", "--times", tmp_path / "t.csv", *out])
     assert "--fps must be a frame rate" in _error(["run", d, "--camera", cam, "--fps", "0", *out])
     times = tmp_path / "t.csv"
     times.write_text("image,t_s\nimg1.png,0\nimg99.png,1\n")

@@ -175,8 +175,8 @@ def test_an_interrupted_run_reads_up_to_its_last_complete_frame(tmp_path, survey
 
 
 def test_bad_files_name_the_file_line_and_column(tmp_path, survey):
-    with pytest.raises(ResultsFormatError, match="does not write measurements"):
-        read_measurements(tmp_path)
+    with pytest.raises(ResultsFormatError, match="not the --out folder of a `rovslam run`"):
+        read_measurements(tmp_path)  # no run here (audit D9 g: it was told it came from an old rovslam)
     with pytest.raises(ResultsFormatError, match="not a folder"):
         read_measurements(tmp_path / "nowhere")
     write_measurements(tmp_path, survey.frames[:20])

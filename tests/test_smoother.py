@@ -398,7 +398,7 @@ def test_smooth_command_writes_the_smoothed_files(tmp_path):
 @pytest.mark.parametrize(
     "args,needle",
     [
-        (["smooth", "EMPTY"], "does not write measurements"),
+        (["smooth", "EMPTY"], "not the --out folder of a `rovslam run`"),  # audit D9 g: not "an old version"
         (["smooth", "/no/such/run"], "not a folder"),
         (["smooth", "EMPTY", "--robust", "tukey"], "[smoother] robust"),
     ],

@@ -1,3 +1,22 @@
-from rovslam.cli import main
+"""The ``rovslam`` console script: :func:`rovslam.cli.main`, with a Ctrl-C during its start-up ending quietly.
 
-main()
+``rovslam.cli`` imports typer, click and rich before its commands can turn a KeyboardInterrupt
+into ``rovslam: error: interrupted``; a Ctrl-C in that first tenth of a second printed a
+traceback. Here it exits with 130 (the shell's code for SIGINT) and prints nothing.
+"""
+
+from __future__ import annotations
+
+import sys
+
+
+def main() -> None:
+    try:
+        from rovslam.cli import main as cli_main
+    except KeyboardInterrupt:
+        sys.exit(130)
+    cli_main()
+
+
+if __name__ == "__main__":  # python -m rovslam
+    main()

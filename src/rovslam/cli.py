@@ -238,7 +238,7 @@ def run(
 ) -> None:
     """Run vision-based SLAM on a sequence folder, a video, a ROS bag or a folder of images: trajectory with
     covariance, landmark map, summary (with where the altitude and the heading came from)."""
-    from rovslam.config import RunConfig, load_config
+    from rovslam.config import RunConfig
     from rovslam.errors import InvalidArgumentError
     from rovslam.runner import StopRequest, run_sequence
 
@@ -248,7 +248,7 @@ def run(
         raise InvalidArgumentError(f"--min-usable-fraction must be from 0 to 1, got {min_usable_fraction}")
     if max_distance_m is not None and not (max_distance_m > 0 and max_distance_m != float("inf")):
         raise InvalidArgumentError(f"--max-distance-m must be a positive number of metres, got {max_distance_m}")
-    cfg = load_config(config) if config is not None else RunConfig()
+    cfg = _load_config(config) if config is not None else RunConfig()
     min_usable_fraction = cfg.run.min_usable_fraction if min_usable_fraction is None else min_usable_fraction
     max_distance_m = cfg.run.max_distance_m if max_distance_m is None else max_distance_m
     _quiet_native_logs()
@@ -374,6 +374,7 @@ def eval_cmd(
     if json_out is not None:
         _check_output_file(json_out, "--json")
     path = json_out or (results / "eval.json")
+    _check_sequence_of_run(results, sequence, "--sequence")
     _evaluate(results, groundtruth, path, sequence)
     typer.echo(f"wrote {path}")
 
@@ -504,6 +505,7 @@ def report(
 
     if mosaic_every is not None and mosaic_every < 1:
         raise InvalidArgumentError(f"--mosaic-every must be a whole number >= 1, got {mosaic_every}")
+    _check_sequence_of_run(results, seq, "--seq")
     with _progress(quiet, "mosaic") as bar:
         path = write_report(results, groundtruth, seq=seq, landmarks=_landmark_ids(landmarks), mosaic=mosaic,
                             mosaic_every=mosaic_every, progress=(lambda d, n: bar(d, n)) if bar else None,
@@ -536,6 +538,7 @@ def mosaic_cmd(
         raise InvalidArgumentError(f"--every must be a whole number >= 1, got {every}")
     if mm_per_px is not None and not (mm_per_px > 0):
         raise InvalidArgumentError(f"--mm-per-px must be a positive number, got {mm_per_px}")
+    _check_sequence_of_run(results, seq, "--seq")
     with _progress(quiet, "mosaic") as bar:
         m = mosaic_of_run(results, out_png, seq=seq, mm_per_px=mm_per_px, every=every, groundtruth=groundtruth,
                           overlay=overlay, progress=(lambda d, n: bar(d, n)) if bar else None, camera_file=camera)
@@ -574,6 +577,24 @@ def _check_output_file(path: Path, what: str) -> None:
     if not parent.is_dir():
         state = "is not a folder" if parent.exists() else "does not exist"
         raise OutputError(f"{path}: the folder {parent} {state}; create it or choose another place for {what}.")
+
+
+def _load_config(path: Path):
+    """:func:`rovslam.config.load_config`, with a folder given to -c told so (it said "not found")."""
+    from rovslam.config import load_config
+    from rovslam.errors import ConfigError
+
+    if path.is_dir():
+        raise ConfigError(f"{path}: is a folder; -c needs a TOML file (`rovslam config FILE.toml` writes one to edit).")
+    return load_config(path)
+
+
+def _check_sequence_of_run(results: Path, seq: Optional[Path], option: str) -> None:
+    """Refuse a --seq / --sequence that is clearly another dive's (name or frame count unlike summary.json's)."""
+    if seq is not None:
+        from rovslam.io.results import check_sequence_of_run
+
+        check_sequence_of_run(results, seq, option)
 
 
 def _is_simulated_sequence(seq: Path) -> bool:
@@ -757,6 +778,12 @@ def _print_eval(f) -> None:
     console.print(t)
     for note in f.notes:
         console.print(f"n/a: {note}", markup=False, highlight=False)
+    if f.groundtruth_shift_m != (0.0, 0.0):
+        dx, dy = f.groundtruth_shift_m
+        console.print(f"note: the ground truth's first row is at x = {-dx:.3f} m, y = {-dy:.3f} m, not at the origin where "
+                      f"the run starts: it was shifted by ({dx:+.3f}, {dy:+.3f}) m to start there", markup=False, highlight=False)
+    if f.partial_run is not None:
+        console.print(f"note: {f.partial_run}", markup=False, highlight=False)
     if f.run_frame_turn_rad != 0.0:
         console.print(f"note: no compass in this run: its frame is its first heading; the ground truth was turned "
                       f"by {math.degrees(f.run_frame_turn_rad):+.2f} deg into it", markup=False, highlight=False)
@@ -825,7 +852,7 @@ def navigate(
     Writes the usual results plus arrivals.csv (true and estimated error at each point),
     navigation.csv, groundtruth.csv and navigation.png. Ctrl-C keeps what is written.
     """
-    from rovslam.config import RunConfig, load_config
+    from rovslam.config import RunConfig
     from rovslam.errors import InvalidArgumentError
     from rovslam.io.poi import read_poi_csv
     from rovslam.nav.estimate import check_estimator
@@ -842,7 +869,7 @@ def navigate(
     if seed < 0:
         raise InvalidArgumentError(f"--seed must be a whole number >= 0, got {seed}")
     pois = read_poi_csv(poi)
-    cfg = load_config(config) if config is not None else RunConfig()
+    cfg = _load_config(config) if config is not None else RunConfig()
     rate = SCENARIOS[scenario].frame_rate_hz
     _quiet_native_logs()
     with StopRequest() as late, _progress(quiet, f"navigate ({estimator})", extra=True) as bar:

@@ -563,19 +563,15 @@ class _Run:
     def _finish(self, wall: float, error: BaseException | None) -> BaseException | None:
         """Close every file, then write landmarks.csv and summary.json; the first error wins."""
         writer = self.writer
-        try:
-            self.gallery.close()
-            self.measurements.close()
-            writer.close(quiet=error is not None)
-        except OutputError as exc:
-            error = error or exc
-            self.status, self.reason = "failed", str(exc)
-        try:
-            writer.write_landmarks(self.pipe.landmark_rows())
-        except OutputError as exc:
-            if error is None:
-                error = exc
-                self.status, self.reason = "failed", str(exc)
+        # Each in its own try, the trajectory first: one file that cannot be closed or written loses no other.
+        for step in (lambda: writer.close(quiet=error is not None), self.measurements.close, self.gallery.close,
+                     lambda: writer.write_landmarks(self.pipe.landmark_rows())):
+            try:
+                step()
+            except OutputError as exc:
+                if error is None:
+                    error = exc
+                    self.status, self.reason = "failed", str(exc)
         if self.pipe.smoother is not None and self.n and error is None:
             try:  # the iSAM2 back end: the best estimate of the whole dive given all of it
                 write_smoothed_result(self.out, self.pipe.smoother.smoothed(), self.pipe.config)

@@ -130,6 +130,11 @@ def run_matrix(
             client.close()
         if cluster is not None:
             cluster.close()
+    for spec in todo:  # a cell a worker finished (result.json written) that the interrupt kept us from gathering
+        row = read_result(cells_dir / spec.cell_id) if spec.cell_id not in rows else None
+        if row is not None:
+            rows[spec.cell_id] = row
+            report.computed.append(spec.cell_id)
     report.rows = ordered()
     if out.is_dir():
         save()

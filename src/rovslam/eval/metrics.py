@@ -253,6 +253,8 @@ class Evaluation:
     smoothed: TrajectoryErrors | None = None  # the smoothed path (trajectory_smoothed.csv), if the run was smoothed
     smoothed_consistency: Consistency | None = None  # its marginal covariances against the truth
     run_frame_turn_rad: float = 0.0  # a run without compass: the ground truth was turned by this into its frame
+    partial_run: str | None = None  # how a run that stopped before its end stopped (interrupted, unusable, failed)
+    groundtruth_shift_m: tuple[float, float] = (0.0, 0.0)  # a ground truth not starting at x = y = 0: its first row, subtracted
 
     @property
     def dead_reckoning_over_slam_rmse(self) -> float | None:
@@ -306,6 +308,28 @@ def _notes(frames: int, slam: TrajectoryErrors) -> tuple[str, ...]:
     return tuple(notes)
 
 
+def groundtruth_start_m(gt: GroundTruth, tol_m: float = 1e-6) -> np.ndarray:
+    """(2,) the ground truth's first position when it is not the origin (UTM, another survey frame), else zeros.
+
+    A run starts at x = y = 0; its truth is compared from the same point, as a run without compass
+    is compared in its own turned frame (:func:`run_frame_turn_rad`).
+    """
+    first = gt.xy_m[0]
+    return first if float(np.max(np.abs(first))) > tol_m else np.zeros(2)
+
+
+def partial_run(summary: dict[str, Any], frames: int) -> str | None:
+    """What a run that did not complete covers (from its summary.json), or None for a complete run."""
+    status = summary.get("status")
+    how = {"interrupted": f"interrupted by {summary.get('signal') or 'a signal'}", "unusable": "judged unusable",
+           "failed": "stopped by an error", "running": "cut off (summary.json still says running: killed or a power loss)"}
+    if status not in how:
+        return None
+    total = summary.get("frames_in_sequence")
+    of = f" of {total}" if isinstance(total, int) and total > 0 else ""
+    return f"the run was {how[status]} after {frames}{of} frames: these figures cover those {frames} frames only"
+
+
 def run_frame_turn_rad(results: RunResults, gt_heading_at_first_rad: float) -> float:
     """The angle from the ground truth's world frame to the run's, in radians; 0 for a run with a compass.
 
@@ -344,7 +368,8 @@ def evaluate(
         raise ResultsFormatError(f"{results.folder}: trajectory.csv has no rows; the run processed no frame.")
     idx = align_by_time(results.t_s, gt.t_s)
     turn = run_frame_turn_rad(results, float(gt.heading_rad[idx[0]]))
-    gt_xy = to_run_frame(gt.xy_m[idx], turn)
+    start = groundtruth_start_m(gt)
+    gt_xy = to_run_frame(gt.xy_m[idx] - start, turn)
     slam = trajectory_errors(est, gt_xy, segment_m)
     pc = None
     if phase_correlation_xy_m is not None:
@@ -356,7 +381,7 @@ def evaluate(
     skipped = results.trajectory.get("skipped")
     sm = sm_cons = None
     if results.smoothed is not None:
-        sm_gt = to_run_frame(gt.xy_m[align_by_time(results.smoothed["t_s"], gt.t_s)], turn)
+        sm_gt = to_run_frame(gt.xy_m[align_by_time(results.smoothed["t_s"], gt.t_s)] - start, turn)
         sm = trajectory_errors(results.smoothed_xy_m, sm_gt, segment_m)
         sm_cons = consistency(results.smoothed_xy_m - sm_gt, results.smoothed_cov_m2, results.smoothed["t_s"])
     return Evaluation(
@@ -373,6 +398,8 @@ def evaluate(
         smoothed=sm,
         smoothed_consistency=sm_cons,
         run_frame_turn_rad=turn,
+        partial_run=partial_run(results.summary, int(len(est))),
+        groundtruth_shift_m=(float(-start[0]), float(-start[1])),
     )
 
 
@@ -394,4 +421,7 @@ def evaluate_run(
 
         seq = open_sequence(sequence_dir)
         pc = phase_correlation_path(seq, results.trajectory.get("altitude_m"), results.t_s)
-    return evaluate(results, read_groundtruth(groundtruth), segment_m, pc)
+    try:
+        return evaluate(results, read_groundtruth(groundtruth), segment_m, pc)
+    except SequenceFormatError as exc:  # the ground truth's times do not cover the run's
+        raise SequenceFormatError(f"{groundtruth}: {exc}") from None

@@ -56,18 +56,29 @@ class ImageFolderSource:
         self.warnings: list[str] = []
         self.left_out = 0
         root = Path(os.path.realpath(self.folder))
-        if (fps is None) == (times_file is None):
+        if fps is not None and times_file is not None:
+            raise SequenceFormatError(
+                f"{self.folder}: give --fps or --times, one of the two, not both: --fps times the images in name order at a fixed "
+                "rate, --times gives each image its own time."
+            )
+        if fps is None and times_file is None:
             raise SequenceFormatError(
                 f"{self.folder}: an image folder needs its frame times: give --fps F (frames per second) or --times "
                 "FILE (a CSV with columns image,t_s), one of the two (README, 'Real dives in')."
             )
         if fps is not None:
             if not (isinstance(fps, (int, float)) and math.isfinite(fps) and 0 < fps <= MAX_FPS):
-                raise SequenceFormatError(f"--fps must be a frame rate from 0 to {MAX_FPS:g} frames per second, got {fps!r}.")
+                raise SequenceFormatError(
+                    f"--fps must be a frame rate above 0 and at most {MAX_FPS:g} frames per second, got {fps!r}."
+                )
             names = image_files(self.folder)
             times = [k / float(fps) for k in range(len(names))]
         else:
             names, times = self._read_times(Path(times_file), root)  # type: ignore[arg-type]
+            if not names:
+                raise SequenceFormatError(
+                    f"{times_file}: lists no images (only a header); add one row image,t_s per image of {self.folder}."
+                )
         if not names:
             raise SequenceFormatError(
                 f"{self.folder}: no image files (PNG, JPEG or TIFF: {', '.join(IMAGE_SUFFIXES)}) in this folder."

@@ -19,6 +19,7 @@ tail of an interrupted run) and rejects anything else that does not add up with 
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 from collections.abc import Iterable
@@ -137,14 +138,22 @@ class MeasurementWriter:
 
     def flush(self) -> None:
         """Observations first: a frame row on disk always has its observations before it."""
-        self._obs_fh.flush()
-        self._frames_fh.flush()
+        from rovslam.io.results import output_errors
+
+        with output_errors(self.out / LANDMARK_MEASUREMENTS_FILE):
+            self._obs_fh.flush()
+        with output_errors(self.out / MEASUREMENTS_FILE):
+            self._frames_fh.flush()
 
     def close(self) -> None:
+        """Flush and close both files (closed even when the flush fails: the error names the file)."""
         if not self._frames_fh.closed:
-            self.flush()
-            self._obs_fh.close()
-            self._frames_fh.close()
+            try:
+                self.flush()
+            finally:
+                for fh in (self._obs_fh, self._frames_fh):
+                    with contextlib.suppress(OSError, ValueError):
+                        fh.close()
 
     def __enter__(self) -> MeasurementWriter:
         return self
@@ -165,6 +174,10 @@ class _Table:
     def __init__(self, path: Path, columns: tuple[str, ...], optional: dict[str, float] | None = None):
         self.path = path
         if not path.is_file():
+            if not any((path.parent / n).is_file() for n in ("trajectory.csv", "summary.json")):
+                raise ResultsFormatError(
+                    f"{path.parent}: not the --out folder of a `rovslam run` (no trajectory.csv, no summary.json); give a run's folder."
+                )
             raise ResultsFormatError(f"{path}: missing; {_NO_MEASUREMENTS_HINT}.")
         text = read_text(path, ResultsFormatError)  # not UTF-8 (a damaged file): one line naming it
         self.torn = bool(text) and not text.endswith("\n")  # an interrupted write
@@ -172,7 +185,10 @@ class _Table:
         try:
             header = next(reader, None)
             if header is None:
-                raise ResultsFormatError(f"{path}: empty file (no header line); {_NO_MEASUREMENTS_HINT}.")
+                raise ResultsFormatError(
+                    f"{path}: empty file (no header line): it was cut short (the run killed at its start, or a full "
+                    "disk); run the sequence again (rovslam run SEQ --out OUT --overwrite)."
+                )
             self.absent = {c: v for c, v in (optional or {}).items() if c not in header}
             missing = [c for c in columns if c not in header and c not in self.absent]
             if missing:

@@ -393,9 +393,12 @@ class GalleryWriter:
 
     def __init__(self, out_dir: str | Path, flush_every: int = 50):
         self.out = Path(out_dir)
-        self._fh = (self.out / "tokens.csv").open("w", newline="", encoding="utf-8")
+        self._path = self.out / "tokens.csv"
+        with output_errors(self._path, "cannot create"):
+            self._fh = self._path.open("w", newline="", encoding="utf-8")
         self._w = csv.writer(self._fh, lineterminator="\n")
-        self._w.writerow(TOKEN_COLUMNS)
+        with output_errors(self._path):
+            self._w.writerow(TOKEN_COLUMNS)
         self._last_seen: dict[int, float] = {}
         self.flush_every = max(1, flush_every)
         self._n = 0
@@ -405,7 +408,8 @@ class GalleryWriter:
         t = _f(r.t_s)
         uv = np.asarray(getattr(r, "token_uv_px", np.zeros((0, 2)))).reshape(-1, 2).tolist()  # Python floats: faster to format
         if uv:
-            self._w.writerows([t, r.index, _f(u), _f(v)] for u, v in uv)
+            with output_errors(self._path):
+                self._w.writerows([t, r.index, _f(u), _f(v)] for u, v in uv)
         for ob in r.observations:
             if not ob.accepted:
                 continue
@@ -415,7 +419,8 @@ class GalleryWriter:
                 self._save_crop(image, ob.landmark_id, r.index, ob.uv_px)
         self._n += 1
         if self._n % self.flush_every == 0:
-            self._fh.flush()
+            with output_errors(self._path):
+                self._fh.flush()
 
     def _save_crop(self, image: np.ndarray, landmark_id: int, frame: int, uv_px: np.ndarray) -> None:
         import cv2
@@ -423,11 +428,21 @@ class GalleryWriter:
         n = REVISIT_CROP_PX
         crop = cv2.getRectSubPix(np.ascontiguousarray(image), (n, n), (float(uv_px[0]), float(uv_px[1])))
         folder = self.out / "revisits" / str(int(landmark_id))
-        folder.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(folder / f"{int(frame)}.png"), cv2.cvtColor(crop, cv2.COLOR_RGB2BGR))
+        with output_errors(folder, "cannot create the folder"):
+            folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"{int(frame)}.png"
+        if not cv2.imwrite(str(path), cv2.cvtColor(crop, cv2.COLOR_RGB2BGR)):
+            raise OutputError(f"{path}: cannot write the revisit crop (the disk may be full or the folder read-only); "
+                              "free space or choose another --out.")
 
     def close(self) -> None:
-        self._fh.close()
+        """Flush and close tokens.csv; an error names it (the file is closed all the same)."""
+        try:
+            with output_errors(self._path):
+                self._fh.close()
+        finally:
+            with contextlib.suppress(OSError, ValueError):
+                self._fh.close()  # the buffer is dropped on the second try
 
 
 def _json_default(o: Any) -> Any:
@@ -583,6 +598,29 @@ def read_summary(path: Path) -> dict[str, Any]:
     return summary
 
 
+def check_sequence_of_run(results_dir: Path, seq: Path, option: str) -> None:
+    """SequenceFormatError when the sequence folder ``seq`` (given with ``option``) is clearly not the one the
+    run read: another name or frame count than its summary.json records. A video, or a summary without them, passes."""
+    from rovslam.errors import SequenceFormatError
+    from rovslam.io.sequence import open_sequence
+
+    summary = read_summary(Path(results_dir) / "summary.json")
+    if not (Path(seq) / "sequence.toml").is_file():
+        return
+    s = open_sequence(seq, check_images=False)
+    name, frames = summary.get("sequence_name"), summary.get("frames_in_sequence")
+    differ = []
+    if isinstance(name, str) and name != s.info.name:
+        differ.append(f"it is named {s.info.name!r}, the run's sequence {name!r}")
+    if isinstance(frames, int) and frames != len(s):
+        differ.append(f"it has {len(s)} frames, the run's sequence {frames}")
+    if differ:
+        raise SequenceFormatError(
+            f"{option} {seq}: not the sequence of the run in {results_dir} ({'; '.join(differ)}; summary.json names "
+            f"{summary.get('sequence')}); give that run's own sequence folder."
+        )
+
+
 # The keys of summary.json that eval, report and mosaic read, and their JSON types (null allowed).
 _SUMMARY_TYPES: dict[str, type] = {
     "software": dict, "source": dict, "sources": dict, "map_use": dict, "config": dict, "inputs": dict,
@@ -612,12 +650,34 @@ def read_results(out_dir: str | Path) -> RunResults:
     lm_path = out / "landmarks.csv"
     lms = _read_table(lm_path, LANDMARK_COLUMNS)[0] if lm_path.is_file() else {}
     summary = read_summary(out / "summary.json")
+    _check_against_summary(out, len(traj["t_s"]), lm_path.is_file(), summary)
     smoothed = None
     sm_path = out / "trajectory_smoothed.csv"
     if sm_path.is_file():
         smoothed, lines = _read_table(sm_path, SMOOTHED_TRAJECTORY_COLUMNS)
         _check_time(sm_path, smoothed, lines, strict=True)
     return RunResults(out, traj, obs, lms, summary, smoothed)
+
+
+# Statuses whose files were all closed complete: trajectory.csv holds a row for every frame processed.
+_CLOSED_STATUSES = ("complete", "interrupted", "unusable")
+
+
+def _check_against_summary(out: Path, rows: int, has_landmarks_file: bool, summary: dict[str, Any]) -> None:
+    """ResultsFormatError when trajectory.csv is shorter, or landmarks.csv missing, against what summary.json says."""
+    status, processed, landmarks = summary.get("status"), summary.get("frames_processed"), summary.get("landmarks")
+    rerun = "run `rovslam run` again with --overwrite to rewrite the results"
+    if status in _CLOSED_STATUSES and isinstance(processed, int) and rows < processed:
+        raise ResultsFormatError(
+            f"{out / 'trajectory.csv'}: {rows} rows, but summary.json says the run ({status}) processed {processed} "
+            f"frames; the file was cut short (copied while written, or edited). Copy it again, or {rerun}."
+        )
+    # A failed run (a full disk) may not have written landmarks.csv: it is then read as no map.
+    if status != "failed" and not has_landmarks_file and isinstance(landmarks, int) and landmarks > 0:
+        raise ResultsFormatError(
+            f"{out / 'landmarks.csv'}: missing, but summary.json says the run mapped {landmarks} landmarks; "
+            f"copy the file back, or {rerun}."
+        )
 
 
 # ---------------------------------------------------------------------------------------------

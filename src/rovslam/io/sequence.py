@@ -318,9 +318,12 @@ def read_csv_table(
             raise error(f"{path}: header names column(s) {', '.join(dup)} more than once.")
         missing = [c for c in required if c not in header]
         if missing:
+            read = ",".join(header)
+            sep = next((f" It is separated by {n}: use commas." for c, n in ((";", "';'"), ("\t", "tabs")) if c in read), "")
+            case = " Column names are lower case." if not sep and any(c.lower() in read.lower() for c in missing) else ""
             raise error(
                 f"{path}: header is missing column(s) {', '.join(missing)}. "
-                f"The header must start with: {','.join(required)}."
+                f"The header must start with: {','.join(required)}; it reads {read[:80]!r}.{sep}{case}"
             )
         rows = []
         for fields in reader:
@@ -406,6 +409,12 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
     root = Path(os.path.realpath(folder))
     _inside(root, path.name, str(path))
     header, rows = read_csv_table(path, FRAMES_COLUMNS)
+    unknown = [c for c in header if c not in FRAMES_COLUMNS + ATTITUDE_COLUMNS]
+    if unknown:  # a misspelt roll_rad would leave the tilt uncompensated without a word
+        raise SequenceFormatError(
+            f"{path}: unknown column(s) {', '.join(repr(c) for c in unknown)} in the header. The columns are "
+            f"{','.join(FRAMES_COLUMNS)} and the optional {','.join(ATTITUDE_COLUMNS)} (radians); rename or remove the others."
+        )
     has_att = all(c in header for c in ATTITUDE_COLUMNS)
     if any(c in header for c in ATTITUDE_COLUMNS) and not has_att:
         raise SequenceFormatError(f"{path}: give both roll_rad and pitch_rad columns, or neither.")
@@ -431,7 +440,8 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
                 f"the folders of {folder}."
             ) from None
         if not present:
-            raise SequenceFormatError(f"{where}: image file '{image}' not found in {folder}.")
+            why = "is a folder, not an image file" if resolved.is_dir() else "not found"
+            raise SequenceFormatError(f"{where}: image file '{image}' {why} in {folder}.")
         text = (row.get("heading_rad") or "").strip()
         if text == "":
             raise SequenceFormatError(f"{where}: column 'heading_rad' is empty; write nan when there is no compass.")

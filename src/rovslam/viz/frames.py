@@ -66,11 +66,14 @@ def source_path(summary: dict, seq: str | Path | None) -> Path | None:
     return Path(named) if named else None
 
 
-def open_frames(summary: dict, seq: str | Path | None = None, camera_file: str | Path | None = None) -> FrameStore:
+def open_frames(summary: dict, seq: str | Path | None = None, camera_file: str | Path | None = None,
+                results_dir: str | Path | None = None) -> FrameStore:
     """Open the frames of a run. Raises :class:`SequenceFormatError` saying what is missing and how to fix it."""
     path = source_path(summary, seq)
     if path is None:
-        raise SequenceFormatError("summary.json names no sequence; give the sequence folder or video with --seq.")
+        where = Path(results_dir) / "summary.json" if results_dir is not None else "summary.json"
+        what = "names no sequence" if summary else "is missing (or empty), so the run's sequence is unknown"
+        raise SequenceFormatError(f"{where} {what}; give the sequence folder or video with --seq.")
     if not path.exists():
         raise SequenceFormatError(f"{path}: the run's sequence is not there any more; give its new place with --seq.")
     if path.is_dir():

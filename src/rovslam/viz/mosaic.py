@@ -158,7 +158,7 @@ def plan_grid(camera: Camera, poses: Poses, mm_per_px: float, margin_px: int = 4
     if max(w, h) > MAX_MOSAIC_PX:
         raise InvalidArgumentError(
             f"the mosaic would be {w}x{h} px at {mm_per_px} mm/px (more than {MAX_MOSAIC_PX} px a side); "
-            f"give a coarser --mm-per-px (e.g. {mm_per_px * max(w, h) / MAX_MOSAIC_PX * 1.1:.1f})"
+            f"give a coarser --mm-per-px (e.g. {mm_per_px * max(w, h) / MAX_MOSAIC_PX * 1.1:.3g})"
         )
     return MosaicGrid(x_top_m=-row0 * s, y_left_m=col0 * s, mm_per_px=mm_per_px, width_px=w, height_px=h)
 
@@ -457,7 +457,7 @@ def mosaic_of_run(
     if out_png is not None:
         check_mosaic_path(out_png)  # before the work: a bad name is refused at once
     res = read_results(results_dir)
-    store = open_frames(res.summary, seq, camera_file)
+    store = open_frames(res.summary, seq, camera_file, results_dir)
     if groundtruth is not None:
         from rovslam.io.sequence import read_groundtruth
 

@@ -161,7 +161,7 @@ def _gallery_section(res: RunResults, out: Path, folder: Path, chosen: list[int]
     note = ""
     images: dict[int, np.ndarray] = {}
     try:
-        store = open_frames(res.summary, seq, camera_file)
+        store = open_frames(res.summary, seq, camera_file, res.folder)
         images = store.images(v.frame for vs in views.values() for v in vs)
     except RovslamError as exc:
         saved = (folder / "revisits").is_dir()
@@ -262,6 +262,10 @@ def write_report(
 
         raise ResultsFormatError(f"{folder / 'trajectory.csv'}: no frame; nothing to report.")
     out = folder / "report"
+    if out.exists() and not out.is_dir():
+        from rovslam.errors import OutputError
+
+        raise OutputError(f"{out}: is a file, where the report's folder goes; move or delete it, then run the report again.")
     out.mkdir(exist_ok=True)
     seq_path = Path(seq) if seq is not None else None
     cam_path = Path(camera_file) if camera_file is not None else None

@@ -1,0 +1,443 @@
+"""The bad-input defects of the CLI audit (D1 to D9): each one a refusal or a note, never a traceback."""
+
+from __future__ import annotations
+
+import csv
+import errno
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from rovslam.cli import app
+
+runner = CliRunner()
+
+
+def _one_error_line(res, *needles: str) -> str:
+    """The single `rovslam: error:` line of a refused command (exit 2, no traceback), holding every needle."""
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output
+    lines = [line for line in res.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("rovslam: error:"), res.output
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def dive(tmp_path_factory):
+    """A 60-frame simulated dive and its run (6 landmarks): (sequence folder, results folder)."""
+    root = tmp_path_factory.mktemp("audit")
+    res = runner.invoke(app, ["simulate", "--scenario", "portofino-short", "--frames", "60", "--out", str(root / "seq"), "-q"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["run", str(root / "seq"), "--out", str(root / "out"), "-q"])
+    assert res.exit_code == 0, res.output
+    return root / "seq", root / "out"
+
+
+# --------------------------------------------------------------------------- D3: a full disk names the file
+
+
+class _FullDisk:
+    """A text file that takes ``budget`` characters, then fails like a full disk on every write, flush and close."""
+
+    def __init__(self, fh, budget: int):
+        self.fh, self.budget = fh, budget
+
+    def _full(self):
+        return OSError(errno.ENOSPC, "No space left on device")
+
+    def write(self, text: str) -> int:
+        if len(text) > self.budget:
+            self.budget = -1
+            raise self._full()
+        self.budget -= len(text)
+        return self.fh.write(text)
+
+    def flush(self) -> None:
+        if self.budget < 0:
+            raise self._full()
+        self.fh.flush()
+
+    def close(self) -> None:
+        self.fh.close()
+        if self.budget < 0 or self.at_close:
+            raise self._full()
+
+    at_close = False
+
+
+@pytest.mark.parametrize("at_close", [False, True], ids=["while-writing", "at-close"])
+def test_a_full_disk_while_writing_tokens_names_the_file_and_finishes_the_others(dive, tmp_path, monkeypatch, at_close):
+    import rovslam.io.results as results
+
+    init = results.GalleryWriter.__init__
+
+    def full_after_a_while(self, out_dir, flush_every=50):
+        init(self, out_dir, flush_every)
+        self._fh = _FullDisk(self._fh, 10**9 if at_close else 5_000)  # tokens.csv of this dive: 12 kB
+        self._fh.at_close = at_close
+        self._w = csv.writer(self._fh, lineterminator="\n")
+
+    monkeypatch.setattr(results.GalleryWriter, "__init__", full_after_a_while)
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["run", str(dive[0]), "--out", str(out), "-q"])
+    _one_error_line(res, str(out / "tokens.csv"), "the disk is full")
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and "tokens.csv" in summary["reason"]
+    n = summary["frames_processed"]
+    assert n == 60 if at_close else 0 < n < 60
+    rows = (out / "trajectory.csv").read_text().splitlines()
+    # every processed frame is there (and the one in hand when tokens.csv failed), each row complete
+    assert 1 + n <= len(rows) <= 2 + n and rows[-1].count(",") == rows[0].count(",")
+    assert len((out / "trajectory.tum").read_text().splitlines()) == len(rows)
+    assert (out / "landmarks.csv").read_text().startswith("id,x_m,y_m")
+
+
+def test_a_revisit_crop_opencv_cannot_write_names_the_file(dive, tmp_path, monkeypatch):
+    import cv2
+
+    monkeypatch.setattr(cv2, "imwrite", lambda path, img, *a: False)  # what imwrite does on a full disk
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["run", str(dive[0]), "--out", str(out), "-q"])
+    line = _one_error_line(res, str(out / "revisits"), ".png: cannot write the revisit crop", "free space")
+    assert "choose another --out" in line
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and "revisit crop" in summary["reason"]
+    assert 1 + summary["frames_processed"] <= len((out / "trajectory.csv").read_text().splitlines())
+
+
+# --------------------------------------------------------------------------- D2: an interrupted batch keeps finished cells
+
+
+def test_an_interrupted_batch_tables_hold_a_cell_finished_but_not_gathered(tmp_path, monkeypatch):
+    import rovslam.batch as batch
+    from rovslam.batch import load_matrix, run_matrix
+
+    class Closable:
+        def close(self):
+            pass
+
+    monkeypatch.setattr(batch, "_connect", lambda scheduler, workers: (Closable(), None))
+
+    def interrupted(client, todo, cells_dir, keep, rows, report, on_cell, save):
+        # the worker wrote the first cell's result.json; Ctrl-C came before the client gathered it
+        done = {**batch.pending_row(todo[0]), "status": "ok", "ate_rmse_m": 0.02}
+        (cells_dir / todo[0].cell_id).mkdir(parents=True)
+        (cells_dir / todo[0].cell_id / "result.json").write_text(json.dumps({"row": done, "evaluation": {}}))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(batch, "_run_cells", interrupted)
+    m = tmp_path / "m.toml"
+    m.write_text('seeds = [0, 1, 2]\n[[scenario]]\nname = "portofino-short"\nframes = 5\n')
+    report = run_matrix(load_matrix(m), tmp_path / "o")
+    assert report.interrupted and report.computed == ["portofino-short_s0"]
+    assert [r["status"] for r in report.rows] == ["ok", "pending", "pending"]
+    with open(tmp_path / "o" / "matrix.csv", newline="") as fh:
+        table = {r["cell"]: r for r in csv.DictReader(fh)}
+    assert table["portofino-short_s0"]["status"] == "ok" and float(table["portofino-short_s0"]["ate_rmse_m"]) == 0.02
+    assert table["portofino-short_s1"]["status"] == "pending"
+    md = (tmp_path / "o" / "matrix.md").read_text()
+    assert "| portofino-short | 1/3 |" in md
+    assert "Not run yet (the batch was interrupted): portofino-short_s1, portofino-short_s2." in md
+
+
+# --------------------------------------------------------------------------- D4: unknown frames.csv columns
+
+
+def _add_columns(seq: Path, names: str, value: str) -> None:
+    p = seq / "frames.csv"
+    lines = p.read_text().splitlines()
+    p.write_text("\n".join([lines[0] + "," + names] + [x + "," + value for x in lines[1:]]) + "\n")
+
+
+@pytest.mark.parametrize("names,value", [("roll_deg,pitch_deg", "5,0"), ("rol_rad,pich_rad", "0.2,0.2"), ("roll_rad,pich_rad", "0.2,0.2")])
+def test_unknown_frames_columns_are_refused_with_the_known_ones_listed(tmp_path, names, value):
+    import shutil
+
+    import fuzz_corpus as fc
+
+    seq = fc.write_sequence(tmp_path / "seq")
+    _add_columns(seq, names, value)
+    res = runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"])
+    unknown = [n for n in names.split(",") if n not in ("roll_rad", "pitch_rad")]
+    _one_error_line(res, str(seq / "frames.csv"), *(f"'{n}'" for n in unknown), "optional roll_rad,pitch_rad",
+                    "rename or remove")
+    assert not (tmp_path / "o").exists()
+    shutil.rmtree(seq)
+
+
+def test_every_sequence_rovslam_writes_is_still_read(tmp_path):
+    import fuzz_corpus as fc
+    from rovslam.io.sequence import open_sequence
+    from rovslam.sim import simulate
+
+    simulate("portofino-short", tmp_path / "level", frames=3, seed=0)
+    simulate("swell", tmp_path / "tilted", frames=3, seed=0)  # writes roll_rad, pitch_rad
+    assert open_sequence(tmp_path / "tilted").has_attitude
+    assert len(open_sequence(tmp_path / "level")) == 3
+    seq = fc.write_sequence(tmp_path / "with_att")
+    _add_columns(seq, "roll_rad,pitch_rad", "0.01,-0.02")
+    assert open_sequence(seq).rows[0].roll_rad == 0.01
+
+
+# --------------------------------------------------------------------------- D6, D7: damaged results folders
+
+
+def _copy_run(out: Path, dest: Path) -> Path:
+    import shutil
+
+    shutil.copytree(out, dest)
+    return dest
+
+
+def test_a_cut_trajectory_of_a_complete_run_is_refused(dive, tmp_path):
+    r = _copy_run(dive[1], tmp_path / "r")
+    (r / "trajectory.csv").write_bytes((dive[1] / "trajectory.csv").read_bytes()[:3000])
+    res = runner.invoke(app, ["eval", str(r), "-g", str(dive[0] / "groundtruth.csv")])
+    _one_error_line(res, str(r / "trajectory.csv"), "rows, but summary.json says the run (complete) processed 60 frames",
+                    "cut short", "--overwrite")
+
+
+def test_a_missing_landmarks_file_is_refused_when_the_run_mapped_some(dive, tmp_path):
+    r = _copy_run(dive[1], tmp_path / "r")
+    (r / "landmarks.csv").unlink()
+    for args in (["eval", str(r), "-g", str(dive[0] / "groundtruth.csv")], ["report", str(r), "-q"]):
+        res = runner.invoke(app, args)
+        _one_error_line(res, str(r / "landmarks.csv"), "missing, but summary.json says the run mapped 6 landmarks",
+                        "copy the file back")
+
+
+def test_eval_of_an_interrupted_run_says_it_was_partial(dive, tmp_path):
+    r = _copy_run(dive[1], tmp_path / "r")
+    lines = (r / "trajectory.csv").read_text().splitlines()
+    (r / "trajectory.csv").write_text("\n".join(lines[:31]) + "\n")  # 30 frames, as an interrupted run leaves them
+    summary = json.loads((r / "summary.json").read_text())
+    summary.update(status="interrupted", complete=False, interrupted=True, signal="SIGINT", frames_processed=30)
+    (r / "summary.json").write_text(json.dumps(summary))
+    res = runner.invoke(app, ["eval", str(r), "-g", str(dive[0] / "groundtruth.csv")])
+    assert res.exit_code == 0, res.output
+    assert ("note: the run was interrupted by SIGINT after 30 of 60 frames: these figures cover those 30 frames only"
+            in " ".join(res.output.split()))  # rich wraps the line at the terminal's width
+    figures = json.loads((r / "eval.json").read_text())
+    assert figures["frames"] == 30 and "interrupted by SIGINT after 30 of 60 frames" in figures["partial_run"]
+
+
+# --------------------------------------------------------------------------- D5: another dive's sequence
+
+
+@pytest.fixture(scope="module")
+def other_dive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("other")
+    res = runner.invoke(app, ["simulate", "--scenario", "rough-turns-short", "--frames", "60", "--seed", "1",
+                              "--out", str(root / "seq"), "-q"])
+    assert res.exit_code == 0, res.output
+    return root / "seq"
+
+
+def _fewer_frames(seq: Path, dest: Path, n: int) -> Path:
+    import shutil
+
+    shutil.copytree(seq, dest)
+    lines = (dest / "frames.csv").read_text().splitlines()
+    (dest / "frames.csv").write_text("\n".join(lines[: n + 1]) + "\n")
+    return dest
+
+
+@pytest.mark.parametrize("command", ["mosaic", "report", "eval"])
+def test_another_dives_sequence_is_refused_naming_both(dive, other_dive, tmp_path, command):
+    seq, out = dive
+    option = "--sequence" if command == "eval" else "--seq"
+    args = {"mosaic": ["mosaic", str(out), "--seq", str(other_dive), "--out", str(tmp_path / "m.png"), "-q"],
+            "report": ["report", str(out), "--seq", str(other_dive), "-q"],
+            "eval": ["eval", str(out), "-g", str(seq / "groundtruth.csv"), "-s", str(other_dive),
+                     "--json", str(tmp_path / "e.json")]}[command]
+    _one_error_line(runner.invoke(app, args), f"{option} {other_dive}: not the sequence of the run in {out}",
+                    "named 'rovslam simulate rough-turns-short (seed 1)'",
+                    "the run's sequence 'rovslam simulate portofino-short (seed 0)'", f"summary.json names {seq}",
+                    "give that run's own sequence folder")
+    assert not (tmp_path / "m.png").exists() and not (tmp_path / "e.json").exists()
+    short = _fewer_frames(seq, tmp_path / "short", 40)  # the same dive's name, 40 of its 60 frames
+    line = _one_error_line(runner.invoke(app, [a if a != str(other_dive) else str(short) for a in args]),
+                           "it has 40 frames, the run's sequence 60")
+    assert "named" not in line
+
+
+def test_the_runs_sequence_moved_elsewhere_is_accepted(dive, tmp_path):
+    import shutil
+
+    seq, out = dive
+    moved = shutil.copytree(seq, tmp_path / "moved")
+    res = runner.invoke(app, ["mosaic", str(out), "--seq", str(moved), "--out", str(tmp_path / "m.png"), "-q"])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "m.png").stat().st_size > 1000
+
+
+# --------------------------------------------------------------------------- D8: a ground truth not at the origin
+
+
+def test_a_ground_truth_in_other_coordinates_is_shifted_to_the_runs_origin_with_a_note(dive, tmp_path):
+    seq, out = dive
+    moved = tmp_path / "gt_utm.csv"  # the same truth in UTM-like coordinates: 500 km east, 4.9e6 m north
+    with open(seq / "groundtruth.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    with open(moved, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]), lineterminator="\n")
+        w.writeheader()
+        w.writerows({**r, "x_m": repr(float(r["x_m"]) + 4_900_000.0), "y_m": repr(float(r["y_m"]) + 500_000.5)} for r in rows)
+    res = runner.invoke(app, ["eval", str(out), "-g", str(seq / "groundtruth.csv"), "--json", str(tmp_path / "a.json")])
+    assert res.exit_code == 0, res.output
+    assert "shifted" not in res.output
+    res = runner.invoke(app, ["eval", str(out), "-g", str(moved), "--json", str(tmp_path / "b.json")])
+    assert res.exit_code == 0, res.output
+    assert ("note: the ground truth's first row is at x = 4900000.000 m, y = 500000.500 m, not at the origin where the "
+            "run starts: it was shifted by (-4900000.000, -500000.500) m to start there") in " ".join(res.output.split())
+    a, b = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
+    assert b["groundtruth_shift_m"] == [-4_900_000.0, -500_000.5] and a["groundtruth_shift_m"] == [0.0, 0.0]
+    assert a["slam"]["ate_rmse_m"] < 0.01
+    assert b["slam"]["ate_rmse_m"] == pytest.approx(a["slam"]["ate_rmse_m"], abs=1e-6)  # not 4.9e6 m
+    assert b["consistency"]["coverage_2sigma"] == a["consistency"]["coverage_2sigma"]
+
+
+# --------------------------------------------------------------------------- D1: Ctrl-C during the start-up imports
+
+
+def test_ctrl_c_while_the_cli_is_imported_exits_130_without_a_traceback(monkeypatch, capsys):
+    import builtins
+    import sys
+    import tomllib
+
+    import rovslam.cli as cli
+    import rovslam.__main__ as entry
+
+    with open(Path(__file__).parents[1] / "pyproject.toml", "rb") as fh:
+        assert tomllib.load(fh)["project"]["scripts"]["rovslam"] == "rovslam.__main__:main"
+    real_import = builtins.__import__
+
+    def interrupted(name, *args, **kwargs):
+        if name == "rovslam.cli":
+            raise KeyboardInterrupt  # Ctrl-C while typer and rich load
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.delitem(sys.modules, "rovslam.cli", raising=False)
+    monkeypatch.setattr(builtins, "__import__", interrupted)
+    with pytest.raises(SystemExit) as stop:
+        entry.main()
+    assert stop.value.code == 130
+    monkeypatch.setattr(builtins, "__import__", real_import)
+    monkeypatch.setitem(sys.modules, "rovslam.cli", cli)  # the module the other tests use, not a second copy
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == ""
+    monkeypatch.setattr(sys, "argv", ["rovslam", "--version"])
+    with pytest.raises(SystemExit) as done:
+        entry.main()
+    assert done.value.code == 0 and capsys.readouterr().out.startswith("rovslam 0.")
+
+
+# --------------------------------------------------------------------------- D9: messages that said the wrong thing
+
+
+@pytest.fixture
+def image_folder(tmp_path):
+    import fuzz_corpus as fc
+
+    folder = fc.write_image_folder(tmp_path / "imgs")
+    (tmp_path / "cam.toml").write_text(fc.CAMERA_FILE)
+    return folder, tmp_path / "cam.toml"
+
+
+def _run_folder(folder, cam, out, *extra):
+    return runner.invoke(app, ["run", str(folder), "--camera", str(cam), "--out", str(out), "-q", *extra])
+
+
+def test_d9a_a_times_file_with_only_a_header_is_named(image_folder, tmp_path):
+    times = tmp_path / "t.csv"
+    times.write_text("image,t_s\n")
+    _one_error_line(_run_folder(*image_folder, tmp_path / "o", "--times", str(times)),
+                    f"{times}: lists no images (only a header)", "add one row image,t_s per image")
+
+
+@pytest.mark.parametrize("fps", ["0", "-5"])
+def test_d9i_fps_must_be_above_zero(image_folder, tmp_path, fps):
+    _one_error_line(_run_folder(*image_folder, tmp_path / "o", "--fps", fps), "above 0 and at most 10000")
+
+
+def test_d9j_fps_and_times_together_are_told_apart_from_neither(image_folder, tmp_path):
+    times = tmp_path / "t.csv"
+    times.write_text("image,t_s\nframe1.png,0\n")
+    _one_error_line(_run_folder(*image_folder, tmp_path / "o", "--fps", "5", "--times", str(times)),
+                    "give --fps or --times, one of the two, not both")
+    line = _one_error_line(_run_folder(*image_folder, tmp_path / "o"), "--fps F or --times FILE")
+    assert "not both" not in line
+
+
+def test_d9b_the_coarser_scale_suggested_is_one_the_mosaic_accepts(dive, tmp_path):
+    line = _one_error_line(runner.invoke(app, ["mosaic", str(dive[1]), "--mm-per-px", "0.0001",
+                                               "--out", str(tmp_path / "m.png"), "-q"]), "give a coarser --mm-per-px")
+    suggested = float(line.rsplit("(e.g. ", 1)[1].rstrip(")"))  # was "0.0", itself refused
+    side_px = max(int(v) for v in line.split("would be ", 1)[1].split(" px", 1)[0].split("x"))
+    assert 0.0001 * side_px / 40_000 < suggested < 0.0001 * side_px / 30_000  # fits, and not much coarser
+
+
+def test_d9c_a_file_where_the_report_folder_goes_is_named(dive, tmp_path):
+    r = _copy_run(dive[1], tmp_path / "r")
+    (r / "report").write_text("notes")
+    _one_error_line(runner.invoke(app, ["report", str(r), "-q"]), f"{r / 'report'}: is a file", "move or delete it")
+
+
+@pytest.mark.parametrize("header,needle", [
+    ("t_s;image;heading_rad;sonar_altitude_m", "separated by ';': use commas"),
+    ("t_s\timage\theading_rad\tsonar_altitude_m", "separated by tabs: use commas"),
+    ("T_S,IMAGE,HEADING_RAD,SONAR_ALTITUDE_M", "Column names are lower case"),
+])
+def test_d9d_a_header_of_another_dialect_is_quoted_with_a_hint(tmp_path, header, needle):
+    import fuzz_corpus as fc
+
+    seq = fc.write_sequence(tmp_path / "seq")
+    lines = (seq / "frames.csv").read_text().splitlines()
+    sep = ";" if ";" in header else "\t" if "\t" in header else ","
+    (seq / "frames.csv").write_text("\n".join([header] + [x.replace(",", sep) for x in lines[1:]]) + "\n")
+    _one_error_line(runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]),
+                    f"{seq / 'frames.csv'}: header is missing column(s)", "it reads 'T_S" if "T_S" in header else "it reads 't_s",
+                    needle)
+
+
+def test_d9e_a_ground_truth_that_does_not_cover_the_run_is_named(dive, tmp_path):
+    gt = tmp_path / "gt.csv"
+    gt.write_text("\n".join((dive[0] / "groundtruth.csv").read_text().splitlines()[:30]) + "\n")
+    _one_error_line(runner.invoke(app, ["eval", str(dive[1]), "-g", str(gt), "--json", str(tmp_path / "e.json")]),
+                    f"{gt}: ground truth has no row at t_s=", "give the groundtruth.csv of the sequence that was run")
+
+
+def test_d9f_an_image_cell_naming_a_folder_says_so(tmp_path):
+    import fuzz_corpus as fc
+
+    seq = fc.write_sequence(tmp_path / "seq")
+    fc.set_cell(seq / "frames.csv", 3, "image", "images")
+    _one_error_line(runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]),
+                    "line 4: image file 'images' is a folder, not an image file")
+
+
+def test_d9g_smooth_tells_a_sequence_folder_and_a_cut_file_from_an_old_run(dive, tmp_path):
+    _one_error_line(runner.invoke(app, ["smooth", str(dive[0]), "-q"]),
+                    f"{dive[0]}: not the --out folder of a `rovslam run` (no trajectory.csv, no summary.json)")
+    r = _copy_run(dive[1], tmp_path / "r")
+    (r / "measurements.csv").write_bytes(b"")
+    _one_error_line(runner.invoke(app, ["smooth", str(r), "-q"]), f"{r / 'measurements.csv'}: empty file",
+                    "cut short", "--overwrite")
+    (r / "measurements.csv").unlink()  # a run folder without the file: made by an older rovslam
+    _one_error_line(runner.invoke(app, ["smooth", str(r), "-q"]), "does not write measurements")
+
+
+def test_d9h_a_missing_summary_is_not_called_a_summary_naming_no_sequence(dive, tmp_path):
+    r = _copy_run(dive[1], tmp_path / "r")
+    (r / "summary.json").unlink()
+    _one_error_line(runner.invoke(app, ["mosaic", str(r), "-q"]),
+                    f"{r / 'summary.json'} is missing (or empty), so the run's sequence is unknown", "--seq")
+
+
+def test_d9k_a_folder_given_as_configuration_is_called_a_folder(dive, tmp_path):
+    _one_error_line(runner.invoke(app, ["run", str(dive[0]), "-c", str(tmp_path), "--out", str(tmp_path / "o"), "-q"]),
+                    f"{tmp_path}: is a folder; -c needs a TOML file")
