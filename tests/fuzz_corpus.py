@@ -345,9 +345,11 @@ def sequence_cases() -> list[Case]:
         C("heading-inf", lambda s, sh: set_cell(s / fr, 2, "heading_rad", "inf"), "error", "not finite"),
         C("heading-text", lambda s, sh: set_cell(s / fr, 2, "heading_rad", "north"), "error", "'north'"),
         C("heading-1e308", lambda s, sh: set_cell(s / fr, 2, "heading_rad", "1e308"), "error", "not a heading"),
-        # refused like an unknown sequence.toml key: a misspelt roll_rad was ignored without a word (audit D4)
-        C("frames-extra-column", lambda s, sh: edit_lines(s / fr, lambda ls: [ls[0] + ",depth_m"] + [x + ",12.5" for x in ls[1:]]),
-          "error", "unknown column(s) 'depth_m'"),
+        # an extra column the format does not read is ignored (a navigation log's depth) ...
+        C("frames-extra-column", lambda s, sh: edit_lines(s / fr, lambda ls: [ls[0] + ",depth_m"] + [x + ",12.5" for x in ls[1:]]), "ok"),
+        # ... but one that looks like a column it reads is refused: a misspelt roll_rad was ignored without a word (audit D4)
+        C("frames-misspelt-column", lambda s, sh: edit_lines(s / fr, lambda ls: [ls[0] + ",rol_rad,pitch_rad"] + [x + ",0.1,0.1" for x in ls[1:]]),
+          "error", "unknown column(s) 'rol_rad'"),
         C("frames-blank-lines", lambda s, sh: edit_lines(s / fr, lambda ls: ls[:3] + ["", "  "] + ls[3:] + [""]), "ok"),
         C("frames-quoted", lambda s, sh: edit_lines(s / fr, lambda ls: ls[:1] + ['"' + x.replace(",", '","') + '"' for x in ls[1:]]), "ok"),
         C("heading-large", lambda s, sh: set_column(s / fr, "heading_rad", "62.83185307179586"), "ok"),

@@ -153,7 +153,8 @@ def _add_columns(seq: Path, names: str, value: str) -> None:
     p.write_text("\n".join([lines[0] + "," + names] + [x + "," + value for x in lines[1:]]) + "\n")
 
 
-@pytest.mark.parametrize("names,value", [("roll_deg,pitch_deg", "5,0"), ("rol_rad,pich_rad", "0.2,0.2"), ("roll_rad,pich_rad", "0.2,0.2")])
+@pytest.mark.parametrize("names,value", [("roll_deg,pitch_deg", "5,0"), ("rol_rad,pich_rad", "0.2,0.2"), ("roll_rad,pich_rad", "0.2,0.2"),
+                                         ("heading_deg", "12"), ("sonar_alt_m", "1.3")])
 def test_unknown_frames_columns_are_refused_with_the_known_ones_listed(tmp_path, names, value):
     import shutil
 
@@ -167,6 +168,15 @@ def test_unknown_frames_columns_are_refused_with_the_known_ones_listed(tmp_path,
                     "rename or remove")
     assert not (tmp_path / "o").exists()
     shutil.rmtree(seq)
+
+
+def test_other_extra_frames_columns_are_ignored_as_before(tmp_path):
+    import fuzz_corpus as fc
+    from rovslam.io.sequence import open_sequence
+
+    seq = fc.write_sequence(tmp_path / "seq")
+    _add_columns(seq, "depth_m,lat,lon,temperature_c", "12.5,44.3,9.2,14.0")
+    assert len(open_sequence(seq)) > 0 and not open_sequence(seq).has_attitude
 
 
 def test_every_sequence_rovslam_writes_is_still_read(tmp_path):

@@ -23,13 +23,14 @@ default 16; 12 for a 12-bit sensor stored in 16-bit files), values above the ran
 from __future__ import annotations
 
 import csv
+import difflib
 import io
 import math
 import os
 import stat
 import struct
 import tomllib
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -400,6 +401,18 @@ def _inside(root: Path, relative: str, where: str) -> Path:
     return resolved
 
 
+_KNOWN_STEMS = ("roll", "pitch", "heading", "yaw", "sonar", "altitude")
+
+
+def _meant_as_known_columns(header: Sequence[str]) -> list[str]:
+    """The header's extra columns that look like one ``frames.csv`` reads: misspelt (``rol_rad``) or in
+    other units (``roll_deg``). Read as extra, they would be ignored without a word; any other extra
+    column (a navigation log's ``depth_m``, ``lat``) is ignored, as the format allows."""
+    known = FRAMES_COLUMNS + ATTITUDE_COLUMNS
+    return [c for c in header if c not in known and (
+        c.strip().lower().startswith(_KNOWN_STEMS) or difflib.get_close_matches(c.strip().lower(), known, n=1, cutoff=0.75))]
+
+
 def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list[FrameRow]:
     """Read and validate ``frames.csv``: numbers, strictly increasing time, images present inside ``folder``.
 
@@ -409,7 +422,7 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
     root = Path(os.path.realpath(folder))
     _inside(root, path.name, str(path))
     header, rows = read_csv_table(path, FRAMES_COLUMNS)
-    unknown = [c for c in header if c not in FRAMES_COLUMNS + ATTITUDE_COLUMNS]
+    unknown = _meant_as_known_columns(header)
     if unknown:  # a misspelt roll_rad would leave the tilt uncompensated without a word
         raise SequenceFormatError(
             f"{path}: unknown column(s) {', '.join(repr(c) for c in unknown)} in the header. The columns are "
