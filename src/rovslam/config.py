@@ -314,6 +314,10 @@ class OdometryConfig(_Checked):
     compass_sigma_rad: float = _num(0.0087, ge=0)  # compass white noise (0.5 deg); 0 uses the compass as it is (paper)
     # without a compass: a step whose turn the tokens did not measure turns the heading by up to this rate (14 deg/s)
     unmeasured_turn_rate_sigma_radps: float = _num(0.25, gt=0)
+    # a compass reading farther than this many sigmas from the heading the tokens' turn predicts is a glitch,
+    # refused (0: off); after compass_gate_max_readings refused in a row the compass is believed again
+    compass_gate_sigmas: float = _num(6.0, ge=0)
+    compass_gate_max_readings: int = _num(10, ge=0)
     compass_sigma_learned: bool = True  # the compass noise its readings show is used when above compass_sigma_rad
     compass_drift_sigma_rad: float = _num(0.0175, ge=0)  # slow compass error no smoothing removes (magnetic disturbance, 1 deg)
     compass_offset_sigma_rad: float = _num(0.0087, ge=0)  # the compass's constant error (deviation, 0.5 deg calibrated): turns the whole estimate

@@ -53,11 +53,17 @@ class HeadingFilter:
     (a compass noisier than its datasheet; never smaller than configured).
     """
 
-    def __init__(self, compass_sigma_rad: float, learn_noise: bool = False):
+    def __init__(self, compass_sigma_rad: float, learn_noise: bool = False, gate_sigmas: float = 0.0,
+                 gate_max_readings: int = 0):
         self.compass_sigma_rad = float(compass_sigma_rad)
         self.learn_noise = bool(learn_noise)
+        self.gate_sigmas = float(gate_sigmas)
+        self.gate_max_readings = int(gate_max_readings)
         self.heading_rad: float | None = None
         self.var_rad2 = 0.0
+        self.refused_readings = 0  # compass readings refused as glitches (:meth:`_glitch`)
+        self._refused_in_row = 0
+        self._resync = False  # the gate's limit was reached: the next update takes the compass as it is
         self._noise = DecayingMean()  # the compass variance the innovations show, over ~COMPASS_NOISE_READINGS
 
     @property
@@ -88,6 +94,22 @@ class HeadingFilter:
         a = 1.0 / COMPASS_NOISE_READINGS
         self._noise.add(y2 - predicted_var_rad2, a, 1.0 - a)
 
+    def _glitch(self, innovation_rad: float, innovation_var_rad2: float) -> bool:
+        """Whether a compass reading is a glitch: farther than ``gate_sigmas`` from the heading the
+        tokens' turn predicts (a magnetic spike, a corrupt log line: one reading 1 rad off took the
+        real-photo survey from 99.3 to 81.7 % inside 2-sigma). At most ``gate_max_readings`` in a
+        row are refused; then the compass is believed again, as it is (its error really changed)."""
+        if not self.gate_sigmas > 0 or innovation_rad**2 <= self.gate_sigmas**2 * innovation_var_rad2:
+            self._refused_in_row = 0
+            return False
+        if self._refused_in_row >= self.gate_max_readings:
+            self._refused_in_row = 0
+            self._resync = True
+            return False
+        self._refused_in_row += 1
+        self.refused_readings += 1
+        return True
+
     def update(self, compass_rad: float, dpsi_rad: float | None = None, dpsi_sigma_rad: float = math.inf,
                unmeasured_sigma_rad: float = NO_COMPASS_STEP_SIGMA_RAD) -> float:
         """One step: the compass reading of this frame and the measured change since the last one.
@@ -115,8 +137,19 @@ class HeadingFilter:
             psi = self.heading_rad + float(dpsi_rad)
             var = self.var_rad2 + float(dpsi_sigma_rad) ** 2
         else:
+            held_var = self.var_rad2 + float(unmeasured_sigma_rad) ** 2
+            if self._glitch(wrap_angle(c - self.heading_rad), held_var + r):
+                self.var_rad2 = held_var  # a glitch, and no turn measured: the heading is held
+                return self.heading_rad
             psi, var = c, r  # nothing but the compass bridges this step
         innovation = wrap_angle(c - psi)
+        if measured and self._glitch(innovation, var + r):
+            self.heading_rad, self.var_rad2 = wrap_angle(psi), var  # the tokens' turn alone bridges this step
+            return self.heading_rad
+        if self._resync:  # refused gate_max_readings times in a row: the compass moved, follow it
+            self._resync = False
+            self.heading_rad, self.var_rad2 = c, r
+            return c
         if measured:  # learned always (for the run's warnings), used only when learn_noise
             self._learn_noise(innovation, var, r)
         k = var / (var + r)
@@ -184,7 +217,9 @@ class HeadingTracker:
     def __init__(self, odometry: OdometryConfig = OdometryConfig(), slam: SlamConfig = SlamConfig()):
         self.odometry = odometry
         self.slam = slam
-        self.filter = HeadingFilter(odometry.compass_sigma_rad, learn_noise=odometry.compass_sigma_learned)
+        self.filter = HeadingFilter(odometry.compass_sigma_rad, learn_noise=odometry.compass_sigma_learned,
+                                    gate_sigmas=odometry.compass_gate_sigmas,
+                                    gate_max_readings=odometry.compass_gate_max_readings)
         self._previous_rad: float | None = None  # filtered heading of the previous frame
         self._previous_compass_rad: float | None = None
         self.has_compass = True  # whether the last frame had a compass reading
@@ -203,20 +238,30 @@ class HeadingTracker:
         learned = self.filter.learned_compass_sigma_rad
         return {"sigma_configured_deg": math.degrees(self.odometry.compass_sigma_rad),
                 "sigma_learned_deg": None if learned is None else math.degrees(learned),
-                "sigma_used_deg": math.degrees(self.compass_sigma_rad), "learning": self.filter.learn_noise}
+                "sigma_used_deg": math.degrees(self.compass_sigma_rad), "learning": self.filter.learn_noise,
+                "readings_refused": self.filter.refused_readings}
 
     def compass_warnings(self) -> list[str]:
-        """One line when the compass was found much noisier than configured."""
+        """One line when the compass was found much noisier than configured, one when readings were refused."""
+        out = []
+        if self.filter.refused_readings:
+            out.append(f"{self.filter.refused_readings} compass reading(s) refused as glitches: more than "
+                       f"{self.odometry.compass_gate_sigmas:g} sigma from the heading the tokens' turn predicts "
+                       "([odometry] compass_gate_sigmas; 0 keeps every reading)")
         learned, configured = self.filter.learned_compass_sigma_rad, self.odometry.compass_sigma_rad
         if learned is None or configured == 0 or learned < COMPASS_NOISIER_WARNING * configured:
-            return []
-        return [f"the compass readings scatter by {math.degrees(learned):.2f} deg against the turns the tokens "
+            return out
+        return out + [f"the compass readings scatter by {math.degrees(learned):.2f} deg against the turns the tokens "
                 f"measure, more than the {math.degrees(configured):.2f} deg configured ([odometry] compass_sigma_rad "
                 f"= {configured:g}); " + ("the learned value was used" if self.filter.learn_noise else
                                           f"set compass_sigma_rad = {learned:.4f} or compass_sigma_learned = true")]
 
-    def prior(self, compass_rad: float) -> HeadingPrior:
-        """The heading before the tokens: previous heading and compass step (first frame: the compass, or 0)."""
+    def prior(self, compass_rad: float, dt_s: float | None = None) -> HeadingPrior:
+        """The heading before the tokens: previous heading and compass step (first frame: the compass, or 0).
+
+        A reading farther from the last heading than the vehicle can turn in ``dt_s`` (a glitch)
+        gives no step: the prior is then 0 within the turn the vehicle can make.
+        """
         has_compass = math.isfinite(compass_rad)
         self.has_compass = has_compass
         previous_compass = compass_rad if self._previous_compass_rad is None else self._previous_compass_rad
@@ -230,7 +275,16 @@ class HeadingTracker:
             step_sigma: float | None = math.sqrt(2.0) * sigma_c  # difference of two readings
         else:
             step_sigma = None if has_compass else NO_COMPASS_STEP_SIGMA_RAD
+        if sigma_c > 0 and self._previous_rad is not None and self._is_glitch(compass_rad, dt_s):
+            step, step_sigma = 0.0, self.unmeasured_turn_sigma_rad(dt_s)  # the tokens alone find this turn
         return HeadingPrior(compass_rad, previous, step, step_sigma)
+
+    def _is_glitch(self, compass_rad: float, dt_s: float | None) -> bool:
+        """Whether this reading is farther from the last heading than the vehicle can turn in ``dt_s``
+        (``compass_gate_sigmas``): its step would point the tokens' turn at a glitch."""
+        gate = self.odometry.compass_gate_sigmas
+        bound_rad2 = self.filter.var_rad2 + self.filter.compass_var_rad2 + self.unmeasured_turn_sigma_rad(dt_s) ** 2
+        return gate > 0 and wrap_angle(compass_rad - self._previous_rad) ** 2 > gate**2 * bound_rad2
 
     def update(self, prior: HeadingPrior, dpsi_rad: float | None, dpsi_sigma_rad: float,
                dt_s: float | None = None) -> HeadingEstimate:
@@ -239,7 +293,7 @@ class HeadingTracker:
         ``dt_s``: the step's duration, which bounds an unmeasured turn without a compass
         (:meth:`unmeasured_turn_sigma_rad`).
         """
-        var_before = self.filter.var_rad2
+        var_before, refused_before = self.filter.var_rad2, self.filter.refused_readings
         psi = self.filter.update(prior.compass_rad, dpsi_rad, dpsi_sigma_rad, self.unmeasured_turn_sigma_rad(dt_s))
         smoothing = self.odometry.compass_sigma_rad > 0 and prior.has_compass
         sigma = self.filter.sigma_rad if smoothing or not prior.has_compass else None
@@ -248,17 +302,18 @@ class HeadingTracker:
         else:
             obs_sigma = sigma
         walk = self._walk_var_rad2(prior.has_compass, var_before)
-        self._remember(psi, prior.compass_rad)
+        # a refused reading is not the next step's reference: the heading stands in for it
+        self._remember(psi, psi if self.filter.refused_readings > refused_before else prior.compass_rad)
         if walk is not None:
             return HeadingEstimate(psi, sigma, 0.0, walk)  # the whole heading error is eps's
         return HeadingEstimate(psi, sigma, obs_sigma)
 
     def skip(self, compass_rad: float, dt_s: float | None = None) -> HeadingEstimate:
         """An unusable frame: follow the compass alone (without one, the heading is held and its error grows)."""
-        var_before = self.filter.var_rad2
+        var_before, refused_before = self.filter.var_rad2, self.filter.refused_readings
         psi = self.filter.update(compass_rad, unmeasured_sigma_rad=self.unmeasured_turn_sigma_rad(dt_s))
         walk = self._walk_var_rad2(math.isfinite(compass_rad), var_before)
-        self._remember(psi, compass_rad)
+        self._remember(psi, psi if self.filter.refused_readings > refused_before else compass_rad)
         return HeadingEstimate(psi, None, None, walk)
 
     def unmeasured_turn_sigma_rad(self, dt_s: float | None) -> float:

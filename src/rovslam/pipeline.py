@@ -193,7 +193,7 @@ class SlamPipeline:
     def process(self, frame: Frame) -> FrameResult:
         """One frame through the paper's loop (steps 1 to 8)."""
         dt_s = 0.0 if self._prev_t_s is None else frame.t_s - self._prev_t_s
-        prior = self.heading.prior(frame.heading_rad)
+        prior = self.heading.prior(frame.heading_rad, dt_s)
         track_img, reason = self._tracking_image(frame)
         if reason is not None:
             return self._skip(frame, dt_s, prior, reason)
