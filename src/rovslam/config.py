@@ -312,7 +312,8 @@ class OdometryConfig(_Checked):
     relief_prior_sigma: float = _num(0.02, ge=0)  # relief height spread / altitude assumed before the tokens measured it
     relief_prior_s: float = _num(2.0, ge=0)  # ... its share fades as exp(-seconds measured / this) (0: no prior, start as flat)
     compass_sigma_rad: float = _num(0.0087, ge=0)  # compass white noise (0.5 deg); 0 uses the compass as it is (paper)
-    # without a compass: a step whose turn the tokens did not measure turns the heading by up to this rate (14 deg/s)
+    # how fast the vehicle may turn (14 deg/s): without a compass, a step whose turn the tokens missed adds this
+    # times the step to the heading's error; with one, it bounds a plausible reading (compass_gate_sigmas)
     unmeasured_turn_rate_sigma_radps: float = _num(0.25, gt=0)
     # a compass reading farther than this many sigmas from the heading the tokens' turn predicts is a glitch,
     # refused (0: off); after compass_gate_max_readings refused in a row the compass is believed again
