@@ -62,6 +62,7 @@ class HeadingFilter:
         self.heading_rad: float | None = None
         self.var_rad2 = 0.0
         self.refused_readings = 0  # compass readings refused as glitches (:meth:`_glitch`)
+        self.refused_last = False  # whether the last update refused its reading
         self._refused_in_row = 0
         self._resync = False  # the gate's limit was reached: the next update takes the compass as it is
         self._noise = DecayingMean()  # the compass variance the innovations show, over ~COMPASS_NOISE_READINGS
@@ -94,12 +95,24 @@ class HeadingFilter:
         a = 1.0 / COMPASS_NOISE_READINGS
         self._noise.add(y2 - predicted_var_rad2, a, 1.0 - a)
 
-    def _glitch(self, innovation_rad: float, innovation_var_rad2: float) -> bool:
-        """Whether a compass reading is a glitch: farther than ``gate_sigmas`` from the heading the
-        tokens' turn predicts (a magnetic spike, a corrupt log line: one reading 1 rad off took the
-        real-photo survey from 99.3 to 81.7 % inside 2-sigma). At most ``gate_max_readings`` in a
-        row are refused; then the compass is believed again, as it is (its error really changed)."""
-        if not self.gate_sigmas > 0 or innovation_rad**2 <= self.gate_sigmas**2 * innovation_var_rad2:
+    def _beyond_gate(self, innovation_rad: float, innovation_var_rad2: float) -> bool:
+        """Whether an innovation lies farther than ``gate_sigmas`` of its standard deviation (0: no gate)."""
+        return self.gate_sigmas > 0 and innovation_rad**2 > self.gate_sigmas**2 * innovation_var_rad2
+
+    def implausible(self, compass_rad: float, unmeasured_sigma_rad: float) -> bool:
+        """Whether a reading lies beyond the gate around the last heading, held through a turn of
+        ``unmeasured_sigma_rad`` (what the vehicle can turn in the step) when nothing measured it."""
+        if self.heading_rad is None:
+            return False
+        held_var = self.var_rad2 + float(unmeasured_sigma_rad) ** 2
+        return self._beyond_gate(wrap_angle(compass_rad - self.heading_rad), held_var + self.compass_var_rad2)
+
+    def _glitch(self, beyond_gate: bool) -> bool:
+        """Whether to refuse a reading as a glitch: beyond the gate (a magnetic spike, a corrupt log
+        line: one reading 1 rad off took the real-photo survey from 99.3 to 81.7 % inside 2-sigma).
+        At most ``gate_max_readings`` in a row are refused; then the compass is believed again, as
+        it is (its error really changed)."""
+        if not beyond_gate:
             self._refused_in_row = 0
             return False
         if self._refused_in_row >= self.gate_max_readings:
@@ -108,6 +121,7 @@ class HeadingFilter:
             return False
         self._refused_in_row += 1
         self.refused_readings += 1
+        self.refused_last = True
         return True
 
     def update(self, compass_rad: float, dpsi_rad: float | None = None, dpsi_sigma_rad: float = math.inf,
@@ -119,6 +133,7 @@ class HeadingFilter:
         ``unmeasured_sigma_rad`` squared over a step whose turn nothing measured).
         """
         measured = dpsi_rad is not None and math.isfinite(dpsi_sigma_rad)
+        self.refused_last = False
         if compass_rad is None or not math.isfinite(compass_rad):
             if self.heading_rad is None:
                 self.heading_rad, self.var_rad2 = 0.0, 0.0
@@ -137,13 +152,12 @@ class HeadingFilter:
             psi = self.heading_rad + float(dpsi_rad)
             var = self.var_rad2 + float(dpsi_sigma_rad) ** 2
         else:
-            held_var = self.var_rad2 + float(unmeasured_sigma_rad) ** 2
-            if self._glitch(wrap_angle(c - self.heading_rad), held_var + r):
-                self.var_rad2 = held_var  # a glitch, and no turn measured: the heading is held
+            if self._glitch(self.implausible(c, unmeasured_sigma_rad)):
+                self.var_rad2 += float(unmeasured_sigma_rad) ** 2  # a glitch, and no turn measured: the heading is held
                 return self.heading_rad
             psi, var = c, r  # nothing but the compass bridges this step
         innovation = wrap_angle(c - psi)
-        if measured and self._glitch(innovation, var + r):
+        if measured and self._glitch(self._beyond_gate(innovation, var + r)):
             self.heading_rad, self.var_rad2 = wrap_angle(psi), var  # the tokens' turn alone bridges this step
             return self.heading_rad
         if self._resync:  # refused gate_max_readings times in a row: the compass moved, follow it
@@ -275,16 +289,9 @@ class HeadingTracker:
             step_sigma: float | None = math.sqrt(2.0) * sigma_c  # difference of two readings
         else:
             step_sigma = None if has_compass else NO_COMPASS_STEP_SIGMA_RAD
-        if sigma_c > 0 and self._previous_rad is not None and self._is_glitch(compass_rad, dt_s):
-            step, step_sigma = 0.0, self.unmeasured_turn_sigma_rad(dt_s)  # the tokens alone find this turn
+        if sigma_c > 0 and self.filter.implausible(compass_rad, self.unmeasured_turn_sigma_rad(dt_s)):
+            step, step_sigma = 0.0, self.unmeasured_turn_sigma_rad(dt_s)  # a glitch: the tokens alone find this turn
         return HeadingPrior(compass_rad, previous, step, step_sigma)
-
-    def _is_glitch(self, compass_rad: float, dt_s: float | None) -> bool:
-        """Whether this reading is farther from the last heading than the vehicle can turn in ``dt_s``
-        (``compass_gate_sigmas``): its step would point the tokens' turn at a glitch."""
-        gate = self.odometry.compass_gate_sigmas
-        bound_rad2 = self.filter.var_rad2 + self.filter.compass_var_rad2 + self.unmeasured_turn_sigma_rad(dt_s) ** 2
-        return gate > 0 and wrap_angle(compass_rad - self._previous_rad) ** 2 > gate**2 * bound_rad2
 
     def update(self, prior: HeadingPrior, dpsi_rad: float | None, dpsi_sigma_rad: float,
                dt_s: float | None = None) -> HeadingEstimate:
@@ -293,7 +300,7 @@ class HeadingTracker:
         ``dt_s``: the step's duration, which bounds an unmeasured turn without a compass
         (:meth:`unmeasured_turn_sigma_rad`).
         """
-        var_before, refused_before = self.filter.var_rad2, self.filter.refused_readings
+        var_before = self.filter.var_rad2
         psi = self.filter.update(prior.compass_rad, dpsi_rad, dpsi_sigma_rad, self.unmeasured_turn_sigma_rad(dt_s))
         smoothing = self.odometry.compass_sigma_rad > 0 and prior.has_compass
         sigma = self.filter.sigma_rad if smoothing or not prior.has_compass else None
@@ -302,18 +309,17 @@ class HeadingTracker:
         else:
             obs_sigma = sigma
         walk = self._walk_var_rad2(prior.has_compass, var_before)
-        # a refused reading is not the next step's reference: the heading stands in for it
-        self._remember(psi, psi if self.filter.refused_readings > refused_before else prior.compass_rad)
+        self._remember(psi, prior.compass_rad)
         if walk is not None:
             return HeadingEstimate(psi, sigma, 0.0, walk)  # the whole heading error is eps's
         return HeadingEstimate(psi, sigma, obs_sigma)
 
     def skip(self, compass_rad: float, dt_s: float | None = None) -> HeadingEstimate:
         """An unusable frame: follow the compass alone (without one, the heading is held and its error grows)."""
-        var_before, refused_before = self.filter.var_rad2, self.filter.refused_readings
+        var_before = self.filter.var_rad2
         psi = self.filter.update(compass_rad, unmeasured_sigma_rad=self.unmeasured_turn_sigma_rad(dt_s))
         walk = self._walk_var_rad2(math.isfinite(compass_rad), var_before)
-        self._remember(psi, psi if self.filter.refused_readings > refused_before else compass_rad)
+        self._remember(psi, compass_rad)
         return HeadingEstimate(psi, None, None, walk)
 
     def unmeasured_turn_sigma_rad(self, dt_s: float | None) -> float:
@@ -336,5 +342,7 @@ class HeadingTracker:
         return max(self.filter.var_rad2 - var_before_rad2, 0.0)
 
     def _remember(self, heading_rad: float, compass_rad: float) -> None:
+        """The step's heading and its compass reading; a refused reading (a glitch) is not the next
+        step's reference: the heading stands in for it."""
         self._previous_rad = heading_rad
-        self._previous_compass_rad = compass_rad
+        self._previous_compass_rad = heading_rad if self.filter.refused_last else compass_rad

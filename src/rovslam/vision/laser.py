@@ -260,10 +260,9 @@ def _skirt_centre(excess: np.ndarray, labels: np.ndarray, mask: np.ndarray, offs
     ex = excess[v0:v1, u0:u1].astype(np.float64)
     outside = (ring > 0) & (grown == 0) & (others == 0)
     pedestal = float(np.median(ex[outside])) if np.any(outside) else 0.0
+    # total > 0: the ring's pixels outside every blob are below the threshold, the blob's own above it
     w = np.where((grown > 0) & (others == 0), np.maximum(ex - pedestal, 0.0), 0.0)
     total = w.sum()
-    if not total > 0:  # (cannot happen: the blob's own pixels are above the threshold, the pedestal below it)
-        w, total = ex * own, (ex * own).sum()
     vv, uu = np.indices(w.shape)
     return float((w * uu).sum() / total + u0), float((w * vv).sum() / total + v0)
 
