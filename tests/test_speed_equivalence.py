@@ -52,10 +52,30 @@ def _spot_candidates_reference(image_rgb, config, near_uv_px):
         close = np.any(np.linalg.norm(cents[:, None, :] - near[None, :, :], axis=2) <= config.search_radius_px, axis=1)
         ids, cents, weights = ids[close], cents[close], weights[close]
     if config.spot_skirt_px > 0 and len(ids):  # the centre with the fade beyond the threshold, labels of the whole window
-        cents = np.array([laser._skirt_centre(excess, labels, mask, (0, 0), int(i), int(area[i]), config.spot_skirt_px)
+        cents = np.array([_skirt_centre_reference(excess, labels, mask, int(i), int(area[i]), config.spot_skirt_px)
                           for i in ids]) + (u0, v0)
     order = np.lexsort((cents[:, 0], cents[:, 1], -weights)) if len(cents) else np.zeros(0, dtype=np.intp)  # ties: top, left
     return cents[order], weights[order]
+
+
+def _skirt_centre_reference(excess, labels, mask, label, area_px, skirt_px):
+    """The spot centre with its fade, over the whole window's labels (before the per-blob window)."""
+    r = int(np.ceil(skirt_px + np.sqrt(area_px / np.pi)))
+    reach = r + 2
+    blob = ((labels == label) & (mask > 0)).astype(np.uint8)
+    bu, bv, bw, bh = cv2.boundingRect(blob)
+    u0, v0 = max(0, bu - reach), max(0, bv - reach)
+    u1, v1 = min(excess.shape[1], bu + bw + reach), min(excess.shape[0], bv + bh + reach)
+    own, lab = blob[v0:v1, u0:u1], labels[v0:v1, u0:u1]
+    others = (lab != label) & (lab != 0)
+    grown = cv2.dilate(own, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    ring = cv2.dilate(own, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1)))
+    ex = excess[v0:v1, u0:u1].astype(np.float64)
+    outside = (ring > 0) & (grown == 0) & ~others
+    pedestal = float(np.median(ex[outside])) if np.any(outside) else 0.0
+    w = np.where((grown > 0) & ~others, np.maximum(ex - pedestal, 0.0), 0.0)
+    vv, uu = np.indices(w.shape)
+    return float((w * uu).sum() / w.sum() + u0), float((w * vv).sum() / w.sum() + v0)
 
 
 def _red_image(seed: int, n_blobs: int, h: int = 120, w: int = 160) -> np.ndarray:
@@ -101,6 +121,13 @@ def test_spot_candidates_find_the_blobs_of_a_known_image():
 def test_small_median_is_numpys(values):
     a = np.array(values)
     assert laser._median(a) == float(np.median(a))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(0, 255), min_size=1, max_size=60))
+def test_uint8_median_is_numpys(values):
+    a = np.array(values, np.uint8)
+    assert laser._median_u8(a) == float(np.median(a.astype(np.float64)))
 
 
 @pytest.mark.parametrize("shape", [(272, 360), (57, 91)])

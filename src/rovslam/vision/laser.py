@@ -216,7 +216,13 @@ def _spot_candidates(
         close = np.any(dist <= config.search_radius_px, axis=1)
         ids, cents, weights = ids[close], cents[close], weights[close]
     if config.spot_skirt_px > 0 and len(ids):
-        cents = np.array([_skirt_centre(excess, labels, mask, (bu0, bv0), int(i), int(area[i]), config.spot_skirt_px)
+        # each blob's bounding box (its thresholded pixels) in the label image's pixels
+        lo_u = np.full(n, mask.shape[1]); lo_v = np.full(n, mask.shape[0])
+        hi_u = np.full(n, -1); hi_v = np.full(n, -1)
+        np.minimum.at(lo_u, lab, pix[:, 0]); np.minimum.at(lo_v, lab, pix[:, 1])
+        np.maximum.at(hi_u, lab, pix[:, 0]); np.maximum.at(hi_v, lab, pix[:, 1])
+        cents = np.array([_skirt_centre(excess, labels, mask, (bu0, bv0), int(i), int(area[i]), config.spot_skirt_px,
+                                        (int(lo_u[i]), int(lo_v[i]), int(hi_u[i]) + 1, int(hi_v[i]) + 1))
                           for i in ids]) + (u0, v0)
     # Strongest first; equal weights (saturated spots of the same size) top to bottom, then left to
     # right: OpenCV's labels follow its block scan, whose order changes with the crop's offset.
@@ -225,7 +231,7 @@ def _spot_candidates(
 
 
 def _skirt_centre(excess: np.ndarray, labels: np.ndarray, mask: np.ndarray, offset: tuple[int, int],
-                  label: int, area_px: int, skirt_px: float) -> tuple[float, float]:
+                  label: int, area_px: int, skirt_px: float, box: tuple[int, int, int, int]) -> tuple[float, float]:
     """``(u, v)`` centre of blob ``label``, weighing its red dominance beyond the threshold too.
 
     A spot's edge fades below ``min_red_excess``: where that fade is lopsided (a video codec's
@@ -237,34 +243,50 @@ def _skirt_centre(excess: np.ndarray, labels: np.ndarray, mask: np.ndarray, offs
     a 2-px ring just outside (a reddish seabed), other blobs' pixels are left out.
 
     ``excess``: ``(h, w) uint8`` red dominance of the search window; ``labels`` / ``mask``:
-    the blobs' labels and thresholded pixels on its sub-window starting at ``offset`` (u, v).
-    Returns the centre in the search window's pixels.
+    the blobs' labels and thresholded pixels on its sub-window starting at ``offset`` (u, v);
+    ``box``: ``(u0, v0, u1, v1)`` the blob's thresholded pixels' bounding box in that
+    sub-window (end exclusive). Returns the centre in the search window's pixels.
     """
     r = int(math.ceil(skirt_px + math.sqrt(area_px / math.pi)))
     ou, ov = offset
-    blob = ((labels == label) & (mask > 0)).astype(np.uint8)
-    bu, bv, bw, bh = cv2.boundingRect(blob)
     reach = r + 2
-    u0, v0 = max(0, ou + bu - reach), max(0, ov + bv - reach)
-    u1, v1 = min(excess.shape[1], ou + bu + bw + reach), min(excess.shape[0], ov + bv + bh + reach)
-    own = np.zeros((v1 - v0, u1 - u0), np.uint8)
-    others = np.zeros_like(own)
-    # The label image covers only its sub-window: copy the overlap into this blob's window.
+    u0, v0 = max(0, ou + box[0] - reach), max(0, ov + box[1] - reach)
+    u1, v1 = min(excess.shape[1], ou + box[2] + reach), min(excess.shape[0], ov + box[3] + reach)
+    # The label image covers only its sub-window: its overlap with this blob's window.
     lu0, lv0 = max(u0, ou), max(v0, ov)
     lu1, lv1 = min(u1, ou + labels.shape[1]), min(v1, ov + labels.shape[0])
     lab = labels[lv0 - ov:lv1 - ov, lu0 - ou:lu1 - ou]
-    own[lv0 - v0:lv1 - v0, lu0 - u0:lu1 - u0] = blob[lv0 - ov:lv1 - ov, lu0 - ou:lu1 - ou]
+    own = np.zeros((v1 - v0, u1 - u0), np.uint8)
+    others = np.zeros((v1 - v0, u1 - u0), bool)
+    own[lv0 - v0:lv1 - v0, lu0 - u0:lu1 - u0] = (lab == label) & (mask[lv0 - ov:lv1 - ov, lu0 - ou:lu1 - ou] > 0)
     others[lv0 - v0:lv1 - v0, lu0 - u0:lu1 - u0] = (lab != label) & (lab != 0)
-    grown = cv2.dilate(own, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
-    ring = cv2.dilate(own, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1)))
-    ex = excess[v0:v1, u0:u1].astype(np.float64)
-    outside = (ring > 0) & (grown == 0) & (others == 0)
-    pedestal = float(np.median(ex[outside])) if np.any(outside) else 0.0
+    grown = cv2.dilate(own, _disc(r)) > 0
+    ring = cv2.dilate(own, _disc(reach)) > 0
+    exu8 = excess[v0:v1, u0:u1]
+    ex = exu8.astype(np.float64)
+    outside = exu8[ring & ~grown & ~others]
+    pedestal = _median_u8(outside) if outside.size else 0.0
     # total > 0: the ring's pixels outside every blob are below the threshold, the blob's own above it
-    w = np.where((grown > 0) & (others == 0), np.maximum(ex - pedestal, 0.0), 0.0)
+    w = np.where(grown & ~others, np.maximum(ex - pedestal, 0.0), 0.0)
     total = w.sum()
-    vv, uu = np.indices(w.shape)
+    uu, vv = np.arange(w.shape[1], dtype=float), np.arange(w.shape[0], dtype=float)[:, None]  # broadcast: the pixels' u, v
     return float((w * uu).sum() / total + u0), float((w * vv).sum() / total + v0)
+
+
+@lru_cache(maxsize=64)
+def _disc(radius_px: int) -> np.ndarray:
+    """``(2r+1, 2r+1) uint8`` OpenCV's elliptic structuring element of radius ``radius_px``."""
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
+
+
+def _median_u8(values: np.ndarray) -> float:
+    """The median of ``(N,) uint8`` values (N >= 1) as ``np.median`` gives it, exactly (integers: no rounding)."""
+    n = values.size
+    k = n // 2
+    if n % 2:
+        return float(np.partition(values, k)[k])
+    part = np.partition(values, (k - 1, k))
+    return (int(part[k - 1]) + int(part[k])) / 2.0
 
 
 def detect_laser_spots(
