@@ -93,6 +93,7 @@ def test_laser_figures_follow_the_scale():
     assert las.search_radius_px == pytest.approx(4 * cfg.search_radius_px)
     assert las.max_spot_area_px == 16 * cfg.max_spot_area_px and las.min_spot_area_px == cfg.min_spot_area_px
     assert las.spot_sigma_px == pytest.approx(4 * cfg.spot_sigma_px)
+    assert las.faint_search_radius_px == pytest.approx(4 * cfg.faint_search_radius_px)
     assert ProcessingScale.for_camera(paper_camera(), 1.0).laser_config(cfg) is cfg
 
 

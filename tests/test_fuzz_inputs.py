@@ -74,9 +74,10 @@ def test_sonar_readings_outside_the_range_are_dropped_and_recorded(shared, tmp_p
     assert [x["index"] for x in rejected] == [2, 4]
     assert "1e+06 m outside the plausible range [0.05, 30] m" in rejected[0]["reason"]
     assert "sonar reading rejected, frame 2" in res.stderr
-    # The rejected frames fall back to the fixed altitude; the others use the sonar (1.3 m).
+    # The rejected frames hold the altitude filtered from the readings before (not the assumed one);
+    # the others use the sonar (1.3 m).
     src = list(r.trajectory["altitude_source"])
-    assert src[2] == src[4] == "fixed" and src[1] == src[3] == "sonar"
+    assert src[2] == src[4] == "held" and src[1] == src[3] == "sonar"
     np.testing.assert_allclose(r.trajectory["altitude_m"], 1.3)
 
 

@@ -21,6 +21,7 @@ from rovslam.errors import InvalidArgumentError, InvalidMeasurementError
 from rovslam.vision.laser import (
     LaserAltimeter,
     detect_laser_spots,
+    find_faint_spots,
     fuse_altitude,
     predict_spot_pixels,
     red_excess,
@@ -225,14 +226,17 @@ def test_laser_input_checks():
     assert dataclasses.is_dataclass(fuse_altitude(np.zeros(0), np.zeros(0), None, 1.0, CFG))
 
 
-def test_spots_far_from_the_prediction_are_found_by_the_altitude_search():
-    # Fallback 2.5 m, truth 0.6 m: the spots are ~70 px from where 2.5 m puts them.
-    rgb, uv = _frame(0.6, seed=14)
-    alt = LaserAltimeter(CAM, LASERS, CFG, fallback_altitude_m=2.5)
+@pytest.mark.parametrize("faint, truth_m, fallback_m, rel", [(False, 0.6, 2.5, 0.01), (True, 1.31, 1.8, 0.005)],
+                         ids=["bright", "faint"])
+def test_spots_far_from_the_prediction_are_found_by_the_altitude_search(faint, truth_m, fallback_m, rel):
+    # bright: the spots are ~70 px from where the fallback puts them; faint (no spot seen yet): 11 px outside
+    # the faint search around their prediction
+    rgb = _faint_frame(truth_m, seed=4)[0] if faint else _frame(truth_m, seed=14)[0]
+    alt = LaserAltimeter(CAM, LASERS, CFG, fallback_altitude_m=fallback_m)
     est = alt.measure(rgb)
     assert est.source == "laser" and est.n_spots == 4
-    assert est.altitude_m == pytest.approx(0.6, rel=0.01)
-    assert alt.last_altitude_m == pytest.approx(0.6, rel=0.01)
+    assert est.altitude_m == pytest.approx(truth_m, rel=rel)
+    assert alt.last_altitude_m == pytest.approx(truth_m, rel=rel)
 
 
 def _smeared_spot(centre_uv, pedestal: int = 0, neighbour_uv=None) -> np.ndarray:
@@ -278,3 +282,44 @@ def test_the_spot_centre_ignores_a_red_pedestal_and_a_neighbouring_blob():
     truth = _light_centroid(_smeared_spot(centre), pedestal=0)
     got = detect_laser_spots(img, np.array([centre]), CFG)[0]
     assert np.all(np.abs(got - truth) < 0.05), (got, truth)
+
+
+def _faint_frame(altitude_m: float, seed: int, peak: float = 42.0, extra_uv=()) -> tuple[np.ndarray, np.ndarray]:
+    """A seabed frame with faint laser spots: Gaussian (sigma 0.9 px) red light whose dominance peaks near
+    ``peak``, a quarter of it bleeding into green (the simulator's coral preset), never 3 px above 60."""
+    rgb = seabed_frame(SPEC, (5.0 * seed, 2.0 * seed), seed=seed).astype(np.float64)
+    uv = laser_hit_pixels(CAM, LASERS, altitude_m)
+    vv, uu = np.indices(rgb.shape[:2], dtype=np.float64)
+    light = np.zeros(rgb.shape[:2])
+    for cu, cv in list(uv) + list(extra_uv):
+        light += np.exp(-((uu - cu) ** 2 + (vv - cv) ** 2) / (2 * 0.9**2))
+    excess_before = rgb[..., 0] - np.maximum(rgb[..., 1], rgb[..., 2])
+    assert excess_before.max() < 0  # the seabed itself has no red dominance
+    base = np.maximum(rgb[..., 1], rgb[..., 2]) - rgb[..., 0]  # lift red to the others' level, then the light
+    rgb[..., 0] += np.where(light > 0.02, base, 0.0) + peak / 0.75 * light
+    rgb[..., 1] += 0.25 * peak / 0.75 * light
+    return np.clip(np.rint(rgb), 0, 255).astype(np.uint8), uv
+
+
+def test_faint_spots_near_their_prediction_are_found():
+    rgb, uv = _faint_frame(1.31, seed=3)
+    assert np.all(np.isnan(detect_laser_spots(rgb, uv, CFG)))  # below min_red_excess: the bright pass sees none
+    found = find_faint_spots(rgb, uv + [[0.8, -1.1]], detect_laser_spots(rgb, uv, CFG), CFG)
+    assert np.all(np.abs(found - uv) < 0.15), found - uv
+    est = LaserAltimeter(CAM, LASERS, CFG, 1.31).measure(rgb)
+    assert est.source == "laser" and est.n_spots == 4
+    assert est.altitude_m == pytest.approx(1.31, rel=0.005)
+    off = dataclasses.replace(CFG, faint_red_excess=0.0)
+    assert LaserAltimeter(CAM, LASERS, off, 1.31).measure(rgb).source == "fixed"  # control: as before
+
+
+def test_a_faint_peak_with_red_beside_it_is_no_spot():
+    uv = laser_hit_pixels(CAM, LASERS, 1.31)
+    # a second faint blob 5 px from laser 0's (a red sponge, a reflection): which one is the spot?
+    rgb, _ = _faint_frame(1.31, seed=5, extra_uv=[uv[0] + [5.0, 0.0]])
+    found = find_faint_spots(rgb, uv, np.full((4, 2), np.nan), CFG)
+    assert np.all(np.isnan(found[0]))
+    assert np.all(np.abs(found[1:] - uv[1:]) < 0.15)
+    # a peak below faint_red_excess is noise, not a spot
+    dim, _ = _faint_frame(1.31, seed=5, peak=12.0)
+    assert np.all(np.isnan(find_faint_spots(dim, uv, np.full((4, 2), np.nan), CFG)))

@@ -270,6 +270,10 @@ class LaserConfig(_Checked):
     # a spot's centre weighs its red beyond the threshold this far (plus its radius) around the blob:
     # a codec's lopsided smear moved the thresholded centroid (0: the thresholded pixels only, before)
     spot_skirt_px: float = _num(3.0, ge=0)
+    # a spot missed by min_red_excess is searched this close to its prediction, its blob at half its peak,
+    # when the peak reaches faint_red_excess (0: no faint spots, as before)
+    faint_red_excess: float = _num(20.0, ge=0, le=255)
+    faint_search_radius_px: float = _num(8.0, gt=0)
     sonar_sigma_m: float = _num(0.05, gt=0)
     fixed_altitude_sigma_m: float = _num(0.10, gt=0)
     min_altitude_m: float = _num(0.05, gt=0)  # altitudes (laser or sonar) outside this range are rejected

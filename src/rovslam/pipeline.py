@@ -51,7 +51,7 @@ from rovslam.vision.filters import (
     remove_specks,
     template_channel,
 )
-from rovslam.vision.laser import AltitudeEstimate, LaserAltimeter
+from rovslam.vision.laser import SOURCE_FIXED, SOURCE_HELD, AltitudeEstimate, LaserAltimeter
 from rovslam.vision.scale import processing_scale
 from rovslam.vision.templates import Template, extract_templates, inhibit_boxes, inhibition_mask
 from rovslam.vision.tracking import TokenTracker, TokenTracks, match_template
@@ -327,14 +327,30 @@ class SlamPipeline:
     def _measure_altitude(self, frame: Frame, att: tuple[float, float]) -> AltitudeEstimate:
         """Step 1: laser spots -> image depth Z, fused with the sonar, filtered over time (not an assumed value)."""
         alt = self.altimeter.measure(frame.image, frame.sonar_altitude_m, *att)
-        if alt.source == "fixed":
-            return alt
+        if alt.source == SOURCE_FIXED:
+            return self._held_altitude(frame.t_s, alt)
         z, sigma = self.altitude.update(frame.t_s, alt.altitude_m, alt.sigma_m)
         if self.ekf.altitude_bias_sigma_m == 0.0:
             # Without the filter's altitude-offset state b: over relief the lasers (or the sonar) range
             # to the seabed under their few points, not to the mean seabed; that spread is Z's error too.
             sigma = math.sqrt(sigma * sigma + self._terrain_sigma_m(z, alt) ** 2)
         return dataclasses.replace(alt, altitude_m=z, sigma_m=sigma)
+
+    def _held_altitude(self, t_s: float, assumed: AltitudeEstimate) -> AltitudeEstimate:
+        """A frame with no laser spot and no sonar reading: the altitude filter's prediction, while it is surer.
+
+        Between two readings the vehicle's altitude is what the filter predicts, its sigma growing
+        with the vertical acceleration; the assumed altitude (``[vehicle] altitude_m``, else the
+        paper's) takes over only before the first reading or once the prediction is less sure than
+        it (``[laser] fixed_altitude_sigma_m``).
+        """
+        pred = self.altitude.predict(t_s)
+        if pred is None or not pred[1] < assumed.sigma_m:
+            return assumed
+        z, sigma = pred
+        if self.ekf.altitude_bias_sigma_m == 0.0:
+            sigma = math.sqrt(sigma * sigma + self._terrain_sigma_m(z, assumed) ** 2)
+        return dataclasses.replace(assumed, altitude_m=z, sigma_m=sigma, source=SOURCE_HELD)
 
     def _terrain_sigma_m(self, altitude_m: float, alt: AltitudeEstimate) -> float:
         """How far the relief under the altimeter's points strays from the mean seabed (from the tokens' parallax)."""

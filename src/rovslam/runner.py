@@ -41,7 +41,7 @@ from rovslam.errors import (ConfigError, InvalidArgumentError, OutputError, Rovs
 from rovslam.io.camera_file import CAMERA_TABLES
 from rovslam.io.results import GalleryWriter, ResultWriter, describe_os_error, prepare_output_folder
 from rovslam.io.sequence import Frame, Sequence, open_sequence
-from rovslam.io.source import ASSUMED_ALTITUDE, TOKENS_ONLY, InputOptions, SourceDescription, option_flag
+from rovslam.io.source import ASSUMED_ALTITUDE, HELD_ALTITUDE, TOKENS_ONLY, InputOptions, SourceDescription, option_flag
 from rovslam.pipeline import FrameResult, SlamPipeline
 from rovslam.vision.scale import processing_scale
 
@@ -409,7 +409,7 @@ class SourceTally:
             return
         alt_input = self.description.altitude_input or "sonar"
         alt = {"laser": "laser", "laser+sonar": f"laser+{alt_input}", "sonar": alt_input,
-               "fixed": ASSUMED_ALTITUDE}.get(res.altitude_source, res.altitude_source)
+               "fixed": ASSUMED_ALTITUDE, "held": HELD_ALTITUDE}.get(res.altitude_source, res.altitude_source)
         self.altitude[alt] = self.altitude.get(alt, 0) + 1
         has_heading = math.isfinite(frame.heading_rad) and self.description.heading_input is not None
         head = (self.description.heading_input or "compass") if has_heading else TOKENS_ONLY
@@ -423,7 +423,9 @@ class SourceTally:
             return {"source": main, "frames": dict(counts),
                     "detail": "; ".join(f"{k}: {details[k]}" for k in counts if details.get(k))}
 
-        alt_details = {"laser": "laser spots of the camera file's [[laser]] rig", ASSUMED_ALTITUDE: self.fallback_detail}
+        alt_details = {"laser": "laser spots of the camera file's [[laser]] rig", ASSUMED_ALTITUDE: self.fallback_detail,
+                       HELD_ALTITUDE: "no laser spot and no altimeter reading in the frame: the altitude filter's "
+                                      "prediction from the readings before (its sigma growing)"}
         if d.altitude_input:
             alt_details[d.altitude_input] = d.altitude_detail
             alt_details[f"laser+{d.altitude_input}"] = f"laser spots fused with {d.altitude_detail}"

@@ -19,6 +19,7 @@ ALTITUDE_INPUTS = ("sonar", "navigation")
 HEADING_INPUTS = ("compass", "navigation")
 TOKENS_ONLY = "tokens only (no compass)"
 ASSUMED_ALTITUDE = "assumed constant"
+HELD_ALTITUDE = "held between readings"
 
 
 @dataclass(frozen=True)

@@ -34,8 +34,12 @@ SOURCE_LASER = "laser"
 SOURCE_LASER_SONAR = "laser+sonar"
 SOURCE_SONAR = "sonar"
 SOURCE_FIXED = "fixed"
+SOURCE_HELD = "held"  # no reading in this frame: the altitude filter's prediction (rovslam.altitude)
 
 _ONES3 = np.ones((3, 3), np.uint8)
+# A faint spot's blob: its pixels at or above this share of its peak (at half, a 3 px spot has too few
+# pixels for min_spot_area_px: 58 % of the faint spots found against 84 % at 0.3, as accurately)
+_FAINT_BLOB_FRACTION = 0.3
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,7 +50,8 @@ class AltitudeEstimate:
     ----------
     altitude_m: vertical distance camera -> seabed.
     sigma_m: its standard deviation.
-    source: ``"laser"``, ``"laser+sonar"``, ``"sonar"`` or ``"fixed"``.
+    source: ``"laser"``, ``"laser+sonar"``, ``"sonar"`` or ``"fixed"`` (the pipeline adds ``"held"``:
+        the altitude filter's prediction between readings).
     spots_uv_px: ``(K, 2)`` every laser spot detected in the frame (outliers included: they
         are still bright blobs to keep templates away from).
     n_spots: number of spots that agreed and were used for the laser altitude.
@@ -338,6 +343,71 @@ def detect_laser_spots(
     return out
 
 
+def find_faint_spots(image_rgb: np.ndarray, predicted_uv_px: np.ndarray, spots_uv_px: np.ndarray,
+                     config: LaserConfig) -> np.ndarray:
+    """The spots :func:`detect_laser_spots` missed, searched close to their prediction with a threshold of their own.
+
+    A faint spot (a dim or green-bleeding laser, turbid water, a video codec's chroma) may peak
+    below ``min_red_excess``, or have too few pixels above it (94 % of the simulator's faint,
+    green-bleeding spots). Within ``faint_search_radius_px`` of a missing spot's prediction the
+    strongest red dominance is its peak; when the peak is at least ``faint_red_excess``, the blob
+    is the pixels at or above 30 % of it (and ``faint_red_excess``; 8-connected,
+    ``min_spot_area_px`` to ``max_spot_area_px``), centred as a bright spot is. The spot is
+    refused when anything else in the window is as red (more than one such blob within the
+    radius: a reddish seabed, not a laser), or when its blob is more than half a bright spot's
+    area limit.
+
+    ``predicted_uv_px``: ``(L, 2)``; ``spots_uv_px``: ``(L, 2)`` the spots found, NaN where missing.
+    Returns a copy of ``spots_uv_px`` with the faint spots filled in.
+    """
+    out = np.array(spots_uv_px, dtype=np.float64, copy=True)
+    if config.faint_red_excess <= 0:
+        return out
+    h, w = image_rgb.shape[:2]
+    radius = float(config.faint_search_radius_px)
+    reach = int(math.ceil(radius + math.sqrt(config.max_spot_area_px / math.pi))) + 2
+    found = out[np.all(np.isfinite(out), axis=1)]
+    missing = [i for i in np.flatnonzero(~np.all(np.isfinite(out), axis=1)) if np.all(np.isfinite(predicted_uv_px[i]))]
+    if not missing:
+        return out
+    # One red dominance image over all the missing spots' windows: most frames without a spot have
+    # nothing as red as faint_red_excess anywhere near them (the water takes the red), and stop here.
+    near_all = np.asarray(predicted_uv_px, dtype=np.float64)[missing]
+    bu0, bv0 = (max(0, int(math.floor(c)) - reach) for c in near_all.min(axis=0))
+    bu1, bv1 = (min(n, int(math.ceil(c)) + reach + 1) for c, n in zip(near_all.max(axis=0), (w, h)))
+    if bu0 >= bu1 or bv0 >= bv1:
+        return out
+    excess_all = red_excess(image_rgb[bv0:bv1, bu0:bu1])
+    if cv2.minMaxLoc(excess_all)[1] < config.faint_red_excess:
+        return out
+    for i in missing:
+        pred = predicted_uv_px[i]
+        u0, v0 = max(0, int(math.floor(pred[0])) - reach), max(0, int(math.floor(pred[1])) - reach)
+        u1, v1 = min(w, int(math.ceil(pred[0])) + reach + 1), min(h, int(math.ceil(pred[1])) + reach + 1)
+        if u0 >= u1 or v0 >= v1:
+            continue
+        excess = excess_all[v0 - bv0:v1 - bv0, u0 - bu0:u1 - bu0]
+        vv, uu = np.ogrid[v0:v1, u0:u1]
+        near = (uu - pred[0]) ** 2 + (vv - pred[1]) ** 2 <= radius * radius
+        for f in found:  # a bright spot's light is not a faint one
+            near &= (uu - f[0]) ** 2 + (vv - f[1]) ** 2 > radius * radius
+        if not near.any():
+            continue
+        peak = int(excess[near].max())
+        if peak < config.faint_red_excess:
+            continue
+        thr = max(config.faint_red_excess, math.ceil(_FAINT_BLOB_FRACTION * peak))
+        local = replace(config, min_red_excess=float(thr),
+                        search_radius_px=radius, max_spot_area_px=max(config.min_spot_area_px,
+                                                                       config.max_spot_area_px // 2))
+        cents, _ = _spot_candidates(np.ascontiguousarray(image_rgb[v0:v1, u0:u1]), local,
+                                    np.asarray(pred - (u0, v0), dtype=np.float64)[None, :])
+        if len(cents) == 1:
+            out[i] = cents[0] + (u0, v0)
+            found = np.vstack([found, out[i]])
+    return out
+
+
 def triangulate_points(
     camera: Camera,
     lasers: Sequence[LaserPointer],
@@ -615,6 +685,8 @@ class LaserAltimeter:
         self.config = config
         self.fallback_altitude_m = float(fallback_altitude_m)
         self._last_altitude_m = float(fallback_altitude_m)
+        self._spots_seen = False  # any laser spot used yet (the spot prediction no longer the fallback's)
+        self._frames = 0  # frames searched for spots
 
     @property
     def last_altitude_m(self) -> float:
@@ -623,6 +695,8 @@ class LaserAltimeter:
 
     def reset(self) -> None:
         self._last_altitude_m = self.fallback_altitude_m
+        self._spots_seen = False
+        self._frames = 0
 
     def measure(self, image_rgb: np.ndarray, sonar_altitude_m: float | None = None,
                 roll_rad: float = 0.0, pitch_rad: float = 0.0) -> AltitudeEstimate:
@@ -648,17 +722,34 @@ class LaserAltimeter:
                                 self.fallback_altitude_m, cfg)
         else:
             est = self._measure_at(img, self._last_altitude_m, sonar_altitude_m, roll_rad, pitch_rad)
-            if est.n_spots < len(self.lasers) and len(detect_laser_spots(img, None, cfg)) > len(est.spots_uv_px):
+            if est.n_spots < len(self.lasers) and (
+                    len(detect_laser_spots(img, None, cfg)) > len(est.spots_uv_px) or self._faint_ladder_due(img)):
                 est = self._search_altitudes(img, est, sonar_altitude_m, roll_rad, pitch_rad)
+            self._frames += 1
+        if est.n_spots:
+            self._spots_seen = True
         if est.source != SOURCE_FIXED:
             self._last_altitude_m = est.altitude_m
         return est if sonar_rejected is None else replace(est, sonar_rejected=sonar_rejected)
+
+    def _faint_ladder_due(self, img: np.ndarray) -> bool:
+        """Whether to search faint spots over the altitude ladder: until the first spot, every 5th frame,
+        when anything in the frame is as red as ``faint_red_excess``.
+
+        Before any spot the prediction is the fallback altitude's, which may be far from the
+        vehicle's: a faint spot is searched only near its prediction (bright blobs anywhere
+        start the ladder themselves). Every 5th frame bounds the cost when the lasers never show.
+        """
+        cfg = self.config
+        if cfg.faint_red_excess <= 0 or self._spots_seen or self._frames % 5:
+            return False
+        return cv2.minMaxLoc(red_excess(img))[1] >= cfg.faint_red_excess
 
     def _measure_at(self, img: np.ndarray, predict_altitude_m: float, sonar_altitude_m: float | None,
                     roll_rad: float, pitch_rad: float) -> AltitudeEstimate:
         cfg = self.config
         pred = predict_spot_pixels(self.camera, self.lasers, predict_altitude_m, roll_rad, pitch_rad)
-        spots = detect_laser_spots(img, pred, cfg)
+        spots = find_faint_spots(img, pred, detect_laser_spots(img, pred, cfg), cfg)
         pts, sig = _points_and_sigmas(self.camera, self.lasers, spots, cfg.spot_sigma_px,
                                       roll_rad, pitch_rad, cfg.min_altitude_m, cfg.max_altitude_m)
         return fuse_altitude(pts[:, 2], sig, sonar_altitude_m, self.fallback_altitude_m, cfg,

@@ -125,7 +125,7 @@ class ProcessingScale:
         return (uv + 0.5) * np.array([self.scale_u, self.scale_v]) - 0.5
 
     def laser_config(self, config: LaserConfig) -> LaserConfig:
-        """The laser figures for the full frame: search radius and spot noise / s, largest spot area / s^2.
+        """The laser figures for the full frame: search radii and spot noise / s, largest spot area / s^2.
 
         The spots are found in the full frame (their centroids are finer there, and only a
         window around the predicted spots is read). The smallest area is left as it is: it
@@ -137,6 +137,7 @@ class ProcessingScale:
         s = self.scale
         return dataclasses.replace(
             config, search_radius_px=config.search_radius_px / s, spot_sigma_px=config.spot_sigma_px / s,
+            faint_search_radius_px=config.faint_search_radius_px / s,
             max_spot_area_px=max(config.min_spot_area_px, int(round(config.max_spot_area_px / (s * s)))),
         )
 

@@ -25,7 +25,7 @@ from rovslam.viz.runinfo import SourceShare, altitude_sources
 
 DPI = 110
 _SOURCE_COLOURS = {"laser": "tab:red", "laser+sonar": "tab:purple", "sonar": "tab:blue", "fixed": "tab:gray",
-                   "none": "k"}
+                   "held": "tab:orange", "none": "k"}
 
 
 def pyplot():

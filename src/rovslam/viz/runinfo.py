@@ -22,7 +22,7 @@ from rovslam.io.results import RunResults
 from rovslam.io.sequence import read_text
 
 # Altitude sources written by the laser altimeter (rovslam.vision.laser): measured or assumed.
-MEASURED_ALTITUDE = ("laser", "laser+sonar", "sonar")
+MEASURED_ALTITUDE = ("laser", "laser+sonar", "sonar", "held")  # held: predicted from the readings between them
 ASSUMED_ALTITUDE = ("fixed", "none")
 
 
@@ -81,6 +81,8 @@ def altitude_sources(res: RunResults) -> SourceShare:
             parts.append(f"ASSUMED constant {np.nanmedian(fixed):.2f} m ({100 * f:.0f} %)")
         elif name == "none":
             parts.append(f"held over skipped frames ({100 * f:.0f} %)")
+        elif name == "held":
+            parts.append(f"held between readings ({100 * f:.0f} %)")
         else:
             parts.append(f"{name} ({100 * f:.0f} %)")
     return SourceShare(fr, assumed, ", ".join(parts))
