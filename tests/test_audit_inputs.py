@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import errno
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -451,3 +452,49 @@ def test_d9h_a_missing_summary_is_not_called_a_summary_naming_no_sequence(dive, 
 def test_d9k_a_folder_given_as_configuration_is_called_a_folder(dive, tmp_path):
     _one_error_line(runner.invoke(app, ["run", str(dive[0]), "-c", str(tmp_path), "--out", str(tmp_path / "o"), "-q"]),
                     f"{tmp_path}: is a folder; -c needs a TOML file")
+
+
+# --------------------------------------------------------------------------- D10: a gap in the frame times
+
+
+def test_a_gap_in_the_frame_times_is_a_warning_with_its_length(dive, tmp_path):
+    seq, _ = dive
+    gapped = tmp_path / "seq"
+    shutil.copytree(seq, gapped)
+    rows = list(csv.DictReader(open(gapped / "frames.csv")))
+    for r in rows[30:]:
+        r["t_s"] = str(float(r["t_s"]) + 1000.0)  # a clock jump of 1000 s between frames 29 and 30
+    with open(gapped / "frames.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    res = runner.invoke(app, ["run", str(gapped), "--out", str(tmp_path / "out"), "-q"])
+    assert res.exit_code == 0, res.output
+    assert "1 gap(s) in the frame times, the longest 1000.2 s before frame 30" in " ".join(res.output.split())
+    gaps = json.loads((tmp_path / "out" / "summary.json").read_text())["time_gaps"]
+    assert [(g["frame"], round(g["gap_s"], 3)) for g in gaps["gaps"]] == [(30, 1000.2)]
+    # the dive as it was: no gap, no warning
+    plain = json.loads((dive[1] / "summary.json").read_text())["time_gaps"]
+    assert plain == {"gaps": [], "warnings": []}
+
+
+# --------------------------------------------------------------------------- D10: a laser pointer out of view
+
+
+def test_a_laser_whose_spot_is_never_in_the_image_is_named(dive, tmp_path):
+    seq, _ = dive
+    moved = tmp_path / "seq"
+    shutil.copytree(seq, moved)
+    toml = (moved / "sequence.toml").read_text()
+    first = toml.index("origin_m = [")
+    start = toml.index("0.05", first)
+    (moved / "sequence.toml").write_text(toml[:start] + "5.0" + toml[start + 4:])  # 5 m forward: millimetres meant?
+    res = runner.invoke(app, ["run", str(moved), "--out", str(tmp_path / "out"), "-q"])
+    assert res.exit_code == 0, res.output
+    text = " ".join(res.output.split())
+    assert "the spot of [[laser]] #1 (origin_m [5.0, 0.05, 0.0])" in text and "never falls inside the image" in text
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert any("[[laser]] #1" in w for w in summary["sources"]["warnings"])
+    # the rig as simulated: every spot is in view at some altitude, no such warning
+    plain = json.loads((dive[1] / "summary.json").read_text())
+    assert not any("[[laser]]" in w for w in plain["sources"]["warnings"])

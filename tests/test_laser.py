@@ -22,6 +22,7 @@ from rovslam.vision.laser import (
     LaserAltimeter,
     detect_laser_spots,
     find_faint_spots,
+    lasers_never_in_view,
     fuse_altitude,
     predict_spot_pixels,
     red_excess,
@@ -323,3 +324,15 @@ def test_a_faint_peak_with_red_beside_it_is_no_spot():
     # a peak below faint_red_excess is noise, not a spot
     dim, _ = _faint_frame(1.31, seed=5, peak=12.0)
     assert np.all(np.isnan(find_faint_spots(dim, uv, np.full((4, 2), np.nan), CFG)))
+
+
+def test_lasers_never_in_view_names_a_pointer_mounted_in_the_wrong_units():
+    assert lasers_never_in_view(CAM, LASERS, CFG.min_altitude_m, CFG.max_altitude_m) == []
+    far = (LaserPointer((5.0, 0.05, 0.0)),) + LASERS[1:]  # 5 m forward: millimetres for metres
+    assert lasers_never_in_view(CAM, far, CFG.min_altitude_m, CFG.max_altitude_m) == [0]
+    # a beam tilted 30 degrees forward is outside the 360x272 image (a half-angle of 9.6 degrees) at any altitude
+    assert lasers_never_in_view(CAM, (LaserPointer((0.05, 0.05, 0.0), (0.5, 0.0, 0.866)),), 0.05, 30.0) == [0]
+    # one converging on the axis (1.6 degrees) enters the image from 0.34 m: in view
+    converging = (LaserPointer((0.05, 0.05, 0.0), (-0.02, -0.02, 1.0)),)
+    assert lasers_never_in_view(CAM, converging, 0.05, 30.0) == []
+    assert lasers_never_in_view(CAM, converging, 0.05, 0.3) == [0]

@@ -342,6 +342,7 @@ def run_sequence(
         run.summary_base["camera_file"] = str(Path(cam).resolve()) if cam is not None else None
         run.summary_base["inputs"] = opts.to_dict()
         run.fallback_detail = _fallback_detail(seq.info, where, pipe.altimeter_fallback)
+        run.rig_note = _rig_note(seq.info, config, where)
         return run.execute(max_frames, on_frame, on_start, on_frame_image)
 
 
@@ -350,6 +351,19 @@ def _fallback_detail(info: Any, where: str, altitude_m: float) -> str:
     if info.fixed_altitude_m is not None:
         return f"{altitude_m:g} m, [vehicle] altitude_m of {where}"
     return f"{altitude_m:g} m, [laser] assumed_altitude_m of the configuration (no [vehicle] altitude_m in {where})"
+
+
+def _rig_note(info: Any, config: RunConfig, where: str) -> str:
+    """A warning for the pointers whose spot never falls inside the image ("" if none)."""
+    from rovslam.vision.laser import lasers_never_in_view
+
+    lost = lasers_never_in_view(info.camera, info.lasers, config.laser.min_altitude_m, config.laser.max_altitude_m)
+    if not lost:
+        return ""
+    names = ", ".join(f"#{i + 1} (origin_m {list(info.lasers[i].origin_m)})" for i in lost)
+    return (f"the spot of [[laser]] {names} of {where} never falls inside the image at any altitude from "
+            f"{config.laser.min_altitude_m:g} to {config.laser.max_altitude_m:g} m, so it gives no altitude: origin_m "
+            "is in metres (forward, starboard, down from the camera centre) and direction along the beam; check both")
 
 
 # The map corrects the odometry only where its landmarks are found again: below this share of the
@@ -390,6 +404,48 @@ class MapTally:
                 "found_fraction": self.found / self.in_view if self.in_view else None}
 
 
+# A frame interval longer than this many times the dive's median (and than TIME_GAP_MIN_S) is a gap.
+TIME_GAP_RATIO = 10.0
+TIME_GAP_MIN_S = 1.0
+
+
+class TimeGaps:
+    """Frame intervals far longer than the dive's usual one (``summary.json`` ``time_gaps``).
+
+    Across a gap the filter predicts with the held speed and grows its covariance with the gap's
+    length; when the frames on either side were in fact consecutive (a clock jump, a concatenated
+    log), the speed measured across it is the image motion divided by the wrong interval.
+    """
+
+    def __init__(self) -> None:
+        self._prev_t_s: float | None = None
+        self._dt_s: list[float] = []
+        self._where: list[tuple[int, float]] = []  # (frame index, t_s) after each interval
+
+    def add(self, frame: Frame) -> None:
+        if self._prev_t_s is not None and math.isfinite(frame.t_s):
+            self._dt_s.append(frame.t_s - self._prev_t_s)
+            self._where.append((frame.index, frame.t_s))
+        self._prev_t_s = frame.t_s
+
+    def gaps(self) -> list[dict[str, float]]:
+        if len(self._dt_s) < 2:
+            return []
+        dt = np.asarray(self._dt_s)
+        limit = max(TIME_GAP_MIN_S, TIME_GAP_RATIO * float(np.median(dt)))
+        return [{"frame": i, "t_s": t, "gap_s": float(g)} for g, (i, t) in zip(dt, self._where) if g > limit]
+
+    def warnings(self) -> list[str]:
+        gaps = self.gaps()
+        if not gaps:
+            return []
+        big = max(gaps, key=lambda g: g["gap_s"])
+        return [f"{len(gaps)} gap(s) in the frame times, the longest {big['gap_s']:g} s before frame {big['frame']} "
+                f"(t = {big['t_s']:g} s), against a usual {float(np.median(self._dt_s)):g} s: the position's uncertainty "
+                "grows across a gap; if the frames on either side are consecutive, the times (frames.csv t_s, the "
+                "bag's stamps) are wrong and the speed across the gap is too small"]
+
+
 class SourceTally:
     """Counts, frame by frame, where the altitude and the heading came from (``summary.json`` ``sources``).
 
@@ -398,9 +454,10 @@ class SourceTally:
     "tokens only (no compass)". Skipped frames are not counted.
     """
 
-    def __init__(self, description: SourceDescription, fallback_detail: str = "") -> None:
+    def __init__(self, description: SourceDescription, fallback_detail: str = "", rig_note: str = "") -> None:
         self.description = description
         self.fallback_detail = fallback_detail
+        self.rig_note = rig_note  # pointers whose spot is never inside the image ("" if none)
         self.altitude: dict[str, int] = {}
         self.heading: dict[str, int] = {}
 
@@ -437,6 +494,8 @@ class SourceTally:
         if self.altitude.get(ASSUMED_ALTITUDE):
             warnings.append(f"altitude assumed constant ({self.fallback_detail}) in {self.altitude[ASSUMED_ALTITUDE]} of "
                             f"{n_alt} frames: speeds and positions there scale with that value")
+        if self.rig_note:
+            warnings.append(self.rig_note)
         if self.heading.get(TOKENS_ONLY):
             warnings.append(f"no compass in {self.heading[TOKENS_ONLY]} of {sum(self.heading.values())} frames: the "
                             "heading there is the integrated turn of the speed tokens, which drifts")
@@ -468,8 +527,10 @@ class _Run:
         self.status = "running"
         self.reason: str | None = None
         self.fallback_detail = ""
+        self.rig_note = ""
         self.tally: SourceTally | None = None
         self.map_use = MapTally()
+        self.time_gaps = TimeGaps()
         self.summary_base: dict[str, Any] = {
             "software": {"name": "rovslam", "version": __version__},
             "sequence_name": seq.info.name,
@@ -479,7 +540,7 @@ class _Run:
     @property
     def sources(self) -> SourceTally:
         if self.tally is None:
-            self.tally = SourceTally(describe_source(self.seq), self.fallback_detail)
+            self.tally = SourceTally(describe_source(self.seq), self.fallback_detail, self.rig_note)
         return self.tally
 
     def execute(self, max_frames: int | None, on_frame: Any, on_start: Any, on_frame_image: Any = None) -> RunSummary:
@@ -508,6 +569,7 @@ class _Run:
                 self.measurements.write(res.measurements)
                 self.sources.add(frame, res)
                 self.map_use.add(res)
+                self.time_gaps.add(frame)
                 self.gallery.write_frame(frame.image, res)
                 if res.new_landmark_id is not None:
                     writer.write_landmark_template(res.new_landmark_id, pipe.landmarks[res.new_landmark_id].patch)
@@ -605,6 +667,7 @@ class _Run:
             "sources": self.sources.summary(),
             "source_warnings": list(getattr(self.seq, "warnings", [])),
             "map_use": {**self.map_use.summary(), "warnings": self.map_use.warnings()},
+            "time_gaps": {"gaps": self.time_gaps.gaps(), "warnings": self.time_gaps.warnings()},
             "sunlight": {**pipe.sunlight_summary(), "warnings": pipe.sunlight_warnings()},
             "speed_bias": pipe.speed_bias_summary(),
             "compass": {**pipe.heading.compass_summary(), "warnings": pipe.heading.compass_warnings()},
@@ -628,7 +691,8 @@ class _Run:
             signal=self.stop.name if interrupted else None, signum=self.stop.signum if interrupted else None,
             status=self.status, reason=self.reason, sonar_rejected=list(self.sonar_rejected),
             warnings=(list(getattr(self.seq, "warnings", [])) + self.pipe.sunlight_warnings()
-                      + self.pipe.heading.compass_warnings() + self.map_use.warnings()),
+                      + self.pipe.heading.compass_warnings() + self.map_use.warnings() + self.time_gaps.warnings()
+                      + ([self.rig_note] if self.rig_note else [])),
         )
 
 

@@ -152,6 +152,26 @@ def predict_spot_pixels(
     return uv
 
 
+def lasers_never_in_view(camera: Camera, lasers: Sequence[LaserPointer], min_altitude_m: float,
+                         max_altitude_m: float) -> list[int]:
+    """Indices of the pointers whose spot is outside the image at every altitude of the range (level camera).
+
+    Such a pointer cannot give an altitude: its ``origin_m`` or ``direction`` is wrong (millimetres
+    for metres, a sign), or it belongs to another camera. The range is sampled on 200 altitudes,
+    evenly in log, clipped to 0.05 to 50 m.
+    """
+    lo, hi = max(min_altitude_m, 0.05), min(max_altitude_m, 50.0)
+    if not lasers or not lo < hi:
+        return []
+    zs = np.geomspace(lo, hi, 200)
+    seen = np.zeros(len(lasers), dtype=bool)
+    for z in zs:
+        uv = predict_spot_pixels(camera, lasers, float(z))
+        seen |= ((uv[:, 0] >= 0) & (uv[:, 0] <= camera.width_px - 1)
+                 & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height_px - 1))
+    return [int(i) for i in np.flatnonzero(~seen)]
+
+
 def red_excess(image_rgb: np.ndarray) -> np.ndarray:
     """``(H, W) uint8`` red dominance ``max(0, R - max(G, B))`` of an ``(H, W, 3) uint8`` RGB image."""
     img = np.asarray(image_rgb)
