@@ -242,10 +242,12 @@ def _spot_candidates(
         ids, cents, weights = ids[close], cents[close], weights[close]
     if config.spot_skirt_px > 0 and len(ids):
         # each blob's bounding box (its thresholded pixels) in the label image's pixels
-        lo_u = np.full(n, mask.shape[1]); lo_v = np.full(n, mask.shape[0])
-        hi_u = np.full(n, -1); hi_v = np.full(n, -1)
-        np.minimum.at(lo_u, lab, pix[:, 0]); np.minimum.at(lo_v, lab, pix[:, 1])
-        np.maximum.at(hi_u, lab, pix[:, 0]); np.maximum.at(hi_v, lab, pix[:, 1])
+        lo_u, lo_v = np.full(n, mask.shape[1]), np.full(n, mask.shape[0])
+        hi_u, hi_v = np.full(n, -1), np.full(n, -1)
+        np.minimum.at(lo_u, lab, pix[:, 0])
+        np.minimum.at(lo_v, lab, pix[:, 1])
+        np.maximum.at(hi_u, lab, pix[:, 0])
+        np.maximum.at(hi_v, lab, pix[:, 1])
         cents = np.array([_skirt_centre(excess, labels, mask, (bu0, bv0), int(i), int(area[i]), config.spot_skirt_px,
                                         (int(lo_u[i]), int(lo_v[i]), int(hi_u[i]) + 1, int(hi_v[i]) + 1))
                           for i in ids]) + (u0, v0)
