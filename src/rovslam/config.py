@@ -270,7 +270,7 @@ class LaserConfig(_Checked):
     # a spot's centre weighs its red beyond the threshold this far (plus its radius) around the blob:
     # a codec's lopsided smear moved the thresholded centroid (0: the thresholded pixels only, before)
     spot_skirt_px: float = _num(3.0, ge=0)
-    # a spot missed by min_red_excess is searched this close to its prediction, its blob at half its peak,
+    # a spot missed by min_red_excess is searched this close to its prediction, its blob at 30 % of its peak,
     # when the peak reaches faint_red_excess (0: no faint spots, as before)
     faint_red_excess: float = _num(20.0, ge=0, le=255)
     faint_search_radius_px: float = _num(8.0, gt=0)

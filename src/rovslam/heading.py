@@ -289,8 +289,9 @@ class HeadingTracker:
             step_sigma: float | None = math.sqrt(2.0) * sigma_c  # difference of two readings
         else:
             step_sigma = None if has_compass else NO_COMPASS_STEP_SIGMA_RAD
-        if sigma_c > 0 and self.filter.implausible(compass_rad, self.unmeasured_turn_sigma_rad(dt_s)):
-            step, step_sigma = 0.0, self.unmeasured_turn_sigma_rad(dt_s)  # a glitch: the tokens alone find this turn
+        turn_sigma = self.unmeasured_turn_sigma_rad(dt_s)
+        if sigma_c > 0 and self.filter.implausible(compass_rad, turn_sigma):
+            step, step_sigma = 0.0, turn_sigma  # a glitch: the tokens alone find this turn
         return HeadingPrior(compass_rad, previous, step, step_sigma)
 
     def update(self, prior: HeadingPrior, dpsi_rad: float | None, dpsi_sigma_rad: float,

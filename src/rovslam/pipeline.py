@@ -330,11 +330,15 @@ class SlamPipeline:
         if alt.source == SOURCE_FIXED:
             return self._held_altitude(frame.t_s, alt)
         z, sigma = self.altitude.update(frame.t_s, alt.altitude_m, alt.sigma_m)
-        if self.ekf.altitude_bias_sigma_m == 0.0:
-            # Without the filter's altitude-offset state b: over relief the lasers (or the sonar) range
-            # to the seabed under their few points, not to the mean seabed; that spread is Z's error too.
-            sigma = math.sqrt(sigma * sigma + self._terrain_sigma_m(z, alt) ** 2)
-        return dataclasses.replace(alt, altitude_m=z, sigma_m=sigma)
+        return dataclasses.replace(alt, altitude_m=z, sigma_m=self._with_terrain_sigma_m(z, sigma, alt))
+
+    def _with_terrain_sigma_m(self, altitude_m: float, sigma_m: float, alt: AltitudeEstimate) -> float:
+        """The filtered altitude's sigma, widened by the relief without the filter's altitude-offset state b:
+        over relief the lasers (or the sonar) range to the seabed under their few points, not to the mean
+        seabed; that spread is Z's error too."""
+        if self.ekf.altitude_bias_sigma_m != 0.0:
+            return sigma_m
+        return math.sqrt(sigma_m * sigma_m + self._terrain_sigma_m(altitude_m, alt) ** 2)
 
     def _held_altitude(self, t_s: float, assumed: AltitudeEstimate) -> AltitudeEstimate:
         """A frame with no laser spot and no sonar reading: the altitude filter's prediction, while it is surer.
@@ -348,9 +352,8 @@ class SlamPipeline:
         if pred is None or not pred[1] < assumed.sigma_m:
             return assumed
         z, sigma = pred
-        if self.ekf.altitude_bias_sigma_m == 0.0:
-            sigma = math.sqrt(sigma * sigma + self._terrain_sigma_m(z, assumed) ** 2)
-        return dataclasses.replace(assumed, altitude_m=z, sigma_m=sigma, source=SOURCE_HELD)
+        return dataclasses.replace(assumed, altitude_m=z, sigma_m=self._with_terrain_sigma_m(z, sigma, assumed),
+                                   source=SOURCE_HELD)
 
     def _terrain_sigma_m(self, altitude_m: float, alt: AltitudeEstimate) -> float:
         """How far the relief under the altimeter's points strays from the mean seabed (from the tokens' parallax)."""
