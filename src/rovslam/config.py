@@ -325,6 +325,10 @@ class OdometryConfig(_Checked):
     compass_gate_max_readings: int = _num(10, ge=0)
     compass_sigma_learned: bool = True  # the compass noise its readings show is used when above compass_sigma_rad
     compass_drift_sigma_rad: float = _num(0.0175, ge=0)  # slow compass error no smoothing removes (magnetic disturbance, 1 deg)
+    # the tokens' turn errors are correlated from step to step over relief: the variance of their sum over
+    # turn_noise_window_steps steps, checked against the compass, scales each step's (never below 1; false: as measured)
+    turn_noise_learned: bool = True
+    turn_noise_window_steps: int = _num(25, ge=2)
     compass_offset_sigma_rad: float = _num(0.0087, ge=0)  # the compass's constant error (deviation, 0.5 deg calibrated): turns the whole estimate
     attitude_sigma_rad: float = _num(0.0035, ge=0)  # AHRS roll / pitch accuracy (0.2 deg), when frames.csv has them
     attitude_noise_sigma_rad: float = _num(0.0002, ge=0)  # AHRS reading-to-reading noise (0.01 deg): moves each frame's seabed

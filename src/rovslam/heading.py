@@ -6,8 +6,10 @@ and every degree of heading error turns each token 150 px from the image centre 
 Two objects hold all heading state of a run:
 
 * :class:`HeadingFilter`, a one-state Kalman filter: predict ``psi += dpsi`` with the rotation
-  the tokens measured, update with the compass reading. Without a compass (a bare video) the
-  heading is the integrated token rotation from 0 at the first frame.
+  the tokens measured, update with the compass reading. It learns the compass's white noise, and
+  how much faster the tokens' summed turn errs than their per-step sigmas say (over relief they
+  are correlated from step to step), from the compass itself. Without a compass (a bare video)
+  the heading is the integrated token rotation from 0 at the first frame.
 * :class:`HeadingTracker`, what the per-frame loop talks to: :meth:`HeadingTracker.prior`
   before the tokens are tracked (the previous heading and the compass step, which predict where
   the tokens went), :meth:`HeadingTracker.update` once the speed estimator has measured the turn,
@@ -20,6 +22,7 @@ filter (``[slam] heading_bias_sigma_rad``, :class:`rovslam.slam.EkfSlam`).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 from rovslam.averages import DecayingMean
@@ -38,6 +41,10 @@ COMPASS_NOISE_READINGS = 100
 COMPASS_NOISE_MIN_READINGS = 20
 # The run's warnings say so when the compass is this many times noisier than configured.
 COMPASS_NOISIER_WARNING = 1.5
+# The tokens' turn noise scale is learned over about this many steps (5 minutes at 5 Hz; a window ends
+# at each), and used once this many windows were averaged (:meth:`HeadingFilter.turn_noise_scale`).
+TURN_NOISE_WINDOWS = 1500
+TURN_NOISE_MIN_WINDOWS = 50
 
 
 class HeadingFilter:
@@ -51,11 +58,28 @@ class HeadingFilter:
     measured (``E[y^2] = P_pred + r``, averaged over about :data:`COMPASS_NOISE_READINGS`
     readings); with ``learn_noise`` the update uses it when it is larger than ``compass_sigma_rad``
     (a compass noisier than its datasheet; never smaller than configured).
+
+    The tokens' turns are checked against the compass too, over windows of ``turn_window_steps``
+    steps (:meth:`turn_noise_scale`): each step's ``dpsi_sigma`` comes from that step's tokens
+    alone, but over relief the same seabed stays under the tokens for several frames and their
+    turn errors are correlated (the real-photo seabed: 0.3 to 0.4 from one step to the next, up to
+    5 steps apart), so the integrated turn drifts faster than the sigmas say, and a heading
+    smoothed with them is surer than it is right. With ``learn_turn_noise`` the predicted variance
+    of a step is ``dpsi_sigma^2`` times the scale the windows show (never less than 1).
     """
 
     def __init__(self, compass_sigma_rad: float, learn_noise: bool = False, gate_sigmas: float = 0.0,
-                 gate_max_readings: int = 0):
+                 gate_max_readings: int = 0, learn_turn_noise: bool = False, turn_window_steps: int = 25):
         self.compass_sigma_rad = float(compass_sigma_rad)
+        self.learn_turn_noise = bool(learn_turn_noise)
+        self.turn_window_steps = int(turn_window_steps)
+        self._window: deque[tuple[float, float]] = deque()  # (dpsi, dpsi_sigma^2) of the last measured steps
+        self._window_start_rad: deque[float] = deque()  # ... and the compass reading before each
+        self._last_compass_rad: float | None = None  # the last reading the filter took
+        self._turn_sq = DecayingMean()  # over the windows: (compass change - summed turns)^2
+        self._turn_claimed = DecayingMean()  # ... and the summed turn variances
+        self._step_sq = DecayingMean()  # the same over one step: (compass step - turn)^2
+        self._step_claimed = DecayingMean()  # ... and the turn's variance
         self.learn_noise = bool(learn_noise)
         self.gate_sigmas = float(gate_sigmas)
         self.gate_max_readings = int(gate_max_readings)
@@ -78,6 +102,18 @@ class HeadingFilter:
             return None
         return math.sqrt(max(self._noise.mean(), 0.0))
 
+    def _white_compass_var_rad2(self) -> float:
+        """``r`` from single steps: ``E[(compass step - turn)^2] = dpsi_sigma^2 + 2 r``.
+
+        A turn's error is small beside a compass's, so this holds whatever the turns' correlation;
+        the innovations' ``E[y^2] = P_pred + r`` (:attr:`learned_compass_sigma_rad`) does not:
+        ``P_pred`` holds the turn noise scale, and ``r`` learned so falls as the scale rises (0.42
+        -> 0.32 degree against the simulator's 0.40 on the real-photo survey with turns, where this
+        gives 0.39). The filter's update keeps the innovations' value: it is used only above the
+        configured noise, where it errs large, on the safe side.
+        """
+        return max(0.5 * (self._step_sq.mean() - self._step_claimed.mean()), 0.0)
+
     @property
     def compass_var_rad2(self) -> float:
         """The compass variance the update uses: the configured one, or the learned one when larger."""
@@ -94,6 +130,68 @@ class HeadingFilter:
         y2 = min(innovation_rad**2, 9.0 * (predicted_var_rad2 + compass_var_rad2))
         a = 1.0 / COMPASS_NOISE_READINGS
         self._noise.add(y2 - predicted_var_rad2, a, 1.0 - a)
+
+    @property
+    def turn_noise_scale(self) -> float:
+        """How much faster the tokens' summed turn error grows than their per-step variances say (>= 1).
+
+        Over a window of W measured steps the compass change less the summed turns is the
+        summed turn error plus two compass readings' noise: ``E[e^2] = s sum(dpsi_sigma^2) + 2 r``
+        (the compass's drift over the window is left in: it errs towards a larger ``s``), with
+        ``r`` from single steps (:meth:`_white_compass_var_rad2`; from the filter's innovations
+        ``r`` would fall as ``s`` rose, and ``s`` went to 11).
+
+        Where the compass is much noisier than the summed turns, ``E[e^2] - 2 r`` is a small
+        difference of two large averages: on a 1 degree compass over 60 s the scale swung between
+        1 and 11, and the truth left the ellipse (87 % inside 2-sigma, 93 % before). So the excess
+        ``d = E[e^2] - 2 r - sum(dpsi_sigma^2)`` is shrunk by ``d^2 / (d^2 + se^2)``, ``se`` its
+        standard error (``E[e^2]`` counted as ``n / W`` independent windows of a chi-square, sd
+        ``E[e^2] sqrt(2 W / n)``, and ``2 r`` as ``n`` single steps): a noisy compass or a short
+        dive leaves the sigmas nearly as measured, a clear excess is taken almost whole. 1 until
+        :data:`TURN_NOISE_MIN_WINDOWS` windows were averaged, or without ``learn_turn_noise``.
+        """
+        if not self.learn_turn_noise or self._turn_sq.count < TURN_NOISE_MIN_WINDOWS:
+            return 1.0
+        claimed = self._turn_claimed.mean()
+        if not claimed > 0:
+            return 1.0
+        sq, two_r = self._turn_sq.mean(), 2.0 * self._white_compass_var_rad2()
+        windows = min(self._turn_sq.count, TURN_NOISE_WINDOWS) / self.turn_window_steps
+        steps = min(self._step_sq.count, TURN_NOISE_WINDOWS)
+        se = math.hypot(sq * math.sqrt(2.0 / windows), two_r * math.sqrt(2.0 / steps))
+        excess = sq - two_r - claimed
+        if excess <= 0.0:
+            return 1.0
+        return 1.0 + excess * excess / (excess * excess + se * se) * excess / claimed
+
+    def _learn_turn_noise(self, previous_compass_rad: float | None, compass_rad: float, dpsi_rad: float,
+                          dpsi_var_rad2: float) -> None:
+        """One measured step whose reading was taken (``previous_compass_rad``: the step's first reading,
+        None when it was not taken): one single-step sample; slide the window, add its sample when full."""
+        if previous_compass_rad is None:
+            self._forget_window()
+            return
+        # One step: capped at 9 times its expected value (a 3-sigma reading), as the innovations are
+        e1 = wrap_angle(compass_rad - previous_compass_rad - dpsi_rad)
+        e1_sq = min(e1 * e1, 9.0 * (dpsi_var_rad2 + 2.0 * self.compass_var_rad2))
+        a = 1.0 / TURN_NOISE_WINDOWS
+        self._step_sq.add(e1_sq, a, 1.0 - a)
+        self._step_claimed.add(dpsi_var_rad2, a, 1.0 - a)
+        self._window.append((dpsi_rad, dpsi_var_rad2))
+        self._window_start_rad.append(previous_compass_rad)
+        if len(self._window) > self.turn_window_steps:
+            self._window.popleft()
+            self._window_start_rad.popleft()
+        if len(self._window) < self.turn_window_steps:
+            return
+        e = wrap_angle(compass_rad - self._window_start_rad[0] - sum(d for d, _ in self._window))
+        self._turn_sq.add(e * e, a, 1.0 - a)
+        self._turn_claimed.add(sum(v for _, v in self._window), a, 1.0 - a)
+
+    def _forget_window(self) -> None:
+        """A step the tokens did not measure, or a reading not taken: the next window starts after it."""
+        self._window.clear()
+        self._window_start_rad.clear()
 
     def _beyond_gate(self, innovation_rad: float, innovation_var_rad2: float) -> bool:
         """Whether an innovation lies farther than ``gate_sigmas`` of its standard deviation (0: no gate)."""
@@ -134,6 +232,7 @@ class HeadingFilter:
         """
         measured = dpsi_rad is not None and math.isfinite(dpsi_sigma_rad)
         self.refused_last = False
+        last_compass, self._last_compass_rad = self._last_compass_rad, None  # set again if this reading is taken
         if compass_rad is None or not math.isfinite(compass_rad):
             if self.heading_rad is None:
                 self.heading_rad, self.var_rad2 = 0.0, 0.0
@@ -146,12 +245,13 @@ class HeadingFilter:
         c = finite_scalar("heading_rad", compass_rad)
         r = self.compass_var_rad2
         if self.heading_rad is None or r == 0.0:
-            self.heading_rad, self.var_rad2 = c, r
+            self.heading_rad, self.var_rad2, self._last_compass_rad = c, r, c
             return c
         if measured:
             psi = self.heading_rad + float(dpsi_rad)
-            var = self.var_rad2 + float(dpsi_sigma_rad) ** 2
+            var = self.var_rad2 + self.turn_noise_scale * float(dpsi_sigma_rad) ** 2
         else:
+            self._forget_window()
             if self._glitch(self.implausible(c, unmeasured_sigma_rad)):
                 self.var_rad2 += float(unmeasured_sigma_rad) ** 2  # a glitch, and no turn measured: the heading is held
                 return self.heading_rad
@@ -162,10 +262,13 @@ class HeadingFilter:
             return self.heading_rad
         if self._resync:  # refused gate_max_readings times in a row: the compass moved, follow it
             self._resync = False
-            self.heading_rad, self.var_rad2 = c, r
+            self._forget_window()
+            self.heading_rad, self.var_rad2, self._last_compass_rad = c, r, c
             return c
         if measured:  # learned always (for the run's warnings), used only when learn_noise
             self._learn_noise(innovation, var, r)
+            self._learn_turn_noise(last_compass, c, float(dpsi_rad), float(dpsi_sigma_rad) ** 2)
+        self._last_compass_rad = c
         k = var / (var + r)
         self.heading_rad = wrap_angle(psi + k * innovation)
         self.var_rad2 = (1.0 - k) * var
@@ -233,7 +336,9 @@ class HeadingTracker:
         self.slam = slam
         self.filter = HeadingFilter(odometry.compass_sigma_rad, learn_noise=odometry.compass_sigma_learned,
                                     gate_sigmas=odometry.compass_gate_sigmas,
-                                    gate_max_readings=odometry.compass_gate_max_readings)
+                                    gate_max_readings=odometry.compass_gate_max_readings,
+                                    learn_turn_noise=odometry.turn_noise_learned,
+                                    turn_window_steps=odometry.turn_noise_window_steps)
         self._previous_rad: float | None = None  # filtered heading of the previous frame
         self._previous_compass_rad: float | None = None
         self.has_compass = True  # whether the last frame had a compass reading
@@ -253,7 +358,8 @@ class HeadingTracker:
         return {"sigma_configured_deg": math.degrees(self.odometry.compass_sigma_rad),
                 "sigma_learned_deg": None if learned is None else math.degrees(learned),
                 "sigma_used_deg": math.degrees(self.compass_sigma_rad), "learning": self.filter.learn_noise,
-                "readings_refused": self.filter.refused_readings}
+                "readings_refused": self.filter.refused_readings,
+                "token_turn_noise_scale": self.filter.turn_noise_scale}
 
     def compass_warnings(self) -> list[str]:
         """One line when the compass was found much noisier than configured, one when readings were refused."""
