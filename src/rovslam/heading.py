@@ -73,8 +73,8 @@ class HeadingFilter:
         self.compass_sigma_rad = float(compass_sigma_rad)
         self.learn_turn_noise = bool(learn_turn_noise)
         self.turn_window_steps = int(turn_window_steps)
-        self._window: deque[tuple[float, float]] = deque()  # (dpsi, dpsi_sigma^2) of the last measured steps
-        self._window_start_rad: deque[float] = deque()  # ... and the compass reading before each
+        # (compass reading before the step, dpsi, dpsi_sigma^2) of the last measured steps
+        self._window: deque[tuple[float, float, float]] = deque(maxlen=self.turn_window_steps)
         self._last_compass_rad: float | None = None  # the last reading the filter took
         self._turn_sq = DecayingMean()  # over the windows: (compass change - summed turns)^2
         self._turn_claimed = DecayingMean()  # ... and the summed turn variances
@@ -177,21 +177,16 @@ class HeadingFilter:
         a = 1.0 / TURN_NOISE_WINDOWS
         self._step_sq.add(e1_sq, a, 1.0 - a)
         self._step_claimed.add(dpsi_var_rad2, a, 1.0 - a)
-        self._window.append((dpsi_rad, dpsi_var_rad2))
-        self._window_start_rad.append(previous_compass_rad)
-        if len(self._window) > self.turn_window_steps:
-            self._window.popleft()
-            self._window_start_rad.popleft()
+        self._window.append((previous_compass_rad, dpsi_rad, dpsi_var_rad2))
         if len(self._window) < self.turn_window_steps:
             return
-        e = wrap_angle(compass_rad - self._window_start_rad[0] - sum(d for d, _ in self._window))
+        e = wrap_angle(compass_rad - self._window[0][0] - sum(d for _, d, _ in self._window))
         self._turn_sq.add(e * e, a, 1.0 - a)
-        self._turn_claimed.add(sum(v for _, v in self._window), a, 1.0 - a)
+        self._turn_claimed.add(sum(v for _, _, v in self._window), a, 1.0 - a)
 
     def _forget_window(self) -> None:
         """A step the tokens did not measure, or a reading not taken: the next window starts after it."""
         self._window.clear()
-        self._window_start_rad.clear()
 
     def _beyond_gate(self, innovation_rad: float, innovation_var_rad2: float) -> bool:
         """Whether an innovation lies farther than ``gate_sigmas`` of its standard deviation (0: no gate)."""
@@ -267,7 +262,8 @@ class HeadingFilter:
             return c
         if measured:  # learned always (for the run's warnings), used only when learn_noise
             self._learn_noise(innovation, var, r)
-            self._learn_turn_noise(last_compass, c, float(dpsi_rad), float(dpsi_sigma_rad) ** 2)
+            if self.learn_turn_noise:
+                self._learn_turn_noise(last_compass, c, float(dpsi_rad), float(dpsi_sigma_rad) ** 2)
         self._last_compass_rad = c
         k = var / (var + r)
         self.heading_rad = wrap_angle(psi + k * innovation)
