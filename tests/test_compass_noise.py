@@ -27,7 +27,12 @@ def noisy_compass_runs(tmp_path_factory):
     finally:
         del SCENARIOS["relief-compass1"]
     runs = {}
-    for key, cfg in (("learned", RunConfig()), ("fixed", RunConfig(odometry=OdometryConfig(compass_sigma_learned=False)))):
+    # b as it was when this was measured (altitude_bias_relief = false): the relief under the tokens in
+    # b moves this dive (seed 6) to 80.3 % inside 2-sigma learned, 78.0 % fixed, and seed 2 of the same
+    # dive from 74.6 to 99.0 % (tests/test_relief_scale.py); the compass noise's part is what this isolates.
+    slam = dataclasses.replace(RunConfig().slam, altitude_bias_relief=False)
+    for key, cfg in (("learned", RunConfig(slam=slam)),
+                     ("fixed", RunConfig(odometry=OdometryConfig(compass_sigma_learned=False), slam=slam))):
         run_sequence(root / "seq", root / key, cfg)
         runs[key] = (json.loads((root / key / "summary.json").read_text()),
                      evaluate_run(root / key, root / "seq" / "groundtruth.csv"))

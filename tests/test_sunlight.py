@@ -233,9 +233,12 @@ def test_slow_caustics_the_watch_misses_are_taken_by_the_speed_error_when_asked(
         simulate(name, tmp_path / "seq", frames=301, seed=7)
     finally:
         del SCENARIOS[name]
-    always = RunConfig(slam=dataclasses.replace(RunConfig().slam, speed_bias_when="always"))
+    # b as it was when this was measured (altitude_bias_relief = false): the relief under the tokens in b
+    # covers part of the drag's error too (the default: 92.7 % inside 2-sigma, 2.71 cm); w is what this isolates.
+    slam = dataclasses.replace(RunConfig().slam, altitude_bias_relief=False)
+    always = RunConfig(slam=dataclasses.replace(slam, speed_bias_when="always"))
     results = {}
-    for key, cfg in (("default", RunConfig()), ("always", always)):
+    for key, cfg in (("default", RunConfig(slam=slam)), ("always", always)):
         run_sequence(tmp_path / "seq", tmp_path / key, cfg)
         summary = json.loads((tmp_path / key / "summary.json").read_text())
         assert summary["sunlight"]["frames_removed"] == 0  # not seen

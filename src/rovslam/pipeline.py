@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from array import array
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
@@ -40,7 +41,7 @@ from rovslam.shutter import mn_at_frame_time, mn_rate_px_s, tokens_at_frame_time
 from rovslam.slam import EkfSlam
 from rovslam.slam.apparent import apparent_frame_cov_m2, apparent_sigmas
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
-from rovslam.slam.motion import motion_step_m
+from rovslam.slam.motion import motion_step_m, ou_sum_as_one
 from rovslam.slam.observation import observation_noise_px2, pixels_to_mn
 from rovslam.sunlight import BrightHistory, SunlightEvent, SunlightMonitor, moving_light_share
 from rovslam.vision.filters import (
@@ -163,6 +164,7 @@ class SlamPipeline:
         self._drag_frames = 0  # predictions that drove the filter's speed error w
         self._drag_sum_mps = np.zeros(2)  # w summed over them, and its sigma
         self._drag_sigma_sum_mps = np.zeros(2)
+        self._altitude_bias_sigmas_m = array("d")  # b's process sigma of each prediction (summary.json; 8 bytes each)
         self._bright_history = BrightHistory()  # (H, W) float32 bright structures of the last frames
         self._bright: np.ndarray | None = None  # ... and of this one
         self.skipped: list[tuple[int, float, str]] = []
@@ -305,6 +307,15 @@ class SlamPipeline:
         return {"frames": int(self._drag_frames), "mean_mps": [float(v) for v in mean],
                 "mean_sigma_mps": [float(v) for v in sigma]}
 
+    def altitude_bias_summary(self) -> dict:
+        """What ``summary.json`` says of the altitude offset ``b``: its process sigma over the predictions
+        (median and 95th percentile, m; with the relief under the tokens it exceeds the configured one)."""
+        sig = np.asarray(self._altitude_bias_sigmas_m, dtype=float)
+        if sig.size == 0:
+            return {"predictions": 0, "sigma_median_m": None, "sigma_p95_m": None}
+        return {"predictions": int(sig.size), "sigma_median_m": float(np.median(sig)),
+                "sigma_p95_m": float(np.percentile(sig, 95))}
+
     def sunlight_warnings(self) -> list[str]:
         """One line for the run's warnings when the sunlight was taken out of any frame."""
         if not self._sunlit_frames:
@@ -359,6 +370,24 @@ class SlamPipeline:
         """How far the relief under the altimeter's points strays from the mean seabed (from the tokens' parallax)."""
         samples = max(alt.n_spots, 1) if alt.source.startswith("laser") else 1
         return self.config.odometry.relief_scale_gain * altitude_m * math.sqrt(self.speed.relief_var / samples)
+
+    def _altitude_bias_process(self, altitude_m: float, alt: AltitudeEstimate) -> tuple[float, float]:
+        """The altitude offset ``b``'s stationary sigma (m) and correlation time (s) over this step.
+
+        The tokens' speed is measured at the altitude Z, but the tokens stand on the relief: their
+        depth strays from Z by about one token's relative height spread (the tokens of one frame stand
+        on the same relief features, so their mean does not average it away), a scale error of the
+        speed that lasts while the same relief is under the camera. ``b`` carries it beside the
+        altimeter's lasting offset: their sum, two Ornstein-Uhlenbeck processes (``[slam]
+        altitude_bias_sigma_m`` / ``altitude_bias_tau_s``, and the relief's sigma ``gain Z
+        sigma_s`` from the tokens' parallax with ``altitude_bias_relief_tau_s``), held as one with
+        the same variance and the same integrated autocovariance (so the same long-run drift).
+        """
+        slam = self.config.slam
+        if not slam.altitude_bias_relief:  # the altimeter's offset, or the relief under its spots if larger
+            return max(slam.altitude_bias_sigma_m, self._terrain_sigma_m(altitude_m, alt)), slam.altitude_bias_tau_s
+        relief = self.config.odometry.relief_scale_gain * altitude_m * math.sqrt(self.speed.relief_var)
+        return ou_sum_as_one(slam.altitude_bias_sigma_m, slam.altitude_bias_tau_s, relief, slam.altitude_bias_relief_tau_s)
 
     # ------------------------------------------------------------------ step 2
     def _inhibit_laser_spots(self, alt: AltitudeEstimate) -> np.ndarray:
@@ -569,10 +598,11 @@ class SlamPipeline:
         recovery (:mod:`rovslam.association`).
         """
         if speed is not None and dt_s > 0:
-            bias_sigma = max(self.config.slam.altitude_bias_sigma_m, self._terrain_sigma_m(alt.altitude_m, alt))
+            bias_sigma, bias_tau = self._altitude_bias_process(alt.altitude_m, alt)
+            self._altitude_bias_sigmas_m.append(bias_sigma)
             walk = heading.walk_var_rad2  # without a compass: the integrated heading's error is eps's random walk
             self._predict(speed, prior.previous_rad, dt_s, heading.sigma_rad if walk is None else 0.0, alt.altitude_m,
-                          bias_sigma, walk)
+                          bias_sigma, walk, bias_tau)
         assoc = self.config.association
         refused = {id(t): t.refused for t in tracked if t.refused}
         live = [t for t in tracked if not t.refused]
@@ -645,11 +675,11 @@ class SlamPipeline:
 
     def _predict(self, speed: SpeedMeasurement, heading_rad: float, dt_s: float, heading_sigma_rad: float | None,
                  altitude_m: float | None = None, altitude_bias_sigma_m: float | None = None,
-                 heading_walk_var_rad2: float | None = None) -> None:
+                 heading_walk_var_rad2: float | None = None, altitude_bias_tau_s: float | None = None) -> None:
         """Prediction (1) of the filter and of the dead reckoning reported beside it."""
         drag_sigma = self._speed_bias_sigma_mps()
         self.ekf.predict(speed.surge_mps, speed.sway_mps, speed.cov_mps2, heading_rad, dt_s, heading_sigma_rad,
-                         altitude_m, altitude_bias_sigma_m, heading_walk_var_rad2, drag_sigma)
+                         altitude_m, altitude_bias_sigma_m, heading_walk_var_rad2, drag_sigma, altitude_bias_tau_s)
         if drag_sigma > 0.0:
             self._drag_frames += 1
             self._drag_sum_mps += self.ekf.speed_bias_mps

@@ -670,6 +670,7 @@ class _Run:
             "time_gaps": {"gaps": self.time_gaps.gaps(), "warnings": self.time_gaps.warnings()},
             "sunlight": {**pipe.sunlight_summary(), "warnings": pipe.sunlight_warnings()},
             "speed_bias": pipe.speed_bias_summary(),
+            "altitude_bias": pipe.altitude_bias_summary(),
             "compass": {**pipe.heading.compass_summary(), "warnings": pipe.heading.compass_warnings()},
             "source_frames_left_out": int(getattr(self.seq, "left_out", 0)),
             "landmarks": pipe.ekf.n_landmarks,

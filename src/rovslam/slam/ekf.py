@@ -16,7 +16,9 @@ says, so seen again from another place in the image it is 1 to 7 px off. Its dep
 ``b`` (metres, present when ``altitude_bias_sigma_m > 0``) is the offset of the measured
 altitude from the seabed level the heights refer to: the lasers range to the relief under
 their few spots, which differs from the mean seabed by a few centimetres and changes as the
-relief passes (an Ornstein-Uhlenbeck process of correlation time ``altitude_bias_tau_s``). The
+relief passes (an Ornstein-Uhlenbeck process of correlation time ``altitude_bias_tau_s``, or the
+one the caller gives per step: the pipeline adds the relief under the tokens, which decorrelates
+within seconds, :func:`rovslam.slam.motion.ou_sum_as_one`). The
 true depth of landmark i is ``Z + b - h_i``, and the tokens' speed, measured at depth Z, is
 really ``(Z + b) / Z`` times larger: one state ties the odometry's scale and every landmark's
 depth together, so their errors, correlated from frame to frame, are not averaged as if white.
@@ -351,6 +353,7 @@ class EkfSlam:
         altitude_bias_sigma_m: float | None = None,
         heading_walk_var_rad2: float | None = None,
         speed_bias_sigma_mps: float = 0.0,
+        altitude_bias_tau_s: float | None = None,
     ) -> None:
         """Prediction by (1) and (2) with the measured body speed and heading as inputs.
 
@@ -370,6 +373,8 @@ class EkfSlam:
             speed_bias_sigma_mps: the stationary sigma of the speed error ``w`` over this step: the
                 odometry is dragged only while something moves over the seabed (the pipeline gives
                 ``config.speed_bias_sigma_mps`` while it takes sunlight out); 0 (the default) lets ``w`` fade.
+            altitude_bias_tau_s: the bias's correlation time over this step (the relief's part of it
+                decorrelates faster than the altimeter's offset); default ``config.altitude_bias_tau_s``.
 
         Raises:
             InvalidMeasurementError: NaN/inf or invalid input; the state is unchanged.
@@ -385,6 +390,8 @@ class EkfSlam:
         z = None if altitude_m is None else _finite("altitude_m", altitude_m, positive=True)
         sb = self.config.altitude_bias_sigma_m if altitude_bias_sigma_m is None else altitude_bias_sigma_m
         sb = _finite("altitude_bias_sigma_m", sb, nonnegative=True)
+        tb = self.config.altitude_bias_tau_s if altitude_bias_tau_s is None else altitude_bias_tau_s
+        tb = _finite("altitude_bias_tau_s", tb, positive=True)
         walk = None if heading_walk_var_rad2 is None else _finite("heading_walk_var_rad2", heading_walk_var_rad2,
                                                                   nonnegative=True)
         sw = _finite("speed_bias_sigma_mps", speed_bias_sigma_mps, nonnegative=True)
@@ -424,7 +431,7 @@ class EkfSlam:
                 p[w + 1, w + 1] += rise
             self._w_sigma_mps = sw
         for row, tau, sigma in ((self._eps, self.config.heading_bias_tau_s, self.config.heading_bias_sigma_rad),
-                                (self._b, self.config.altitude_bias_tau_s, sb),
+                                (self._b, tb, sb),
                                 (w, self.config.speed_bias_tau_s, sw),
                                 (None if w is None else w + 1, self.config.speed_bias_tau_s, sw)):
             if row is None:

@@ -6,11 +6,13 @@ by the landmark search (where the vehicle is expected before this frame's speed 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from rovslam.camera import drot2, rot2
 
-__all__ = ["motion_step_m", "motion_jacobians"]
+__all__ = ["motion_step_m", "motion_jacobians", "ou_sum_as_one"]
 
 
 def motion_step_m(speed_mps: np.ndarray, heading_rad: float, dt_s: float) -> np.ndarray:
@@ -21,3 +23,17 @@ def motion_step_m(speed_mps: np.ndarray, heading_rad: float, dt_s: float) -> np.
 def motion_jacobians(speed_mps: np.ndarray, heading_rad: float, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
     """Jacobians of (1)'s displacement: ``(G (2, 2) = d/d[u, v] = R dt, j (2,) = d/dpsi = dR/dpsi [u, v] dt)``."""
     return rot2(heading_rad) * dt_s, drot2(heading_rad) @ np.asarray(speed_mps, dtype=np.float64) * dt_s
+
+
+def ou_sum_as_one(sigma_a: float, tau_a_s: float, sigma_b: float, tau_b_s: float) -> tuple[float, float]:
+    """The sum of two independent Ornstein-Uhlenbeck processes held as one: ``(sigma, tau_s)``.
+
+    The one process has the sum's variance, ``sigma^2 = sigma_a^2 + sigma_b^2``, and its integrated
+    autocovariance, ``sigma^2 tau = sigma_a^2 tau_a + sigma_b^2 tau_b``: a scale error it stands for
+    then drifts the position as fast as the sum does over long times (``2 sigma^2 tau T``), and
+    over short ones (``sigma^2 T^2``). With ``sigma_b = 0`` it is process a; both 0 gives ``(0, tau_a_s)``.
+    """
+    var = sigma_a * sigma_a + sigma_b * sigma_b
+    if var <= 0.0:
+        return 0.0, tau_a_s
+    return math.sqrt(var), (sigma_a * sigma_a * tau_a_s + sigma_b * sigma_b * tau_b_s) / var
