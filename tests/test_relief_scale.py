@@ -7,7 +7,9 @@ the next, 0.77 after 1 s, 0.41 after 5 s. The speed's per-step Q carried it as w
 filter averaged it away, and the truth left the 2-sigma ellipse (92.3 % inside). The altitude
 offset ``b`` (a consider state) now carries it beside the altimeter's lasting offset: sigma from
 the tokens' parallax, correlation ``[slam] altitude_bias_relief_tau_s``, the two held as one
-Ornstein-Uhlenbeck process (:func:`rovslam.slam.motion.ou_sum_as_one`).
+Ornstein-Uhlenbeck process (:func:`rovslam.slam.motion.ou_sum_as_one`). Off by default
+(``[slam] altitude_bias_relief``): through ``b`` the relief's variance also reaches the landmarks'
+depths, and on ``hd-survey`` seed 6 a revisit then pulled the estimate 8 mm off (100 -> 49.6 %).
 """
 
 from __future__ import annotations
@@ -22,6 +24,9 @@ from rovslam.config import RunConfig, SlamConfig
 from rovslam.errors import InvalidMeasurementError
 from rovslam.slam import EkfSlam
 from rovslam.slam.motion import ou_sum_as_one
+
+# The relief in b is off by default (it also widens the landmarks' depths: README); these tests switch it on.
+_ON = RunConfig(slam=dataclasses.replace(RunConfig().slam, altitude_bias_relief=True))
 
 
 def _integrated_ou_var(sigma: float, tau_s: float, t_s: float) -> float:
@@ -143,12 +148,11 @@ def test_over_the_real_photo_relief_b_carries_more_than_the_altimeter_offset(tmp
     # The photo relief (8 cm span) under the tokens: b's sigma above the configured 1 cm over
     # most of the dive (medians per 20 s: 11, 18, 18, 10, 26, 20 mm measured), and never below it.
     seq = _photo_turns(tmp_path, 2, 600)
-    _, sigmas = _inside_2sigma(seq, RunConfig())
+    _, sigmas = _inside_2sigma(seq, _ON)
     later = np.array(sigmas[100:])
     assert np.median(later) > 0.014
     assert np.all(later >= RunConfig().slam.altitude_bias_sigma_m - 1e-12)
-    cfg = RunConfig()
-    before = dataclasses.replace(cfg, slam=dataclasses.replace(cfg.slam, altitude_bias_relief=False))
+    before = RunConfig()
     _, sigmas_before = _inside_2sigma(seq, before)  # the control: the altimeter's offset, the relief under its spots
     assert np.median(sigmas_before[100:]) < 0.011
 
@@ -161,14 +165,14 @@ def test_a_flat_seabed_keeps_the_altimeter_offset_alone(tmp_path):
     if not photo_available():
         pytest.skip("the shared real seabed photo (chamber3) is not there")
     seq = simulate_variant(tmp_path / "flat", "photo-survey", "photo-survey-flat", 0, n_frames=150, relief=None)
-    _, sigmas = _inside_2sigma(seq, RunConfig())
+    _, sigmas = _inside_2sigma(seq, _ON)
     assert np.median(sigmas[50:]) < 0.0115
     # summary.json says what b carried, as the run used it
     import json
 
     from rovslam.runner import run_sequence
 
-    run_sequence(seq, tmp_path / "out", RunConfig())
+    run_sequence(seq, tmp_path / "out", _ON)
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())["altitude_bias"]
     assert summary["predictions"] == len(sigmas) == 149
     assert summary["sigma_median_m"] == pytest.approx(float(np.median(sigmas)), rel=1e-12)
@@ -189,11 +193,9 @@ def test_over_the_relief_trial_with_a_noisy_compass_the_truth_stays_inside(tmp_p
         simulate("relief-compass1", tmp_path / "seq", frames=300, seed=2)
     finally:
         del SCENARIOS["relief-compass1"]
-    cfg = RunConfig()
-    inside, _ = _inside_2sigma(tmp_path / "seq", cfg)
+    inside, _ = _inside_2sigma(tmp_path / "seq", _ON)
     assert inside >= 0.95
-    before = dataclasses.replace(cfg, slam=dataclasses.replace(cfg.slam, altitude_bias_relief=False))
-    inside_before, _ = _inside_2sigma(tmp_path / "seq", before)
+    inside_before, _ = _inside_2sigma(tmp_path / "seq", RunConfig())
     assert inside_before < 0.85
 
 
@@ -202,9 +204,7 @@ def test_the_worst_real_photo_dive_stays_inside_its_bounds(tmp_path):
     # The check matrix's worst cell (photo-turns seed 2, 300 s): 92.3 % inside 2-sigma with the
     # relief as white noise in Q only, 98.3 % with it in b too (measured).
     seq = _photo_turns(tmp_path, 2, 1500)
-    inside, _ = _inside_2sigma(seq, RunConfig())
+    inside, _ = _inside_2sigma(seq, _ON)
     assert inside >= 0.95
-    cfg = RunConfig()
-    before = dataclasses.replace(cfg, slam=dataclasses.replace(cfg.slam, altitude_bias_relief=False))
-    inside_before, _ = _inside_2sigma(seq, before)  # the relief as white noise in Q only
+    inside_before, _ = _inside_2sigma(seq, RunConfig())  # the relief as white noise in Q only
     assert inside_before < 0.95

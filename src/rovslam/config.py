@@ -355,9 +355,11 @@ class SlamConfig(_Checked):
     landmark_height_sigma_m: float = _num(0.03, ge=0)  # > 0: each landmark's height in the state, this prior (0: flat seabed, the paper)
     altitude_bias_sigma_m: float = _num(0.01, ge=0)  # > 0: the measured altitude's offset from the seabed datum in the state
     altitude_bias_tau_s: float = _num(30.0, gt=0)  # its correlation time (the altimeter's lasting offset: its calibration, a codec's spot)
-    # the relief under the tokens adds to b (sigma from the tokens' parallax, [odometry] relief_scale_gain; false: b is
-    # the altimeter's offset, widened only by the relief under the laser spots, as before), with this correlation time
-    altitude_bias_relief: bool = True
+    # true: the relief under the tokens adds to b (sigma from the tokens' parallax, [odometry] relief_scale_gain), with
+    # this correlation time. Off by default: through b it also widens the landmarks' depths, and on one HD dive a
+    # revisit then pulled the estimate 8 mm off (README); false: b is the altimeter's offset, widened only by the
+    # relief under the laser spots
+    altitude_bias_relief: bool = False
     altitude_bias_relief_tau_s: float = _num(5.0, gt=0)
     altitude_bias_consider: bool = True  # b a consider state (Schmidt): its uncertainty carried, never learned (False: learned)
     speed_bias_sigma_mps: float = _num(0.002, ge=0)  # > 0: the odometry's slow world-frame speed error w in the state, while sunlight drags the tokens (0: none)
