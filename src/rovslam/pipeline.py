@@ -369,6 +369,10 @@ class SlamPipeline:
     def _terrain_sigma_m(self, altitude_m: float, alt: AltitudeEstimate) -> float:
         """How far the relief under the altimeter's points strays from the mean seabed (from the tokens' parallax)."""
         samples = max(alt.n_spots, 1) if alt.source.startswith("laser") else 1
+        return self._relief_sigma_m(altitude_m, samples)
+
+    def _relief_sigma_m(self, altitude_m: float, samples: int = 1) -> float:
+        """The relief's height spread at depth Z from the tokens' parallax, over ``samples`` independent points (m)."""
         return self.config.odometry.relief_scale_gain * altitude_m * math.sqrt(self.speed.relief_var / samples)
 
     def _altitude_bias_process(self, altitude_m: float, alt: AltitudeEstimate) -> tuple[float, float]:
@@ -386,7 +390,7 @@ class SlamPipeline:
         slam = self.config.slam
         if not slam.altitude_bias_relief:  # the altimeter's offset, or the relief under its spots if larger
             return max(slam.altitude_bias_sigma_m, self._terrain_sigma_m(altitude_m, alt)), slam.altitude_bias_tau_s
-        relief = self.config.odometry.relief_scale_gain * altitude_m * math.sqrt(self.speed.relief_var)
+        relief = self._relief_sigma_m(altitude_m)  # one token's spread: the tokens share their relief features
         return ou_sum_as_one(slam.altitude_bias_sigma_m, slam.altitude_bias_tau_s, relief, slam.altitude_bias_relief_tau_s)
 
     # ------------------------------------------------------------------ step 2

@@ -17,8 +17,8 @@ says, so seen again from another place in the image it is 1 to 7 px off. Its dep
 altitude from the seabed level the heights refer to: the lasers range to the relief under
 their few spots, which differs from the mean seabed by a few centimetres and changes as the
 relief passes (an Ornstein-Uhlenbeck process of correlation time ``altitude_bias_tau_s``, or the
-one the caller gives per step: the pipeline adds the relief under the tokens, which decorrelates
-within seconds, :func:`rovslam.slam.motion.ou_sum_as_one`). The
+one the caller gives per step: with ``[slam] altitude_bias_relief`` the pipeline adds the relief
+under the tokens, which decorrelates within seconds, :func:`rovslam.slam.motion.ou_sum_as_one`). The
 true depth of landmark i is ``Z + b - h_i``, and the tokens' speed, measured at depth Z, is
 really ``(Z + b) / Z`` times larger: one state ties the odometry's scale and every landmark's
 depth together, so their errors, correlated from frame to frame, are not averaged as if white.
