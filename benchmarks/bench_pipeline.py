@@ -222,7 +222,8 @@ def _spawn(spec: dict, src: Path | None = None) -> dict:
     if src is not None:
         env["PYTHONPATH"] = os.pathsep.join([str(src)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
     master, slave = pty.openpty()
-    drained = threading.Thread(target=_drain, args=(master,), daemon=True)
+    tail = bytearray()  # the last of what the worker wrote on its terminal (a traceback, when it fails)
+    drained = threading.Thread(target=_drain, args=(master, tail), daemon=True)
     drained.start()
     try:
         proc = subprocess.run([sys.executable, "-m", "benchmarks.bench_pipeline", "--worker", json.dumps(spec)],
@@ -230,14 +231,18 @@ def _spawn(spec: dict, src: Path | None = None) -> dict:
     finally:
         os.close(slave)
     if proc.returncode != 0:
-        raise SystemExit(f"benchmark worker failed ({spec}); its output:\n{proc.stdout}")
+        drained.join(timeout=2.0)
+        err = tail.decode("utf-8", "replace").replace("\r", "")
+        raise SystemExit(f"benchmark worker failed ({spec}); its output:\n{proc.stdout}{err}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def _drain(fd: int) -> None:
+def _drain(fd: int, tail: bytearray) -> None:
+    """Read a pseudo-terminal until it closes, keeping its last 8 KiB in ``tail``."""
     try:
-        while os.read(fd, 65536):
-            pass
+        while chunk := os.read(fd, 65536):
+            tail.extend(chunk)
+            del tail[:-8192]
     except OSError:
         pass
     finally:
@@ -265,6 +270,11 @@ def main() -> int:
         print(json.dumps(worker(json.loads(args.worker))))
         return 0
 
+    if args.profile:
+        import importlib.util
+
+        if importlib.util.find_spec("pyinstrument") is None:
+            raise SystemExit("--profile needs pyinstrument: .venv/bin/pip install -e '.[bench]' (make bench installs it)")
     names = args.cases or list(CASES)
     repeats = 1 if args.quick else args.repeats
     info = machine()

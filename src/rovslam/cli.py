@@ -774,6 +774,12 @@ def _print_eval(f) -> None:
     t.add_row("largest error jump", *(jump(c.max_error_jump_sigma, c.max_error_jump_t_s) for c in cons), *pad)
     t.add_row("... in sigmas of the ellipse before",
               *(jump(c.max_error_jump_before_sigma, c.max_error_jump_before_t_s) for c in cons), *pad)
+    if f.speed is not None:
+        sp = f.speed
+        t.add_row("speed NEES mean (2 dof, per step)", f"{sp.nees_mean:.2f} over {sp.steps} steps", *[""] * (len(runs) - 1))
+        t.add_row("speed error / claimed sigma (RMS)",
+                  " ".join(f"{1e3 * e:.2f}/{1e3 * s:.2f}" for e, s in zip(sp.rms_error_mps, sp.rms_sigma_mps)) + " mm/s",
+                  *[""] * (len(runs) - 1))
     t.add_row("skipped frames", str(f.skipped_frames), *[""] * (len(runs) - 1))
     console.print(t)
     for note in f.notes:

@@ -170,6 +170,8 @@ def cell_figures(ev) -> dict[str, Any]:
         row["sm_" + key] = None if sm is None else getattr(sm, key)
     row["sm_coverage_2sigma"] = None if smc is None else smc.coverage_2sigma
     row["sm_nees_mean"] = None if smc is None else smc.nees_mean
+    row["speed_nees_mean"] = None if ev.speed is None else ev.speed.nees_mean
+    row["speed_coverage_2sigma"] = None if ev.speed is None else ev.speed.coverage_2sigma
     row["dr_over_slam"] = ev.dead_reckoning_over_slam_rmse
     row["pc_over_slam"] = ev.phase_correlation_over_slam_rmse
     return row

@@ -5,6 +5,7 @@ from rovslam.eval.metrics import (
     Consistency,
     Evaluation,
     RevisitRow,
+    SpeedConsistency,
     TrajectoryErrors,
     consistency,
     error_jump_before_sigma,
@@ -13,13 +14,16 @@ from rovslam.eval.metrics import (
     evaluate_run,
     nees,
     revisit_table,
+    speed_consistency,
     trajectory_errors,
+    true_body_speed_mps,
 )
 
 __all__ = [
     "Consistency",
     "Evaluation",
     "RevisitRow",
+    "SpeedConsistency",
     "TrajectoryErrors",
     "consistency",
     "error_jump_before_sigma",
@@ -31,5 +35,7 @@ __all__ = [
     "nees",
     "phase_correlation_path",
     "revisit_table",
+    "speed_consistency",
     "trajectory_errors",
+    "true_body_speed_mps",
 ]

@@ -179,6 +179,82 @@ def consistency(err_m: np.ndarray, cov_m2: np.ndarray, t_s: np.ndarray | None = 
     )
 
 
+def true_body_speed_mps(xy_m: np.ndarray, heading_rad: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    """The true mean surge and sway over each step. (N, 2), (N,), (N,) -> (N-1, 2) metres per second.
+
+    Step k (from row k to row k+1) is the world displacement turned into the body frame of the
+    mean heading of its two rows (taken on the circle), over the step's duration: what the
+    odometry's ``surge_mps, sway_mps`` of row k+1 measure. A step of zero or negative duration is NaN.
+    """
+    xy = np.asarray(xy_m, dtype=np.float64)
+    psi = np.asarray(heading_rad, dtype=np.float64)
+    t = np.asarray(t_s, dtype=np.float64)
+    if xy.ndim != 2 or xy.shape[1] != 2 or psi.shape != (len(xy),) or t.shape != (len(xy),):
+        raise InvalidArgumentError(f"need (N, 2) positions and (N,) headings and times, got {xy.shape}, {psi.shape}, {t.shape}")
+    d = np.diff(xy, axis=0)
+    mid = np.arctan2(np.sin(psi[:-1]) + np.sin(psi[1:]), np.cos(psi[:-1]) + np.cos(psi[1:]))
+    c, s = np.cos(mid), np.sin(mid)
+    body = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])  # R(psi)^T d
+    dt = np.diff(t)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where((dt > 0)[:, None], body / dt[:, None], np.nan)
+
+
+@dataclass(frozen=True)
+class SpeedConsistency:
+    """How well the odometry's reported covariance Q (1) describes the speed's actual error (2 dof, per step).
+
+    Only the steps the tokens measured (``speed_ok``; a held speed is no measurement) between two
+    processed frames count.
+    """
+
+    steps: int  # steps judged
+    nees_mean: float  # mean of e^T Q^-1 e over those steps (2 for a consistent Q)
+    nees_median: float
+    coverage_2sigma: float  # fraction of steps whose true speed is inside the 2-sigma ellipse of Q
+    rms_error_mps: tuple[float, float]  # RMS error of (surge, sway)
+    rms_sigma_mps: tuple[float, float]  # the sigma Q claimed: sqrt of the mean reported variance of (surge, sway)
+
+
+def speed_consistency(err_mps: np.ndarray, cov_mps2: np.ndarray) -> SpeedConsistency:
+    """:class:`SpeedConsistency` of ``(K, 2)`` speed errors (measured - true) with their ``(K, 2, 2)`` covariances."""
+    e = np.asarray(err_mps, dtype=np.float64)
+    q = np.asarray(cov_mps2, dtype=np.float64)
+    if e.ndim != 2 or e.shape[1] != 2 or q.shape != (len(e), 2, 2) or len(e) == 0:
+        raise InvalidArgumentError(f"need (K, 2) errors and (K, 2, 2) covariances with K >= 1, got {e.shape}, {q.shape}")
+    n = np.einsum("ni,nij,nj->n", e, np.linalg.inv(q), e)
+    return SpeedConsistency(
+        steps=int(len(e)),
+        nees_mean=float(np.mean(n)),
+        nees_median=float(np.median(n)),
+        coverage_2sigma=float(np.mean(n <= 4.0)),
+        rms_error_mps=(float(np.sqrt(np.mean(e[:, 0] ** 2))), float(np.sqrt(np.mean(e[:, 1] ** 2)))),
+        rms_sigma_mps=(float(np.sqrt(np.mean(q[:, 0, 0]))), float(np.sqrt(np.mean(q[:, 1, 1])))),
+    )
+
+
+def _speed_consistency(results: RunResults, gt: GroundTruth, idx: np.ndarray) -> SpeedConsistency | None:
+    """The measured steps of a run against the truth; None when trajectory.csv has no speed covariance or no measured step."""
+    tr = results.trajectory
+    keys = ("surge_mps", "sway_mps", "var_surge_mps2", "cov_surge_sway_mps2", "var_sway_mps2", "speed_ok")
+    if any(k not in tr for k in keys) or len(results.t_s) < 2:
+        return None
+    truth = true_body_speed_mps(gt.xy_m[idx], gt.heading_rad[idx], results.t_s)
+    meas = np.column_stack([tr["surge_mps"], tr["sway_mps"]])[1:]
+    q = np.stack([np.column_stack([tr["var_surge_mps2"], tr["cov_surge_sway_mps2"]]),
+                  np.column_stack([tr["cov_surge_sway_mps2"], tr["var_sway_mps2"]])], axis=1)[1:]
+    use = np.asarray(tr["speed_ok"])[1:] > 0
+    skipped = tr.get("skipped")
+    if skipped is not None:
+        use &= (np.asarray(skipped)[1:] == 0) & (np.asarray(skipped)[:-1] == 0)
+    use &= np.all(np.isfinite(truth), axis=1) & np.all(np.isfinite(meas), axis=1)
+    use &= np.all(np.isfinite(q.reshape(-1, 4)), axis=1) & (q[:, 0, 0] > 0) & (q[:, 1, 1] > 0)
+    use &= q[:, 0, 0] * q[:, 1, 1] - q[:, 0, 1] ** 2 > 0
+    if not np.any(use):
+        return None
+    return speed_consistency(meas[use] - truth[use], q[use])
+
+
 def _largest(jumps: np.ndarray, t_s: np.ndarray | None) -> tuple[float, float | None]:
     """The largest frame-to-frame jump (N-1,) and the time of the frame after it."""
     k = int(np.argmax(jumps))
@@ -255,6 +331,7 @@ class Evaluation:
     run_frame_turn_rad: float = 0.0  # a run without compass: the ground truth was turned by this into its frame
     partial_run: str | None = None  # how a run that stopped before its end stopped (interrupted, unusable, failed)
     groundtruth_shift_m: tuple[float, float] = (0.0, 0.0)  # a ground truth not starting at x = y = 0: its first row, subtracted
+    speed: SpeedConsistency | None = None  # the odometry's Q against the true speed, per measured step (None: no Q in trajectory.csv)
 
     @property
     def dead_reckoning_over_slam_rmse(self) -> float | None:
@@ -400,6 +477,7 @@ def evaluate(
         run_frame_turn_rad=turn,
         partial_run=partial_run(results.summary, int(len(est))),
         groundtruth_shift_m=(float(-start[0]), float(-start[1])),
+        speed=_speed_consistency(results, gt, idx),
     )
 
 
