@@ -190,6 +190,12 @@ def wrap_angle(angle_rad):
     return (float(angle_rad) + math.pi) % (2.0 * math.pi) - math.pi
 
 
+def step_mean_heading_rad(heading_rad: np.ndarray) -> np.ndarray:
+    """``(N,)`` headings -> ``(N-1,)`` the mean of each consecutive pair, taken on the circle."""
+    psi = np.asarray(heading_rad, dtype=np.float64)
+    return np.arctan2(np.sin(psi[:-1]) + np.sin(psi[1:]), np.cos(psi[:-1]) + np.cos(psi[1:]))
+
+
 def rot_z(a: float) -> np.ndarray:
     c, s = np.cos(a), np.sin(a)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

@@ -20,6 +20,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from rovslam.camera import step_mean_heading_rad
 from rovslam.errors import InvalidArgumentError, ResultsFormatError
 
 
@@ -111,7 +112,7 @@ def integrate_shifts(
     if n == 0:
         return np.zeros((0, 2))
     z_m = 0.5 * (alt[:-1] + alt[1:])
-    psi_mid = np.arctan2(np.sin(psi[:-1]) + np.sin(psi[1:]), np.cos(psi[:-1]) + np.cos(psi[1:]))
+    psi_mid = step_mean_heading_rad(psi)
     du, dv = shifts[:, 0], shifts[:, 1]
     # Body-frame vehicle displacement before the camera's own turn gamma: (Z/f) [dv, -du].
     a = z_m * dv / fy_px

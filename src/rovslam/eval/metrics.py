@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from rovslam.camera import rot2
+from rovslam.camera import rot2, step_mean_heading_rad
 from rovslam.errors import InvalidArgumentError, ResultsFormatError, SequenceFormatError
 from rovslam.io.results import RunResults
 from rovslam.io.sequence import GroundTruth
@@ -192,7 +192,7 @@ def true_body_speed_mps(xy_m: np.ndarray, heading_rad: np.ndarray, t_s: np.ndarr
     if xy.ndim != 2 or xy.shape[1] != 2 or psi.shape != (len(xy),) or t.shape != (len(xy),):
         raise InvalidArgumentError(f"need (N, 2) positions and (N,) headings and times, got {xy.shape}, {psi.shape}, {t.shape}")
     d = np.diff(xy, axis=0)
-    mid = np.arctan2(np.sin(psi[:-1]) + np.sin(psi[1:]), np.cos(psi[:-1]) + np.cos(psi[1:]))
+    mid = step_mean_heading_rad(psi)
     c, s = np.cos(mid), np.sin(mid)
     body = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])  # R(psi)^T d
     dt = np.diff(t)
@@ -222,7 +222,7 @@ def speed_consistency(err_mps: np.ndarray, cov_mps2: np.ndarray) -> SpeedConsist
     q = np.asarray(cov_mps2, dtype=np.float64)
     if e.ndim != 2 or e.shape[1] != 2 or q.shape != (len(e), 2, 2) or len(e) == 0:
         raise InvalidArgumentError(f"need (K, 2) errors and (K, 2, 2) covariances with K >= 1, got {e.shape}, {q.shape}")
-    n = np.einsum("ni,nij,nj->n", e, np.linalg.inv(q), e)
+    n = nees(e, q)
     return SpeedConsistency(
         steps=int(len(e)),
         nees_mean=float(np.mean(n)),
@@ -236,13 +236,12 @@ def speed_consistency(err_mps: np.ndarray, cov_mps2: np.ndarray) -> SpeedConsist
 def _speed_consistency(results: RunResults, gt: GroundTruth, idx: np.ndarray) -> SpeedConsistency | None:
     """The measured steps of a run against the truth; None when trajectory.csv has no speed covariance or no measured step."""
     tr = results.trajectory
-    keys = ("surge_mps", "sway_mps", "var_surge_mps2", "cov_surge_sway_mps2", "var_sway_mps2", "speed_ok")
-    if any(k not in tr for k in keys) or len(results.t_s) < 2:
+    q = results.speed_cov_mps2
+    if q is None or any(k not in tr for k in ("surge_mps", "sway_mps", "speed_ok")) or len(results.t_s) < 2:
         return None
     truth = true_body_speed_mps(gt.xy_m[idx], gt.heading_rad[idx], results.t_s)
     meas = np.column_stack([tr["surge_mps"], tr["sway_mps"]])[1:]
-    q = np.stack([np.column_stack([tr["var_surge_mps2"], tr["cov_surge_sway_mps2"]]),
-                  np.column_stack([tr["cov_surge_sway_mps2"], tr["var_sway_mps2"]])], axis=1)[1:]
+    q = q[1:]
     use = np.asarray(tr["speed_ok"])[1:] > 0
     skipped = tr.get("skipped")
     if skipped is not None:

@@ -501,14 +501,21 @@ class RunResults:
         return _cov_table(self.trajectory)
 
     @property
+    def speed_cov_mps2(self) -> np.ndarray | None:
+        """(N, 2, 2) covariances Q of the measured (surge, sway); None when trajectory.csv has no such columns."""
+        names = ("var_surge_mps2", "cov_surge_sway_mps2", "var_sway_mps2")
+        return _cov_table(self.trajectory, names) if all(n in self.trajectory for n in names) else None
+
+    @property
     def dr_xy_m(self) -> np.ndarray:
         return np.column_stack([self.trajectory["dr_x_m"], self.trajectory["dr_y_m"]])
 
 
-def _cov_table(t: dict[str, np.ndarray]) -> np.ndarray:
-    """(N, 2, 2) covariances from the var_x_m2, cov_xy_m2, var_y_m2 columns of a table."""
+def _cov_table(t: dict[str, np.ndarray], names: tuple[str, str, str] = ("var_x_m2", "cov_xy_m2", "var_y_m2")) -> np.ndarray:
+    """(N, 2, 2) covariances from the ``(var_a, cov_ab, var_b)`` columns ``names`` of a table."""
+    var_a, cov_ab, var_b = (t[n] for n in names)
     c = np.empty((len(t["t_s"]), 2, 2))
-    c[:, 0, 0], c[:, 0, 1], c[:, 1, 0], c[:, 1, 1] = t["var_x_m2"], t["cov_xy_m2"], t["cov_xy_m2"], t["var_y_m2"]
+    c[:, 0, 0], c[:, 0, 1], c[:, 1, 0], c[:, 1, 1] = var_a, cov_ab, cov_ab, var_b
     return c
 
 
