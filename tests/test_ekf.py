@@ -335,6 +335,7 @@ def test_monte_carlo_nees_is_consistent_with_full_augmentation():
     assert 1.7 < stats["mean_nees"] < 2.4
 
 
+@pytest.mark.slow  # the paper's augmentation (a setting, not the default) over the Monte Carlo (15 s of CPU)
 def test_monte_carlo_nees_of_the_paper_augmentation_is_reported():
     inside_paper, stats_paper = monte_carlo("paper")
     print(

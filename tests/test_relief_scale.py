@@ -144,6 +144,7 @@ def _inside_2sigma(seq, cfg: RunConfig) -> tuple[float, list[float]]:
     return float(np.mean(inside)), sigmas
 
 
+@pytest.mark.slow  # an opt-in setting ([slam] altitude_bias_relief) on two runs of 2 minutes of the photo (35 s of CPU)
 def test_over_the_real_photo_relief_b_carries_more_than_the_altimeter_offset(tmp_path):
     # The photo relief (8 cm span) under the tokens: b's sigma above the configured 1 cm over
     # most of the dive (medians per 20 s: 11, 18, 18, 10, 26, 20 mm measured), and never below it.
@@ -179,6 +180,7 @@ def test_a_flat_seabed_keeps_the_altimeter_offset_alone(tmp_path):
     assert summary["sigma_p95_m"] >= summary["sigma_median_m"] >= RunConfig().slam.altitude_bias_sigma_m
 
 
+@pytest.mark.slow  # the same opt-in setting against the default on a 60 s relief dive (20 s of CPU)
 def test_over_the_relief_trial_with_a_noisy_compass_the_truth_stays_inside(tmp_path):
     # portofino-relief (12 cm of procedural relief: another seabed than the photo's) for 60 s with a
     # 1 degree compass, seed 2: measured 99.0 % inside 2-sigma, against 74.6 % with b as before.

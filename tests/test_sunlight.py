@@ -219,6 +219,7 @@ def test_the_swell_at_10_hz_is_seen_too(tmp_path):
     assert sun["frames_removed"] >= 90
 
 
+@pytest.mark.slow  # two runs of a 60 s swell dive (30 s of CPU) for an opt-in setting
 def test_slow_caustics_the_watch_misses_are_taken_by_the_speed_error_when_asked(tmp_path):
     # Caustics drifting at 2 cm/s barely move against the seabed from frame to frame: the watch's
     # share stays at the seabed's own 0.01, the light stays in, and it drags the surge by about

@@ -320,12 +320,13 @@ def shared_data_file(relative: str) -> Path:
     """A file of the project's shared data folder (e.g. ``chamber3/seabed.jpg``).
 
     Looked up in ``$ROVSLAM_SHARED_DATA`` when that is set, then in ``../shared/data``
-    beside the repository. A missing file raises SimulationError naming where it looked.
+    beside the repository; the path returned is absolute. A missing file raises SimulationError
+    naming where it looked.
     """
     candidates = []
     env = os.environ.get(SHARED_DATA_ENV)
     if env:
-        candidates.append(Path(env).expanduser() / relative)
+        candidates.append(Path(env).expanduser().absolute() / relative)  # a relative setting: from where it was set
     candidates.append(_REPO_ROOT.parent / "shared" / "data" / relative)
     for path in candidates:
         if path.is_file():
