@@ -98,7 +98,7 @@ class MemorySource:
 
     def __init__(self, seq: Any) -> None:
         self.info = seq.info
-        self.description = seq.description
+        self.description = getattr(seq, "description", "")  # builds before the input descriptions (--against) have none
         self.path = seq.folder
         self.warnings: list[str] = []
         self.left_out = 0
@@ -121,7 +121,7 @@ class ReplaySource:
     def __init__(self, seq: Any, times: int) -> None:
         self.seq, self.times = seq, int(times)
         self.info = seq.info
-        self.description = seq.description
+        self.description = getattr(seq, "description", "")  # builds before the input descriptions (--against) have none
         self.path = seq.folder
         self.warnings: list[str] = []
         self.left_out = 0
