@@ -498,3 +498,80 @@ def test_a_laser_whose_spot_is_never_in_the_image_is_named(dive, tmp_path):
     # the rig as simulated: every spot is in view at some altitude, no such warning
     plain = json.loads((dive[1] / "summary.json").read_text())
     assert not any("[[laser]]" in w for w in plain["sources"]["warnings"])
+
+
+_DEEP = "distortion = " + "[" * 5000 + "]" * 5000 + "\n"  # tomllib recurses once a level
+
+
+@pytest.mark.parametrize("which", ["sequence", "config", "matrix"])
+def test_a_toml_file_nested_thousands_deep_is_a_bad_file_not_an_internal_error(dive, tmp_path, which):
+    seq, _ = dive
+    if which == "sequence":
+        bad = tmp_path / "seq"
+        shutil.copytree(seq, bad)
+        text = (bad / "sequence.toml").read_text()
+        (bad / "sequence.toml").write_text(text.replace("[camera]\n", "[camera]\n" + _DEEP, 1))
+        res = runner.invoke(app, ["run", str(bad), "--out", str(tmp_path / "out"), "-q"])
+        target = bad / "sequence.toml"
+    elif which == "config":
+        target = tmp_path / "deep.toml"
+        target.write_text("[odometry]\n" + _DEEP)
+        res = runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "out"), "--config", str(target), "-q"])
+    else:
+        target = tmp_path / "matrix.toml"
+        target.write_text(_DEEP)
+        res = runner.invoke(app, ["batch", str(target), "--out", str(tmp_path / "out")])
+    _one_error_line(res, str(target), "not valid TOML", "nested too deeply")
+
+
+def test_a_laser_skirt_no_memory_holds_is_refused_at_load(dive, tmp_path):
+    # [laser] spot_skirt_px = 1e6 reached OpenCV as a 2-million-pixel disc (4 TB): an internal error
+    seq, _ = dive
+    cfg = tmp_path / "skirt.toml"
+    cfg.write_text("[laser]\nspot_skirt_px = 1e6\n")
+    res = runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "out"), "--config", str(cfg), "-q"])
+    _one_error_line(res, str(cfg), "[laser] spot_skirt_px", "<= 100")
+
+
+def test_a_frame_rate_or_time_no_clock_gives_is_named_not_an_overflow(image_folder, tmp_path):
+    # --fps 1e-300 and a times file with t_s = 1e308 overflowed the altitude filter's step (an internal error)
+    folder, cam = image_folder
+    _one_error_line(_run_folder(folder, cam, tmp_path / "a", "--fps", "1e-300"), "--fps 1e-300", "frames per second")
+    names = sorted(p.name for p in folder.iterdir())
+    times = tmp_path / "times.csv"
+    times.write_text("image,t_s\n" + "".join(f"{n},{0 if k == 0 else 1e308 * k / len(names)}\n" for k, n in enumerate(names)))
+    _one_error_line(_run_folder(folder, cam, tmp_path / "b", "--times", str(times)), str(times), "line 3", "no clock's time")
+
+
+def test_simulate_refuses_more_frames_than_a_dive_holds(tmp_path):
+    res = runner.invoke(app, ["simulate", "--scenario", "portofino-short", "--frames", "10000000000", "--out", str(tmp_path / "s")])
+    _one_error_line(res, "at most 1,000,000")
+    assert not (tmp_path / "s").exists()
+
+
+def test_mosaic_and_report_of_a_damaged_map_or_summary_still_draw(dive, tmp_path):
+    # a landmark at 1e12 m made cv2.drawMarker fail; "software": null in summary.json broke the report
+    seq, out = dive
+    bad = tmp_path / "out"
+    shutil.copytree(out, bad)
+    with open(bad / "landmarks.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    rows[0]["x_m"] = "1e12"
+    with open(bad / "landmarks.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    summary = json.loads((bad / "summary.json").read_text())
+    summary["software"] = None
+    (bad / "summary.json").write_text(json.dumps(summary))
+    res = runner.invoke(app, ["mosaic", str(bad), "--seq", str(seq)])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["report", str(bad), "--groundtruth", str(seq / "groundtruth.csv"), "--seq", str(seq)])
+    assert res.exit_code == 0, res.output
+    assert "rovslam ?" in (bad / "report" / "index.html").read_text()
+
+
+def test_a_landmark_id_given_many_times_is_one_figure():
+    from rovslam.cli import _landmark_ids
+
+    assert _landmark_ids(",".join(["3", "0"] * 1000)) == [3, 0]

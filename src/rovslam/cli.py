@@ -483,7 +483,7 @@ def _landmark_ids(text: Optional[str]) -> Optional[list[int]]:
         raise InvalidArgumentError(f"--landmarks takes landmark ids separated by commas (e.g. 0,3,7), got {text!r}") from None
     if not ids or min(ids) < 0:
         raise InvalidArgumentError(f"--landmarks takes landmark ids >= 0 separated by commas, got {text!r}")
-    return ids
+    return list(dict.fromkeys(ids))  # each once, in the order given: an id repeated is one figure
 
 
 @app.command()
@@ -601,8 +601,10 @@ def _is_simulated_sequence(seq: Path) -> bool:
     """Whether ``seq`` is a sequence folder rovslam's simulator wrote (so the demo may replace it)."""
     import tomllib
 
+    from rovslam.errors import parse_toml
+
     try:
-        meta = tomllib.loads((seq / "sequence.toml").read_text(encoding="utf-8")).get("metadata", {})
+        meta = parse_toml((seq / "sequence.toml").read_text(encoding="utf-8")).get("metadata", {})
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
         return False
     return isinstance(meta, dict) and meta.get("generator") == "rovslam.sim"

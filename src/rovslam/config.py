@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
-from rovslam.errors import ConfigError
+from rovslam.errors import ConfigError, parse_toml
 
 Channel = Literal["grey", "green", "blue"]
 Subpixel = Literal["parabolic", "gaussian", "none"]
@@ -268,8 +268,9 @@ class LaserConfig(_Checked):
     max_relative_disagreement: float = _num(0.05, gt=0)  # a spot whose altitude differs more is an outlier
     spot_sigma_px: float = _num(0.3, gt=0)  # centroid noise used for the altitude variance
     # a spot's centre weighs its red beyond the threshold this far (plus its radius) around the blob:
-    # a codec's lopsided smear moved the thresholded centroid (0: the thresholded pixels only, before)
-    spot_skirt_px: float = _num(3.0, ge=0)
+    # a codec's lopsided smear moved the thresholded centroid (0: the thresholded pixels only, before);
+    # at most 100 px: a fade wider than that is not a spot's, and the disc it dilates by must fit in memory
+    spot_skirt_px: float = _num(3.0, ge=0, le=100.0)
     # a spot missed by min_red_excess is searched this close to its prediction, its blob at 30 % of its peak,
     # when the peak reaches faint_red_excess (0: no faint spots, as before)
     faint_red_excess: float = _num(20.0, ge=0, le=255)
@@ -536,7 +537,7 @@ def load_config(path: str | Path) -> RunConfig:
         line = raw[: exc.start].count(b"\n") + 1
         raise ConfigError(f"{p}: line {line}: not UTF-8 text (byte {exc.start}); save the file as UTF-8.") from None
     try:
-        data = tomllib.loads(text)
+        data = parse_toml(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
     return from_dict(RunConfig, data, str(p))

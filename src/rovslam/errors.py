@@ -88,3 +88,17 @@ def finite_scalar(
     if nonnegative and v < 0.0:
         raise InvalidMeasurementError(f"{name} must be >= 0, got {v}{suffix}")
     return v
+
+
+def parse_toml(text: str) -> dict:
+    """``tomllib.loads(text)``; arrays or tables nested past Python's recursion limit are a ``TOMLDecodeError`` too.
+
+    (tomllib parses nested arrays recursively: a file of a few thousand ``[`` would otherwise
+    end in a RecursionError, an internal error, instead of the caller's bad-file message.)
+    """
+    import tomllib
+
+    try:
+        return tomllib.loads(text)
+    except RecursionError:
+        raise tomllib.TOMLDecodeError("arrays or inline tables nested too deeply (more than a few hundred levels)") from None

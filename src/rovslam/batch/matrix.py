@@ -39,7 +39,8 @@ from pathlib import Path
 from typing import Any
 
 from rovslam.config import RunConfig, load_config
-from rovslam.errors import ConfigError
+from rovslam.errors import ConfigError, parse_toml
+from rovslam.sim.scenarios import MAX_FRAMES
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 _TOP_KEYS = ("name", "seeds", "config", "smooth", "scenario", "sequence")
@@ -93,7 +94,7 @@ def load_matrix(path: str | Path, scenarios: dict[str, Any] | None = None) -> Ma
     if not p.is_file():
         raise ConfigError(f"{p}: matrix file not found. Give a TOML file (see matrices/smoke.toml).")
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
+        data = parse_toml(p.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
     _check_keys(data, _TOP_KEYS, f"{p}")
@@ -197,7 +198,7 @@ def _frames(entry: dict, scenario: Any, where: str) -> int | None:
     return max(1, round(n))
 
 
-MAX_SIMULATED_FRAMES = 1_000_000  # per simulated cell: 55 hours at 5 Hz
+MAX_SIMULATED_FRAMES = MAX_FRAMES  # per simulated cell: what one simulated dive may hold
 
 
 MAX_SEEDS = 10_000  # per entry: a count beyond this is a typo (a billion seeds would fill the memory first)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from rovslam.errors import ImageReadError, SequenceFormatError
 from rovslam.io.camera_file import CameraFile
-from rovslam.io.sequence import Frame, _inside, float_cell, read_csv_table, read_image
+from rovslam.io.sequence import MAX_TIME_S, Frame, _inside, read_csv_table, read_image, time_cell
 from rovslam.io.source import SourceDescription
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
@@ -73,6 +73,11 @@ class ImageFolderSource:
                 )
             names = image_files(self.folder)
             times = [k / float(fps) for k in range(len(names))]
+            if times and times[-1] > MAX_TIME_S:
+                raise SequenceFormatError(
+                    f"--fps {fps!r} puts the last of {len(names)} images {times[-1]:g} s after the first, more than any "
+                    f"dive ({MAX_TIME_S:g} s); give the frame rate in frames per second (e.g. --fps 5), or --times FILE."
+                )
         else:
             names, times = self._read_times(Path(times_file), root)  # type: ignore[arg-type]
             if not names:
@@ -104,7 +109,7 @@ class ImageFolderSource:
             resolved = _inside(root, name, f"{where}: column 'image'")
             if not resolved.is_file():
                 raise SequenceFormatError(f"{where}: image file '{name}' not found in {self.folder}.")
-            listed.append((float(float_cell(row, "t_s", where)), name, where))  # type: ignore[arg-type]
+            listed.append((time_cell(row, where), name, where))
         listed.sort()
         for (t0, _, _), (t1, _, where) in zip(listed, listed[1:]):
             if t1 <= t0:

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from rovslam.camera import Camera, LaserPointer
-from rovslam.errors import ImageReadError, RovslamError, SequenceFormatError
+from rovslam.errors import ImageReadError, RovslamError, SequenceFormatError, parse_toml
 from rovslam.io.source import ALTITUDE_INPUTS, HEADING_INPUTS, SourceDescription
 
 FORMAT_V1 = "rovslam-sequence/1"
@@ -187,7 +187,7 @@ def parse_sequence_toml(path: Path, root: Path | None = None) -> SequenceInfo:
 def load_toml(path: Path) -> dict[str, Any]:
     """The tables of a UTF-8 TOML file, or SequenceFormatError naming it."""
     try:
-        return tomllib.loads(read_text(path))
+        return parse_toml(read_text(path))
     except tomllib.TOMLDecodeError as exc:
         raise SequenceFormatError(f"{path}: not valid TOML: {exc}") from None
 
@@ -379,6 +379,18 @@ def float_cell(
     return v
 
 
+MAX_TIME_S = 1e12  # |t_s| above this is no clock's (31,700 years; UNIX times are 1.7e9): its steps would overflow
+
+
+def time_cell(row: dict[str, str], where: str, key: str = "t_s") -> float:
+    """The time in column ``key`` (seconds): a finite number of at most :data:`MAX_TIME_S` in size."""
+    t = float(float_cell(row, key, where))  # type: ignore[arg-type]
+    if abs(t) > MAX_TIME_S:
+        raise SequenceFormatError(f"{where}: column '{key}' = {t:g} s is no clock's time (more than {MAX_TIME_S:g} s "
+                                  "from 0); give times in seconds (UNIX times or from the start of the dive).")
+    return t
+
+
 def _inside(root: Path, relative: str, where: str) -> Path:
     """``root / relative`` with every link resolved, or SequenceFormatError when it is not inside ``root``.
 
@@ -435,7 +447,7 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
     last_t = -math.inf
     for line, row in rows:
         where = f"{path}, line {line}"
-        t = float(float_cell(row, "t_s", where))  # type: ignore[arg-type]
+        t = time_cell(row, where)
         if t <= last_t:
             raise SequenceFormatError(
                 f"{where}: t_s={t} is not after the previous row's t_s={last_t}; rows must be in strictly increasing time."

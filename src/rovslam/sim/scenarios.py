@@ -337,6 +337,9 @@ def shared_data_file(relative: str) -> Path:
     )
 
 
+MAX_FRAMES = 1_000_000  # one simulated dive: 55 hours at 5 Hz (its trajectory arrays alone are 0.4 GB)
+
+
 def _check_args(scenario, frames, seed, image_format, texture_path, texture_mm_per_px) -> tuple[Scenario, int, str]:
     if not isinstance(scenario, str) or scenario not in SCENARIOS:
         raise SimulationError(f"unknown scenario {scenario!r}; choose one of: {', '.join(SCENARIOS)}")
@@ -344,6 +347,9 @@ def _check_args(scenario, frames, seed, image_format, texture_path, texture_mm_p
     n = sc.n_frames if frames is None else frames
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise SimulationError(f"frames must be a whole number >= 1, got {frames!r}")
+    if n > MAX_FRAMES:
+        raise SimulationError(f"frames must be at most {MAX_FRAMES:,} (55 hours at 5 Hz), got {frames!r}; "
+                              "simulate a long campaign as several dives")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SimulationError(f"seed must be a whole number >= 0, got {seed!r}")
     fmt = {"png": "png", "jpg": "jpg", "jpeg": "jpg"}.get(str(sc.image_format if image_format is None

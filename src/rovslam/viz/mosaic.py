@@ -344,7 +344,10 @@ def decorate(mosaic: Mosaic, path_xy_m: np.ndarray | None = None, landmarks: dic
         cv2.polylines(img, [np.round(pts * 4).astype(np.int32).reshape(-1, 1, 2)], False, path_colour, 1, aa, shift=2)
     if landmarks and len(landmarks.get("id", [])):
         lp = g.world_to_px(np.column_stack([landmarks["x_m"], landmarks["y_m"]]))
+        h_px, w_px = img.shape[:2]
         for (c, r), lid in zip(lp, landmarks["id"]):
+            if not (np.isfinite(c) and np.isfinite(r) and -w_px <= c <= 2 * w_px and -h_px <= r <= 2 * h_px):
+                continue  # a landmark far off the mosaic (a damaged landmarks.csv): no marker to draw
             c, r = int(round(c)), int(round(r))
             cv2.drawMarker(img, (c, r), (220, 30, 30), cv2.MARKER_CROSS, 9, 1, aa)
             cv2.putText(img, str(int(lid)), (c + 4, r - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (220, 30, 30), 1, aa)

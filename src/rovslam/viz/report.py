@@ -234,7 +234,8 @@ def _config_html(folder: Path, res: RunResults) -> str:
         import json
 
         text = json.dumps(res.summary["config"], indent=2)
-    sw = res.summary.get("software", {})
+    sw = res.summary.get("software")
+    sw = sw if isinstance(sw, dict) else {}  # a summary.json edited by hand or from another tool
     meta = (f"<p>rovslam {html.escape(str(sw.get('version', '?')))}; sequence "
             f"<code>{html.escape(str(res.summary.get('sequence', '?')))}</code>.</p>")
     return "<h2>Configuration of the run</h2>" + meta + f"<pre>{html.escape(text or 'not recorded')}</pre>"
