@@ -575,3 +575,10 @@ def test_a_landmark_id_given_many_times_is_one_figure():
     from rovslam.cli import _landmark_ids
 
     assert _landmark_ids(",".join(["3", "0"] * 1000)) == [3, 0]
+
+
+@pytest.mark.parametrize("path,needle", [("/dev/null", "is not a regular file"), ("no-such.toml", "configuration file not found")])
+def test_a_config_that_is_a_device_is_not_called_missing(dive, tmp_path, path, needle):
+    seq, _ = dive
+    res = runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "out"), "--config", path, "-q"])
+    _one_error_line(res, path, needle)

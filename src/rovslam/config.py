@@ -526,7 +526,8 @@ def load_config(path: str | Path) -> RunConfig:
     """Read a :class:`RunConfig` from a TOML file; missing keys keep the paper's defaults."""
     p = Path(path)
     if not p.is_file():
-        raise ConfigError(f"{p}: configuration file not found. Give the path of a TOML file.")
+        what = "is not a regular file (a folder, a device or a pipe)" if p.exists() else "configuration file not found"
+        raise ConfigError(f"{p}: {what}. Give the path of a TOML file.")
     try:
         raw = p.read_bytes()
     except OSError as exc:
