@@ -40,7 +40,6 @@ from typing import Any
 
 from rovslam.config import RunConfig, load_config
 from rovslam.errors import ConfigError, parse_toml
-from rovslam.sim.scenarios import MAX_FRAMES
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 _TOP_KEYS = ("name", "seeds", "config", "smooth", "scenario", "sequence")
@@ -191,14 +190,13 @@ def _frames(entry: dict, scenario: Any, where: str) -> int | None:
         n = d * scenario.frame_rate_hz
     else:
         return None
-    if n > MAX_SIMULATED_FRAMES:  # 1e12 frames asked 149 GiB and failed in the worker; 1e308 s overflowed
-        raise ConfigError(f"{where}: {n:.3g} frames to simulate, more than the {MAX_SIMULATED_FRAMES:,} a cell may "
-                          f"hold ({MAX_SIMULATED_FRAMES / scenario.frame_rate_hz / 3600:.0f} h of this preset); "
+    from rovslam.sim.scenarios import MAX_FRAMES  # loaded already: the scenario is one of its presets
+
+    if n > MAX_FRAMES:  # 1e12 frames asked 149 GiB and failed in the worker; 1e308 s overflowed
+        raise ConfigError(f"{where}: {n:.3g} frames to simulate, more than the {MAX_FRAMES:,} a cell may "
+                          f"hold ({MAX_FRAMES / scenario.frame_rate_hz / 3600:.0f} h of this preset); "
                           "give a shorter duration_s or fewer frames")
     return max(1, round(n))
-
-
-MAX_SIMULATED_FRAMES = MAX_FRAMES  # per simulated cell: what one simulated dive may hold
 
 
 MAX_SEEDS = 10_000  # per entry: a count beyond this is a typo (a billion seeds would fill the memory first)
