@@ -39,3 +39,35 @@ def test_weights_count_as_given():
     m.add(2.0, 3.0, 1.0)
     m.add(6.0, 1.0, 1.0)
     assert m.mean() == pytest.approx(3.0)  # (3 * 2 + 6) / 4
+
+
+# ---------------------------------------------------------------- median0: np.median(axis=0), bit for bit
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+from hypothesis.extra import numpy as hnp  # noqa: E402
+
+from rovslam.averages import median0  # noqa: E402
+
+
+@settings(max_examples=300, deadline=None)
+@given(hnp.arrays(st.sampled_from([np.float64, np.float32]),
+                  st.one_of(st.tuples(st.integers(1, 40)), st.tuples(st.integers(1, 40), st.integers(1, 3))),
+                  elements=st.floats(-1e6, 1e6, width=32)))
+def test_median0_is_numpys_median_bit_for_bit(values):
+    expected = np.median(values, axis=0)
+    got = median0(values)
+    assert np.asarray(got).dtype == np.asarray(expected).dtype and np.shape(got) == np.shape(expected)
+    assert np.array_equal(got, expected)
+
+
+def test_median0_of_even_count_is_the_mean_of_the_middle_two_and_integers_give_float():
+    assert median0(np.array([4.0, 1.0, 3.0, 2.0])) == 2.5
+    assert median0(np.array([[1.0, 10.0], [3.0, 30.0], [2.0, 20.0]])).tolist() == [2.0, 20.0]
+    m = median0(np.array([1, 2], dtype=np.uint8))
+    assert m == 1.5 and np.asarray(m).dtype == np.float64
+
+
+def test_median0_leaves_nan_and_empty_to_numpy():
+    assert np.isnan(median0(np.array([1.0, np.nan, 3.0])))
+    with np.errstate(invalid="ignore"), pytest.warns(RuntimeWarning):
+        assert np.isnan(median0(np.zeros(0)))

@@ -102,3 +102,14 @@ def test_absurd_numbers_in_a_camera_or_laser_are_refused_where_they_enter(make, 
 def test_a_realistic_inclined_laser_and_a_strong_lens_are_accepted():
     LaserPointer((0.1, 0.0, 0.0), (-0.36, 0.0, 1.0))  # 20 degrees towards the optical axis
     Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5, distortion=(-0.4, 0.2, 0.001, -0.001, -0.05))
+
+
+def test_level_from_camera_is_the_product_of_the_two_rotations_and_read_only():
+    from rovslam.camera import body_from_camera, level_from_body, level_from_camera
+
+    cam = Camera(360, 272, 400.0, 400.0, 180.0, 136.0, yaw_offset_rad=0.02)
+    rot = level_from_camera(cam, 0.03, -0.05)
+    assert np.array_equal(rot, level_from_body(0.03, -0.05) @ body_from_camera(cam))
+    assert level_from_camera(cam, 0.03, -0.05) is rot  # one per attitude
+    with pytest.raises(ValueError):
+        rot[0, 0] = 1.0

@@ -227,3 +227,23 @@ def test_window_inhibited_rounds_the_centre_to_the_window():
     assert window_inhibited(mask, (12.5, 12.5), (16, 16))  # window 5..20
     assert not window_inhibited(mask, (11.5, 12.5), (16, 16))  # window u 4..19
     assert not window_inhibited(mask, (-30.0, -30.0), (16, 16))
+
+
+def test_second_peak_is_the_highest_other_local_maximum_as_numpy_finds_it():
+    """OpenCV's masked maximum gives NumPy's masked maximum, -1 when no local maximum is left."""
+    import cv2
+
+    from rovslam.vision.templates import second_peak
+
+    rng = np.random.default_rng(11)
+    for k in range(400):
+        h, w = (int(v) for v in rng.integers(1, 25, 2))
+        corr = rng.uniform(-1.05, 1.0, (h, w)).astype(np.float32)
+        if k % 4 == 0:
+            corr = np.round(corr, 1)  # ties: plateaus are local maxima too
+        pu, pv, ex = int(rng.integers(0, w)), int(rng.integers(0, h)), int(rng.integers(0, 6))
+        is_max = corr >= cv2.dilate(corr, np.ones((3, 3), np.uint8))
+        is_max[max(0, pv - ex):pv + ex + 1, max(0, pu - ex):pu + ex + 1] = False
+        assert second_peak(corr, pu, pv, ex) == float(np.max(corr, where=is_max, initial=-1.0))
+    flat = np.full((5, 5), 0.3, np.float32)
+    assert second_peak(flat, 2, 2, 10) == -1.0  # every maximum inside the exclusion

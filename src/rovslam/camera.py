@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -221,6 +221,22 @@ def body_from_camera(camera: Camera) -> np.ndarray:
     return rot_z(camera.yaw_offset_rad) @ _BODY_FROM_CAMERA_NOMINAL
 
 
+@lru_cache(maxsize=16)
+def _level_from_camera(roll_rad: float, pitch_rad: float, yaw_offset_rad: float) -> np.ndarray:
+    """(3, 3) read-only rotation camera -> level frame, ``level_from_body @ body_from_camera``.
+
+    Computed once per attitude: a frame projects its spots, tokens and landmarks under the same one.
+    """
+    rot = level_from_body(roll_rad, pitch_rad) @ (rot_z(yaw_offset_rad) @ _BODY_FROM_CAMERA_NOMINAL)
+    rot.flags.writeable = False
+    return rot
+
+
+def level_from_camera(camera: Camera, roll_rad: float = 0.0, pitch_rad: float = 0.0) -> np.ndarray:
+    """(3, 3) rotation taking camera-frame vectors to the level frame (read-only; do not modify)."""
+    return _level_from_camera(float(roll_rad), float(pitch_rad), float(camera.yaw_offset_rad))
+
+
 def undistort_pixels(camera: Camera, uv_px: np.ndarray) -> np.ndarray:
     """Remove lens distortion. (N, 2) distorted pixels -> (N, 2) ideal pinhole pixels."""
     uv = np.asarray(uv_px, dtype=np.float64).reshape(-1, 2)
@@ -264,8 +280,7 @@ def pixel_rays_level(
             np.ones(len(uv)),
         ]
     )
-    rot = level_from_body(roll_rad, pitch_rad) @ body_from_camera(camera)
-    rays = rays_cam @ rot.T
+    rays = rays_cam @ level_from_camera(camera, roll_rad, pitch_rad).T
     with np.errstate(divide="ignore", invalid="ignore"):
         rays = rays / rays[:, 2:3]
     rays[~(rays[:, 2] > 0)] = np.nan
@@ -309,13 +324,18 @@ def ground_to_pixels(
     Includes tilt and lens distortion. Points behind the camera give NaN.
     """
     g = np.asarray(ground_m, dtype=np.float64).reshape(-1, 2)
-    pts_level = np.column_stack([g, np.full(len(g), float(altitude_m))])
-    rot = level_from_body(roll_rad, pitch_rad) @ body_from_camera(camera)
-    pts_cam = pts_level @ rot  # rot.T applied to row vectors: camera = rot^T level
+    pts_level = np.empty((len(g), 3))
+    pts_level[:, :2] = g
+    pts_level[:, 2] = float(altitude_m)
+    pts_cam = pts_level @ level_from_camera(camera, roll_rad, pitch_rad)  # rot.T on row vectors: camera = rot^T level
+    uv = np.empty((len(g), 2))
     with np.errstate(divide="ignore", invalid="ignore"):
-        x = pts_cam[:, 0] / pts_cam[:, 2]
-        y = pts_cam[:, 1] / pts_cam[:, 2]
-    uv = np.column_stack([x * camera.fx_px + camera.cx_px, y * camera.fy_px + camera.cy_px])
+        np.divide(pts_cam[:, 0], pts_cam[:, 2], out=uv[:, 0])
+        np.divide(pts_cam[:, 1], pts_cam[:, 2], out=uv[:, 1])
+    uv[:, 0] *= camera.fx_px
+    uv[:, 0] += camera.cx_px
+    uv[:, 1] *= camera.fy_px
+    uv[:, 1] += camera.cy_px
     uv[~(pts_cam[:, 2] > 0)] = np.nan
     return distort_pixels(camera, uv)
 

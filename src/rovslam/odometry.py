@@ -32,7 +32,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from rovslam.averages import DecayingMean
+from rovslam.averages import DecayingMean, median0
 from rovslam.camera import Camera, drot2, pixels_to_ground, rot2, wrap_angle
 from rovslam.config import OdometryConfig
 from rovslam.errors import InvalidArgumentError, InvalidMeasurementError, finite_scalar
@@ -428,7 +428,7 @@ def _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint, scale_var=0
     rb_prior = b @ rot2(prior_rad).T
     singles = a[pick] - rb_prior[pick]
     thetas = [np.full(1 + len(singles), prior_rad)]
-    ds = [np.median(a - rb_prior, axis=0)[None], singles]
+    ds = [median0(a - rb_prior)[None], singles]
     zooms = [np.ones(1 + len(singles))]
     if (joint or scale_var > 0.0) and len(a) >= 2:
         i, j = _pairs(len(a))

@@ -820,11 +820,10 @@ class SlamPipeline:
             altitude_sigma_m / meas.altitude_m)
 
     def _inside(self, uv_px: np.ndarray, half_px: float) -> bool:
-        return bool(
-            np.all(np.isfinite(uv_px))
-            and half_px <= uv_px[0] <= self.camera.width_px - 1 - half_px
-            and half_px <= uv_px[1] <= self.camera.height_px - 1 - half_px
-        )
+        """Is the ``(2,)`` centre (u, v) finite and ``half_px`` inside the image's border? (Python floats: cheaper)"""
+        u, v = float(uv_px[0]), float(uv_px[1])
+        return (math.isfinite(u) and math.isfinite(v) and half_px <= u <= self.camera.width_px - 1 - half_px
+                and half_px <= v <= self.camera.height_px - 1 - half_px)
 
     def landmark_rows(self) -> list[dict]:
         """The map for landmarks.csv; covariances with the apparent frame's errors (at the last frame's altitude)."""

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from rovslam.averages import DecayingMean
+from rovslam.averages import DecayingMean, median0
 
 SUNLIGHT_ON_SHARE = 0.03  # the smoothed moving share above which the sunlight is taken out
 SUNLIGHT_OFF_SHARE = 0.015  # ... and below which it is left in again
@@ -90,7 +90,7 @@ def moving_light_share(
         return float("nan")
     shares = np.sum((wb - wa) ** 2, axis=1)[keep] / total[keep]
     # The median over the tokens: one token matched wrongly (or half out of the frame) is not the light.
-    return float(np.median(shares))
+    return float(median0(shares))
 
 
 def _similarity(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -103,7 +103,7 @@ def _similarity(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     if len(p) < 3:
         return a
     res = np.hypot(*((q - q.mean(axis=0)) - (p - p.mean(axis=0)) @ a.T).T)
-    good = res <= max(2.0, 3.0 * float(np.median(res)))
+    good = res <= max(2.0, 3.0 * float(median0(res)))
     return _similarity_lsq(p[good], q[good]) if 2 <= good.sum() < len(p) else a
 
 

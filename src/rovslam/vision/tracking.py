@@ -35,6 +35,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from rovslam.averages import median0
 from rovslam.config import SpeedTemplateConfig, TrackerConfig
 from rovslam.errors import InvalidArgumentError
 from rovslam.vision.filters import local_variance
@@ -564,7 +565,7 @@ class TokenTracker:
         ok = np.array([m.ok for m in matches], dtype=bool)
         uv_prev = np.array([t.centre_uv_px for t in tokens], dtype=np.float64).reshape(-1, 2)[ok]
         uv_curr = np.array([m.uv_px for m in matches], dtype=np.float64).reshape(-1, 2)[ok]
-        self._last_shift = np.median(uv_curr - uv_prev, axis=0) if len(uv_curr) >= 2 else None
+        self._last_shift = median0(uv_curr - uv_prev) if len(uv_curr) >= 2 else None
         scores = np.array([m.score for m in matches], dtype=np.float64)[ok]
         return TokenTracks(uv_prev, uv_curr, scores, n, used_global, tuple(m.reason for m in matches),
                            g_shift, g_conf)
@@ -612,7 +613,7 @@ def _coherent(matches: list[Match], tokens: Sequence[Template], offsets_uv_px: n
     if not ok:
         return 0
     d = np.array([matches[i].uv_px - tokens[i].centre_uv_px - offsets_uv_px[i] for i in ok])
-    dev = np.max(np.abs(d - np.median(d, axis=0)), axis=1)
+    dev = np.max(np.abs(d - median0(d)), axis=1)
     return int(np.count_nonzero(dev <= 1.5))
 
 
