@@ -582,3 +582,23 @@ def test_a_config_that_is_a_device_is_not_called_missing(dive, tmp_path, path, n
     seq, _ = dive
     res = runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "out"), "--config", path, "-q"])
     _one_error_line(res, path, needle)
+
+
+@pytest.mark.parametrize("z", [1e308, 1e-320])
+def test_a_laser_direction_of_extreme_numbers_is_the_same_ray_without_warnings(z):
+    """(0, 0, 1e308) is the ray (0, 0, 1): its norm overflowed (1e-320: underflowed), which printed numpy
+    warnings and made the rig's spot 'never in view'."""
+    import warnings
+
+    import numpy as np
+
+    from rovslam.camera import LaserPointer
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        las = LaserPointer((0.05, 0.05, 0.0), (0.0, 0.0, z))
+        assert las.unit_direction.tolist() == [0.0, 0.0, 1.0]
+        tilted = LaserPointer((0.05, 0.05, 0.0), (0.1 * z, 0.0, z)).unit_direction
+    # 0.1 z is a subnormal number for z = 1e-320: three digits, no more
+    assert np.allclose(tilted, np.array([0.1, 0.0, 1.0]) / np.linalg.norm([0.1, 0.0, 1.0]), rtol=1e-15 if z > 1 else 1e-2)
+    assert LaserPointer((0.0, 0.0, 0.0), (0.0, 0.0, 2.0)).unit_direction.tolist() == [0.0, 0.0, 1.0]

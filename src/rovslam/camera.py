@@ -167,8 +167,14 @@ class LaserPointer:
 
     @property
     def unit_direction(self) -> np.ndarray:
+        """(3,) the direction scaled to length 1 (a direction of 1e308 or 1e-320 too: its norm would not be finite)."""
         d = np.asarray(self.direction, dtype=float)
-        return d / np.linalg.norm(d)
+        with np.errstate(over="ignore", under="ignore"):
+            n = float(np.linalg.norm(d))
+        if not (math.isfinite(n) and n > 0.0):
+            d = d / np.max(np.abs(d))  # the same ray, in numbers whose norm is finite
+            n = float(np.linalg.norm(d))
+        return d / n
 
 
 def rot2(psi_rad: float) -> np.ndarray:
