@@ -1,11 +1,14 @@
-"""DecayingMean: the exponentially weighted mean that starts from nothing."""
+"""DecayingMean: the exponentially weighted mean that starts from nothing; median0: NumPy's median, faster."""
 
 import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
-from rovslam.averages import DecayingMean
+from rovslam.averages import DecayingMean, median0
 
 
 def test_empty_gives_the_default():
@@ -42,13 +45,6 @@ def test_weights_count_as_given():
 
 
 # ---------------------------------------------------------------- median0: np.median(axis=0), bit for bit
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-from hypothesis.extra import numpy as hnp  # noqa: E402
-
-from rovslam.averages import median0  # noqa: E402
-
-
 @settings(max_examples=300, deadline=None)
 @given(hnp.arrays(st.sampled_from([np.float64, np.float32]),
                   st.one_of(st.tuples(st.integers(1, 40)), st.tuples(st.integers(1, 40), st.integers(1, 3))),

@@ -224,7 +224,11 @@ def level_from_body(roll_rad: float = 0.0, pitch_rad: float = 0.0) -> np.ndarray
 
 def body_from_camera(camera: Camera) -> np.ndarray:
     """(3, 3) rotation taking camera-frame vectors to the body frame (includes the yaw offset)."""
-    return rot_z(camera.yaw_offset_rad) @ _BODY_FROM_CAMERA_NOMINAL
+    return _body_from_camera(camera.yaw_offset_rad)
+
+
+def _body_from_camera(yaw_offset_rad: float) -> np.ndarray:
+    return rot_z(yaw_offset_rad) @ _BODY_FROM_CAMERA_NOMINAL
 
 
 @lru_cache(maxsize=16)
@@ -233,7 +237,7 @@ def _level_from_camera(roll_rad: float, pitch_rad: float, yaw_offset_rad: float)
 
     Computed once per attitude: a frame projects its spots, tokens and landmarks under the same one.
     """
-    rot = level_from_body(roll_rad, pitch_rad) @ (rot_z(yaw_offset_rad) @ _BODY_FROM_CAMERA_NOMINAL)
+    rot = level_from_body(roll_rad, pitch_rad) @ _body_from_camera(yaw_offset_rad)
     rot.flags.writeable = False
     return rot
 

@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from rovslam.averages import median0
 from rovslam.camera import Camera, LaserPointer, ground_to_pixels, level_from_body, pixel_rays_level
 from rovslam.config import LaserConfig
 from rovslam.errors import InvalidArgumentError, InvalidMeasurementError
@@ -567,13 +568,6 @@ def _fit_plane(points: np.ndarray, sigmas: np.ndarray) -> tuple[float, float, tu
     return float(coef[0]), float(np.sqrt(cov[0, 0])), (float(np.arctan(coef[1])), float(np.arctan(coef[2])))
 
 
-def _median(values: np.ndarray) -> float:
-    """``np.median`` of a few numbers (one per laser), without its overhead; the same value."""
-    v = sorted(values.tolist())
-    n = len(v)
-    return float(v[n // 2]) if n % 2 else float(np.mean([v[n // 2 - 1], v[n // 2]]))
-
-
 def _consistent(alts: np.ndarray, valid: np.ndarray, sonar: float | None, rel: float) -> np.ndarray:
     """Inlier mask: spots within ``rel`` (relative) of the others' median (or of the sonar)."""
     idx = np.flatnonzero(valid)
@@ -581,7 +575,7 @@ def _consistent(alts: np.ndarray, valid: np.ndarray, sonar: float | None, rel: f
     if len(idx) == 0:
         return inl
     if len(idx) >= 3:
-        ref = _median(alts[idx])
+        ref = float(median0(alts[idx]))
     elif sonar is not None:
         ref = sonar
     elif len(idx) == 2:

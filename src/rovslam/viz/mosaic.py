@@ -1,7 +1,7 @@
 """The seabed mosaic: every (k-th) frame laid on the seabed by its pose, altitude and camera model.
 
 Geometry: a pixel's viewing ray (lens distortion removed, then the camera's yaw offset,
-roll and pitch: :func:`rovslam.camera.level_from_body`, :func:`~rovslam.camera.body_from_camera`)
+roll and pitch: :func:`rovslam.camera.level_from_camera`)
 meets the seabed plane ``altitude_m`` below the camera and is turned by the heading into
 the world: equation (4) of the paper, ``X = x + Z R(psi) q_xy / q_z``. For a pinhole camera
 this chain is one 3x3 homography from image pixels to mosaic pixels per frame, applied with
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rovslam.camera import Camera, body_from_camera, level_from_body
+from rovslam.camera import Camera, level_from_camera
 from rovslam.errors import ImageReadError, InvalidArgumentError, OutputError
 
 TILE_PX = 512
@@ -116,7 +116,7 @@ def read_world_file(path: str | Path) -> np.ndarray:
 def frame_homography(camera: Camera, grid: MosaicGrid, x_m: float, y_m: float, altitude_m: float,
                      heading_rad: float, roll_rad: float = 0.0, pitch_rad: float = 0.0) -> np.ndarray:
     """(3, 3) map from ideal (undistorted) image pixels (u, v, 1) to mosaic pixels (col, row, 1)."""
-    r_lc = level_from_body(roll_rad, pitch_rad) @ body_from_camera(camera)
+    r_lc = level_from_camera(camera, roll_rad, pitch_rad)
     c, s, z = math.cos(heading_rad), math.sin(heading_rad), altitude_m
     world = np.array([[z * c, -z * s, x_m], [z * s, z * c, y_m], [0.0, 0.0, 1.0]])  # eq. (4), homogeneous
     return grid.px_from_world @ world @ r_lc @ np.linalg.inv(camera.K)
