@@ -100,12 +100,16 @@ def simulate(
     image_format: Optional[str] = typer.Option(None, "--format", help="png or jpg (default: the scenario's)."),
     texture: Optional[Path] = typer.Option(None, help="Seabed photo/orthomosaic to use instead of the procedural texture."),
     texture_mm_per_px: Optional[float] = typer.Option(None, help="Scale of --texture (millimetres per pixel)."),
+    calibration_errors: bool = typer.Option(
+        False, "--calibration-errors",
+        help="Draw the seed's lasting sensor errors (compass deviation 0.5 deg, laser-rig baseline 0.76 %, sonar offset "
+             "1 cm, one sigma) and record them in sequence.toml; default: exact sensors."),
     list_scenarios: bool = typer.Option(False, "--list", help="List the scenarios and exit."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
     """Simulate an ROV dive over a seabed and write a sequence folder with exact ground truth."""
     from rovslam.errors import SimulationError
-    from rovslam.sim import SCENARIOS, simulate as run_sim
+    from rovslam.sim import SCENARIOS, CalibrationErrors, simulate as run_sim
 
     if list_scenarios:
         for name, sc in SCENARIOS.items():
@@ -119,6 +123,7 @@ def simulate(
         summary = run_sim(
             scenario, out, frames=frames, seed=seed, image_format=image_format, texture_path=texture,
             texture_mm_per_px=texture_mm_per_px, progress=bar,
+            calibration=CalibrationErrors() if calibration_errors else None,
         )
     typer.echo(f"wrote {out} ({_describe(summary)})")
 

@@ -86,10 +86,11 @@ def _run(spec: CellSpec, cell_dir: Path, keep_sequence: bool) -> dict[str, Any]:
 
     t0, c0 = time.perf_counter(), time.process_time()
     if spec.simulated:
-        from rovslam.sim import simulate
+        from rovslam.sim import CalibrationErrors, simulate
 
         seq = cell_dir / "sequence"
-        simulate(spec.scenario, seq, frames=spec.frames, seed=spec.seed, image_format=spec.image_format)
+        simulate(spec.scenario, seq, frames=spec.frames, seed=spec.seed, image_format=spec.image_format,
+                 calibration=CalibrationErrors() if spec.calibration_errors else None)
         groundtruth = seq / "groundtruth.csv"
         max_frames = None
     else:

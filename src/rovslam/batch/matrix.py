@@ -14,6 +14,7 @@ Format (TOML; paths relative to the matrix file)::
     # config = "other.toml"          # optional: this scenario's configuration
     # label = "portofino-other-cfg"  # optional: the row name (default the scenario's), to run a preset twice
     # format = "jpg"                 # optional: image files of the simulated dive, png (default) or jpg
+    # calibration_errors = true      # optional: draw each seed's lasting sensor errors (rovslam.sim.calibration)
 
     [[sequence]]                     # zero or more: a recorded dive with ground truth
     name = "my-dive"                 # the cell's name
@@ -43,7 +44,7 @@ from rovslam.errors import ConfigError, parse_toml
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 _TOP_KEYS = ("name", "seeds", "config", "smooth", "scenario", "sequence")
-_SCENARIO_KEYS = ("name", "frames", "duration_s", "seeds", "config", "label", "format")
+_SCENARIO_KEYS = ("name", "frames", "duration_s", "seeds", "config", "label", "format", "calibration_errors")
 _SEQUENCE_KEYS = ("name", "path", "groundtruth", "frames", "config")
 
 
@@ -62,6 +63,7 @@ class CellSpec:
     config_path: str | None = None  # where ``config`` came from (None: the paper's defaults)
     image_format: str = "png"  # of the simulated images: png, or jpg (about a third of the cost in HD)
     smooth: bool = True  # also smooth the run (GTSAM iSAM2) and evaluate the smoothed path
+    calibration_errors: bool = False  # simulate with the seed's drawn compass / laser-rig / sonar errors
 
     @property
     def simulated(self) -> bool:
@@ -118,9 +120,12 @@ def load_matrix(path: str | Path, scenarios: dict[str, Any] | None = None) -> Ma
         fmt = entry.get("format", "png")
         if fmt not in ("png", "jpg"):
             raise ConfigError(f"{where}: format must be \"png\" or \"jpg\", got {fmt!r}")
+        calibration = entry.get("calibration_errors", False)
+        if not isinstance(calibration, bool):
+            raise ConfigError(f"{where}: calibration_errors must be true or false, got {calibration!r}")
         cells += [
             CellSpec(f"{label}_s{s}", label, scenario=name, seed=s, frames=frames, config=cfg, config_path=cfg_path,
-                     image_format=fmt, smooth=smooth)
+                     image_format=fmt, smooth=smooth, calibration_errors=calibration)
             for s in seeds
         ]
     for i, entry in enumerate(_tables(data, "sequence", p)):

@@ -4,6 +4,7 @@ Entry points: :func:`simulate` (a whole sequence folder from a scenario preset i
 :data:`SCENARIOS`) and :func:`render_frame` (one frame for one pose, a pure function).
 """
 
+from rovslam.sim.calibration import CalibrationErrors, DrawnCalibration, draw_calibration
 from rovslam.sim.codec import H264Params, H264RoundTrip
 from rovslam.sim.lighting import CausticParams, Lamp, LightingParams
 from rovslam.sim.relief import ArrayRelief, PhotoReliefParams, ProceduralRelief, ReliefParams, relief_from_photo
@@ -34,7 +35,9 @@ from rovslam.sim.world import World
 
 __all__ = [
     "ArrayRelief",
+    "CalibrationErrors",
     "CausticParams",
+    "DrawnCalibration",
     "FrameRenderer",
     "H264Params",
     "H264RoundTrip",
@@ -64,6 +67,7 @@ __all__ = [
     "VehicleParams",
     "WaterParams",
     "World",
+    "draw_calibration",
     "frame_pose",
     "frame_rng",
     "read_sensors",

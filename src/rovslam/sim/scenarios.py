@@ -48,6 +48,7 @@ import numpy as np
 
 from rovslam.camera import Camera, LaserPointer
 from rovslam.errors import SimulationError
+from rovslam.sim.calibration import CalibrationErrors, DrawnCalibration, draw_calibration, recorded_lasers
 from rovslam.sim.codec import H264Params
 from rovslam.sim.lighting import CausticParams, Lamp, LightingParams
 from rovslam.sim.relief import PhotoReliefParams, ReliefParams
@@ -425,6 +426,7 @@ def simulate(
     texture_path: Path | None = None,
     texture_mm_per_px: float | None = None,
     progress: Callable[[int, int], None] | None = None,
+    calibration: CalibrationErrors | DrawnCalibration | None = None,
 ) -> SimulationSummary:
     """Simulate scenario ``scenario`` and write the sequence folder ``out_dir`` (format v1).
 
@@ -436,6 +438,9 @@ def simulate(
     On a scenario with relief, ``groundtruth.csv`` gets a ``relief_m`` column (the relief
     height under the camera; ``altitude_m`` stays the altitude above the mean seabed plane)
     and the sonar reads the range to the relief under its beam.
+    ``calibration``: lasting sensor errors (compass deviation, laser-rig baseline, sonar offset;
+    :mod:`rovslam.sim.calibration`), drawn for the seed from a :class:`CalibrationErrors` or given
+    as a :class:`DrawnCalibration`, recorded in ``[metadata]``; None: exact sensors.
     """
     from rovslam.io.sequence import SequenceInfo, SequenceWriter
     from rovslam.sim.codec import H264RoundTrip
@@ -443,6 +448,10 @@ def simulate(
 
     t_start = time.perf_counter()
     sc, n, fmt = _check_args(scenario, frames, seed, image_format, texture_path, texture_mm_per_px)
+    if calibration is not None and not isinstance(calibration, (CalibrationErrors, DrawnCalibration)):
+        raise SimulationError(f"calibration must be a CalibrationErrors, a DrawnCalibration or None, "
+                              f"got {type(calibration).__name__}")
+    drawn = draw_calibration(calibration, int(seed)) if isinstance(calibration, CalibrationErrors) else calibration
     out = Path(out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise SimulationError(f"output folder {out} already exists and is not empty; give a new folder")
@@ -458,7 +467,12 @@ def simulate(
                                        sc.nav.sonar_beam_half_angle_rad)
         if float(np.min(traj.altitude_m - world.relief.height_range_m[1])) < 0.05:
             raise SimulationError(f"scenario {sc.name}: the vehicle would touch the relief; fly higher")
-    nav = read_sensors(traj, sc.nav, int(seed), sonar_range_m=sonar_m)
+    nav_params, lasers_recorded = sc.nav, sc.lasers
+    if drawn is not None:
+        nav_params = replace(sc.nav, compass_bias_rad=sc.nav.compass_bias_rad + drawn.compass_deviation_rad,
+                             sonar_offset_m=sc.nav.sonar_offset_m + drawn.sonar_offset_m)
+        lasers_recorded = recorded_lasers(sc.lasers, drawn)
+    nav = read_sensors(traj, nav_params, int(seed), sonar_range_m=sonar_m)
     renderer = renderer_for(sc.camera, sc.water, sc.sensor, sc.spots, sc.lighting)
     yaw_rate = _yaw_rate_radps(traj) if sc.sensor.readout_s > 0 else np.zeros(n)
     metadata = {
@@ -473,10 +487,12 @@ def simulate(
     if world.relief is not None:  # (only then: the original presets' files stay as they were)
         lo, hi = world.relief.height_range_m
         metadata["relief"] = f"{type(world.relief).__name__}, heights within [{lo:.3f}, {hi:.3f}] m"
+    if drawn is not None:
+        metadata.update(drawn.metadata())
     if sc.h264 is not None:
         metadata["compression"] = f"H.264 round trip, CRF {sc.h264.crf}"
-    info = SequenceInfo(name=f"rovslam simulate {sc.name} (seed {int(seed)})", camera=sc.recorded_camera, lasers=sc.lasers,
-                        metadata=metadata)
+    info = SequenceInfo(name=f"rovslam simulate {sc.name} (seed {int(seed)})", camera=sc.recorded_camera,
+                        lasers=lasers_recorded, metadata=metadata)
     tilted = sc.tilted
     codec = None if sc.h264 is None else H264RoundTrip(sc.camera.width_px, sc.camera.height_px,
                                                        sc.frame_rate_hz, sc.h264)

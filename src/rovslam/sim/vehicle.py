@@ -167,6 +167,7 @@ class NavSensorParams:
     compass_drift_tau_s: float = 120.0
     sonar: bool = True  # write sonar_altitude_m (else the column is empty)
     sonar_sigma_m: float = 0.025
+    sonar_offset_m: float = 0.0  # constant (a calibration error: rovslam.sim.calibration)
     sonar_beam_half_angle_rad: float = float(np.deg2rad(3.0))  # over relief: the first echo within this cone
     attitude_sigma_rad: float = float(np.deg2rad(0.01))  # AHRS roll / pitch, white
     attitude_drift_rad: float = float(np.deg2rad(0.1))
@@ -177,6 +178,9 @@ class NavSensorParams:
                      "attitude_drift_rad"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise SimulationError(f"NavSensorParams.{name} must be a finite number >= 0, got {getattr(self, name)}")
+        for name in ("compass_bias_rad", "sonar_offset_m"):
+            if not np.isfinite(getattr(self, name)):
+                raise SimulationError(f"NavSensorParams.{name} must be a finite number, got {getattr(self, name)}")
         if not (self.compass_drift_tau_s > 0 and self.attitude_drift_tau_s > 0):
             raise SimulationError("NavSensorParams drift correlation times must be > 0 s")
 
@@ -370,6 +374,8 @@ def read_sensors(
                + ou_process(rng(4), n, dt, p.compass_drift_tau_s, p.compass_drift_rad))
     heading = (heading + np.pi) % (2.0 * np.pi) - np.pi
     true_range = traj.altitude_m if sonar_range_m is None else np.asarray(sonar_range_m, dtype=np.float64)
+    if p.sonar_offset_m != 0.0:  # (only then: the presets' readings stay bit for bit)
+        true_range = true_range + p.sonar_offset_m
     sonar = np.round(true_range + p.sonar_sigma_m * rng(1).standard_normal(n), 3) if p.sonar else None
     roll = (traj.roll_rad + p.attitude_sigma_rad * rng(2).standard_normal(n)
             + ou_process(rng(5), n, dt, p.attitude_drift_tau_s, p.attitude_drift_rad))
