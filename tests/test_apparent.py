@@ -72,9 +72,10 @@ def test_the_drift_counts_only_when_the_back_end_does_not_estimate_it():
 def test_each_back_end_adds_what_it_does_not_hold():
     cfg = RunConfig()
     # The EKF estimates the drift (eps) and holds the altimeter's lasting error (b): the offset alone.
-    assert apparent_sigmas(cfg, graph=False) == (cfg.odometry.compass_offset_sigma_rad, 0.0)
+    assert apparent_sigmas(cfg, graph=False) == (cfg.odometry.compass_offset_sigma_rad, 0.0, 0.0)
     # The graph estimates the drift too, but holds no altimeter error: that scales its whole dive.
-    assert apparent_sigmas(cfg, graph=True) == (cfg.odometry.compass_offset_sigma_rad, cfg.slam.altitude_bias_sigma_m)
+    assert apparent_sigmas(cfg, graph=True) == (cfg.odometry.compass_offset_sigma_rad, cfg.slam.altitude_bias_sigma_m,
+                                                cfg.slam.altitude_scale_sigma)
     no_drift = dataclasses.replace(cfg, slam=dataclasses.replace(cfg.slam, heading_bias_sigma_rad=0.0))
     assert apparent_sigmas(no_drift, graph=False)[0] == pytest.approx(
         math.hypot(cfg.odometry.compass_offset_sigma_rad, cfg.odometry.compass_drift_sigma_rad))

@@ -30,7 +30,9 @@ def noisy_compass_runs(tmp_path_factory):
     # b as it was when this was measured (altitude_bias_relief = false): the relief under the tokens in
     # b moves this dive (seed 6) to 80.3 % inside 2-sigma learned, 78.0 % fixed, and seed 2 of the same
     # dive from 74.6 to 99.0 % (tests/test_relief_scale.py); the compass noise's part is what this isolates.
-    slam = dataclasses.replace(RunConfig().slam, altitude_bias_relief=False)
+    # And b the offset alone (altitude_scale_sigma = 0): with the laser rig's share of the depth in b the
+    # wider ellipse covers this dive's compass error either way (97.7 % learned, 98.7 % fixed).
+    slam = dataclasses.replace(RunConfig().slam, altitude_bias_relief=False, altitude_scale_sigma=0.0)
     for key, cfg in (("learned", RunConfig(slam=slam)),
                      ("fixed", RunConfig(odometry=OdometryConfig(compass_sigma_learned=False), slam=slam))):
         run_sequence(root / "seq", root / key, cfg)

@@ -375,9 +375,9 @@ def test_smooth_command_writes_the_smoothed_files(tmp_path):
     np.testing.assert_allclose(np.column_stack([traj["x_m"], traj["y_m"]]), direct.xy_m, atol=1e-8)
     # The graph's marginals plus what the whole dive shares: the compass's error at the start
     # (0.5 degree by default) turns the estimate about the origin, the altimeter's lasting error
-    # (1 cm) scales it (no AHRS: no tilt term).
+    # (1 cm and the laser rig's 0.76 % of the depth, in quadrature) scales it (no AHRS: no tilt term).
     turned = direct.cov_xy_m2 + apparent_frame_cov_m2(direct.xy_m, direct.altitude_m, 0.0, 0.0087,
-                                                      0.01 / direct.altitude_m)
+                                                      np.hypot(0.01 / direct.altitude_m, 0.0076))
     np.testing.assert_allclose(traj["var_x_m2"], turned[:, 0, 0], rtol=1e-4)
     np.testing.assert_allclose(traj["cov_xy_m2"], turned[:, 0, 1], rtol=1e-4, atol=1e-12)
     far = np.argmax(np.hypot(*direct.xy_m.T))

@@ -356,6 +356,9 @@ class SlamConfig(_Checked):
     landmark_height_sigma_m: float = _num(0.03, ge=0)  # > 0: each landmark's height in the state, this prior (0: flat seabed, the paper)
     altitude_bias_sigma_m: float = _num(0.01, ge=0)  # > 0: the measured altitude's offset from the seabed datum in the state
     altitude_bias_tau_s: float = _num(30.0, gt=0)  # its correlation time (the altimeter's lasting offset: its calibration, a codec's spot)
+    # the laser rig's lasting share of the altitude (its baseline's calibration: 0.76 %, 1 cm at 1.31 m); with
+    # altitude_bias_sigma_m > 0, b's sigma at depth Z is hypot(altitude_bias_sigma_m, altitude_scale_sigma Z) (0: an offset alone)
+    altitude_scale_sigma: float = _num(0.0076, ge=0, le=0.1)
     # true: the relief under the tokens adds to b (sigma from the tokens' parallax, [odometry] relief_scale_gain), with
     # this correlation time. Off by default: through b it also widens the landmarks' depths, and on one HD dive a
     # revisit then pulled the estimate 8 mm off (README); false: b is the altimeter's offset, widened only by the

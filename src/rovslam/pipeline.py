@@ -41,7 +41,7 @@ from rovslam.shutter import mn_at_frame_time, mn_rate_px_s, tokens_at_frame_time
 from rovslam.slam import EkfSlam
 from rovslam.slam.apparent import apparent_frame_cov_m2, apparent_sigmas
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
-from rovslam.slam.motion import motion_step_m, ou_sum_as_one
+from rovslam.slam.motion import altitude_offset_sigma_m, motion_step_m, ou_sum_as_one
 from rovslam.slam.observation import observation_noise_px2, pixels_to_mn
 from rovslam.sunlight import BrightHistory, SunlightEvent, SunlightMonitor, moving_light_share
 from rovslam.vision.filters import (
@@ -147,7 +147,7 @@ class SlamPipeline:
         self.tokens = TokenTracker(config.speed_templates, config.tracker)
         self.speed = SpeedEstimator(config.odometry)
         self.heading = HeadingTracker(config.odometry, config.slam)
-        self.ekf = EkfSlam(config.slam)
+        self.ekf = EkfSlam(config.slam, initial_altitude_m=self.altimeter_fallback)
         self.smoother = None  # the iSAM2 back end ([slam] backend = "isam2"): the EKF then only associates
         if config.slam.backend == "isam2":
             from rovslam.slam.smoother import Isam2Smoother
@@ -382,16 +382,20 @@ class SlamPipeline:
         depth strays from Z by about one token's relative height spread (the tokens of one frame stand
         on the same relief features, so their mean does not average it away), a scale error of the
         speed that lasts while the same relief is under the camera. ``b`` carries it beside the
-        altimeter's lasting offset: their sum, two Ornstein-Uhlenbeck processes (``[slam]
-        altitude_bias_sigma_m`` / ``altitude_bias_tau_s``, and the relief's sigma ``gain Z
-        sigma_s`` from the tokens' parallax with ``altitude_bias_relief_tau_s``), held as one with
+        altimeter's lasting error: their sum, two Ornstein-Uhlenbeck processes (the altimeter's:
+        ``[slam] altitude_bias_sigma_m`` and the laser rig's share ``altitude_scale_sigma`` of Z in
+        quadrature, :func:`~rovslam.slam.motion.altitude_offset_sigma_m`, with ``altitude_bias_tau_s``;
+        the relief's: sigma ``gain Z sigma_s`` from the tokens' parallax with
+        ``altitude_bias_relief_tau_s``), held as one with
         the same variance and the same integrated autocovariance (so the same long-run drift).
         """
         slam = self.config.slam
-        if not slam.altitude_bias_relief:  # the altimeter's offset, or the relief under its spots if larger
-            return max(slam.altitude_bias_sigma_m, self._terrain_sigma_m(altitude_m, alt)), slam.altitude_bias_tau_s
+        # the altimeter's lasting error at this depth: its offset and the laser rig's share of Z
+        lasting = altitude_offset_sigma_m(slam.altitude_bias_sigma_m, slam.altitude_scale_sigma, altitude_m)
+        if not slam.altitude_bias_relief:  # the altimeter's lasting error, or the relief under its spots if larger
+            return max(lasting, self._terrain_sigma_m(altitude_m, alt)), slam.altitude_bias_tau_s
         relief = self._relief_sigma_m(altitude_m)  # one token's spread: the tokens share their relief features
-        return ou_sum_as_one(slam.altitude_bias_sigma_m, slam.altitude_bias_tau_s, relief, slam.altitude_bias_relief_tau_s)
+        return ou_sum_as_one(lasting, slam.altitude_bias_tau_s, relief, slam.altitude_bias_relief_tau_s)
 
     # ------------------------------------------------------------------ step 2
     def _inhibit_laser_spots(self, alt: AltitudeEstimate) -> np.ndarray:
@@ -814,10 +818,10 @@ class SlamPipeline:
         which does not hold it, the altimeter's lasting error move the whole estimate, and no
         image can see them (:mod:`rovslam.slam.apparent`).
         """
-        heading_sigma_rad, altitude_sigma_m = self._apparent_sigmas
+        heading_sigma_rad, altitude_sigma_m, altitude_scale = self._apparent_sigmas
         return np.asarray(cov_m2, dtype=np.float64) + apparent_frame_cov_m2(
             xy_m, meas.altitude_m, meas.attitude_sigma_rad, heading_sigma_rad if meas.has_compass else 0.0,
-            altitude_sigma_m / meas.altitude_m)
+            altitude_offset_sigma_m(altitude_sigma_m, altitude_scale, meas.altitude_m) / meas.altitude_m)
 
     def _inside(self, uv_px: np.ndarray, half_px: float) -> bool:
         """Is the ``(2,)`` centre (u, v) finite and ``half_px`` inside the image's border? (Python floats: cheaper)"""

@@ -728,18 +728,19 @@ def write_smoothed_result(out_dir: Path, res, config=None) -> None:
     The covariances written are the graph's plus the apparent frame's errors
     (:mod:`rovslam.slam.apparent`): the tilt each frame's AHRS left and the heading error the
     whole dive shares, as the online estimate's, and the altimeter's lasting error
-    (``[slam] altitude_bias_sigma_m``), which the graph, unlike the EKF, does not hold: a scale
+    (``[slam] altitude_bias_sigma_m`` and ``altitude_scale_sigma``), which the graph, unlike the EKF, does not hold: a scale
     of the whole dive. ``config``: the run's :class:`~rovslam.config.RunConfig` (default: the
     defaults). The landmarks take the last frame's tilt and scale terms.
     """
     from rovslam.io.results import write_smoothed
     from rovslam.slam.apparent import apparent_frame_cov_m2, apparent_sigmas
+    from rovslam.slam.motion import altitude_offset_sigma_m
 
-    rot, altitude_sigma_m = apparent_sigmas(RunConfig() if config is None else config, graph=True)
+    rot, altitude_sigma_m, altitude_scale = apparent_sigmas(RunConfig() if config is None else config, graph=True)
     n = len(res.t_s)
     tilt = np.zeros(n) if res.attitude_sigma_rad is None else res.attitude_sigma_rad
     compass = np.zeros(n, dtype=bool) if res.has_compass is None else res.has_compass
-    scale = altitude_sigma_m / res.altitude_m
+    scale = altitude_offset_sigma_m(altitude_sigma_m, altitude_scale, res.altitude_m) / res.altitude_m
     cov = res.cov_xy_m2 + apparent_frame_cov_m2(res.xy_m, res.altitude_m, tilt, np.where(compass, rot, 0.0), scale)
     lcov = res.landmarks_cov_m2
     if n and len(lcov):

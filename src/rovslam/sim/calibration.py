@@ -3,7 +3,8 @@
 The presets' sensors are calibrated exactly: the compass has no deviation, the laser pointers
 are where ``sequence.toml`` says they are, the sonar altimeter has no offset. A real vehicle
 carries lasting errors of all three, and the filter is told of them (``[odometry]
-compass_offset_sigma_rad``, ``[slam] altitude_bias_sigma_m``). With these errors drawn per seed
+compass_offset_sigma_rad``; ``[slam] altitude_scale_sigma``, the rig's share of the depth, and
+``altitude_bias_sigma_m``, an offset). With these errors drawn per seed
 (``rovslam simulate --calibration-errors``, ``calibration_errors = true`` in a matrix entry) the
 robustness matrix tests whether those terms cover what they stand for:
 
@@ -32,8 +33,8 @@ _STREAM_CALIBRATION = 14  # the seed's generator stream of the drawn errors (11-
 class CalibrationErrors:
     """Standard deviations of the drawn errors; the defaults are what rovslam's configuration assumes.
 
-    ``laser_baseline_sigma`` is relative (0.0076: 1 cm of altitude at the paper's 1.31 m, the
-    ``[slam] altitude_bias_sigma_m`` default); the angle and the offset are absolute.
+    ``laser_baseline_sigma`` is relative (0.0076: ``[slam] altitude_scale_sigma``'s default, 1 cm of
+    altitude at the paper's 1.31 m); the angle and the offset are absolute.
     """
 
     compass_deviation_sigma_rad: float = math.radians(0.5)  # [odometry] compass_offset_sigma_rad: 0.0087

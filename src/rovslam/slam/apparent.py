@@ -45,16 +45,20 @@ def shared_heading_sigma_rad(odometry: OdometryConfig, drift_estimated: bool) ->
     return math.hypot(odometry.compass_offset_sigma_rad, 0.0 if drift_estimated else odometry.compass_drift_sigma_rad)
 
 
-def apparent_sigmas(config: RunConfig, graph: bool) -> tuple[float, float]:
-    """``(heading_rad, altitude_m)``: what a back end's estimate shares and does not hold.
+def apparent_sigmas(config: RunConfig, graph: bool) -> tuple[float, float, float]:
+    """``(heading_rad, altitude_m, altitude_scale)``: what a back end's estimate shares and does not hold.
 
     The sigma of the heading error the whole estimate shares (frames with a compass), and of
-    the altimeter's lasting error: the EKF (``graph`` False) holds that one in its state ``b``,
-    the iSAM2 graph (``graph`` True) does not. Each back end's own drift model decides whether
-    the compass drift is shared.
+    the altimeter's lasting error, its offset (metres) and the laser rig's share of the depth
+    (relative; :func:`rovslam.slam.motion.altitude_offset_sigma_m` combines them): the EKF
+    (``graph`` False) holds that one in its state ``b`` (both 0 here), the iSAM2 graph (``graph``
+    True) does not. Each back end's own drift model decides whether the compass drift is shared.
     """
     drift_estimated = (config.smoother if graph else config.slam).heading_bias_sigma_rad > 0
-    return shared_heading_sigma_rad(config.odometry, drift_estimated), (config.slam.altitude_bias_sigma_m if graph else 0.0)
+    heading = shared_heading_sigma_rad(config.odometry, drift_estimated)
+    if not graph:
+        return heading, 0.0, 0.0
+    return heading, config.slam.altitude_bias_sigma_m, config.slam.altitude_scale_sigma
 
 
 def apparent_frame_cov_m2(xy_m, depth_m, tilt_sigma_rad, rotation_sigma_rad, scale_sigma=0.0) -> np.ndarray:

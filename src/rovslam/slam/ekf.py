@@ -30,6 +30,9 @@ spot centroid held half a pixel off by a video codec's blocks is a 1 % scale for
 ``altitude_bias_tau_s`` = 30 s) in the vehicle's and the landmarks' covariance. Learned, it
 was pulled by the relief's parallax to wrong values with a shrinking variance; with the earlier
 1 s correlation, the filter averaged a persistent error over many frames as if it were white.
+Its stationary sigma, given per step by the pipeline, is the altimeter's offset and the laser rig's
+share of the depth in quadrature (``[slam] altitude_bias_sigma_m``, ``altitude_scale_sigma``: a rig
+whose baseline is off by 0.76 % reads 1 cm long at 1.31 m, 1.5 cm at 2 m).
 
 ``w = [wx, wy]`` (m/s, world frame, present when ``speed_bias_sigma_mps > 0``) is a slow error of
 the measured speed that moves with the world, not with the vehicle: sunlight caustics drifting
@@ -72,7 +75,7 @@ from scipy.linalg.blas import dgemm
 from rovslam.config import SlamConfig
 from rovslam.errors import FilterInconsistencyError, InvalidMeasurementError, finite_scalar
 from rovslam.slam import gating
-from rovslam.slam.motion import motion_jacobians, motion_step_m
+from rovslam.slam.motion import altitude_offset_sigma_m, motion_jacobians, motion_step_m
 from rovslam.slam.observation import (
     landmark_from_mn,
     landmark_jacobians,
@@ -165,6 +168,8 @@ class EkfSlam:
         initial_xy_m: (2,) initial vehicle position.
         initial_cov_m2: (2, 2) its covariance; default ``initial_position_sigma_m^2 I``.
         initial_capacity: landmarks the buffers hold before their first growth.
+        initial_altitude_m: the depth expected at the start: ``b``'s first variance is its sigma there
+            (``altitude_bias_sigma_m`` with ``altitude_scale_sigma``'s share of it); None: the offset's alone.
     """
 
     def __init__(
@@ -173,9 +178,11 @@ class EkfSlam:
         initial_xy_m=(0.0, 0.0),
         initial_cov_m2=None,
         initial_capacity: int = 16,
+        initial_altitude_m: float | None = None,
     ):
         self.config = config  # validated when it was built (rovslam.config)
         xy = _vector2("initial_xy_m", initial_xy_m)
+        z0 = None if initial_altitude_m is None else _finite("initial_altitude_m", initial_altitude_m, positive=True)
         if initial_cov_m2 is None:
             cov = np.eye(2) * config.initial_position_sigma_m**2
         else:
@@ -192,7 +199,9 @@ class EkfSlam:
         if self._eps is not None:
             self._P[self._eps, self._eps] = config.heading_bias_sigma_rad**2
         if self._b is not None:
-            self._P[self._b, self._b] = config.altitude_bias_sigma_m**2
+            sb = config.altitude_bias_sigma_m if z0 is None else altitude_offset_sigma_m(
+                config.altitude_bias_sigma_m, config.altitude_scale_sigma, z0)
+            self._P[self._b, self._b] = sb**2
         self._w_sigma_mps = 0.0  # the speed error's stationary sigma over the last step (0: none yet)
 
     # ------------------------------------------------------------------ storage

@@ -12,7 +12,7 @@ import numpy as np
 
 from rovslam.camera import drot2, rot2
 
-__all__ = ["motion_step_m", "motion_jacobians", "ou_sum_as_one"]
+__all__ = ["altitude_offset_sigma_m", "motion_step_m", "motion_jacobians", "ou_sum_as_one"]
 
 
 def motion_step_m(speed_mps: np.ndarray, heading_rad: float, dt_s: float) -> np.ndarray:
@@ -37,3 +37,17 @@ def ou_sum_as_one(sigma_a: float, tau_a_s: float, sigma_b: float, tau_b_s: float
     if var <= 0.0:
         return 0.0, tau_a_s
     return math.sqrt(var), (sigma_a * sigma_a * tau_a_s + sigma_b * sigma_b * tau_b_s) / var
+
+
+def altitude_offset_sigma_m(offset_sigma_m: float, scale_sigma: float, altitude_m):
+    """Sigma of the measured altitude's lasting error at depth Z: an offset and a share of Z, in quadrature.
+
+    ``offset_sigma_m`` (an altimeter's offset, a codec's spot) is the same at any depth; a laser rig
+    whose baseline is off by ``s`` measures ``(1 + s) Z``, an error that grows with the depth. ``altitude_m``
+    () or (N,); returns the same shape (a float for a float). With ``scale_sigma = 0``: ``offset_sigma_m``.
+    """
+    if scale_sigma == 0.0:
+        return offset_sigma_m if np.ndim(altitude_m) == 0 else np.full(np.shape(altitude_m), float(offset_sigma_m))
+    if np.ndim(altitude_m) == 0:
+        return math.hypot(offset_sigma_m, scale_sigma * float(altitude_m))
+    return np.hypot(offset_sigma_m, scale_sigma * np.asarray(altitude_m, dtype=np.float64))
