@@ -101,6 +101,8 @@ def test_cli_flag_records_the_errors(tmp_path):
     meta = open_sequence(tmp_path / "s").info.metadata
     cal = draw_calibration(CalibrationErrors(), 4)
     assert meta["calibration_sonar_offset_m"] == pytest.approx(cal.sonar_offset_m, abs=1e-5)
+    assert (f"compass {math.degrees(cal.compass_deviation_rad):+.2f} deg, laser rig "
+            f"{100 * cal.laser_baseline_error:+.2f} %, sonar {100 * cal.sonar_offset_m:+.2f} cm") in res.output
 
 
 def test_matrix_key(tmp_path):

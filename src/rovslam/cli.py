@@ -9,6 +9,7 @@ text, never interpreted as rich markup (``[camera]`` stays as it is).
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import sys
@@ -126,6 +127,13 @@ def simulate(
             calibration=CalibrationErrors() if calibration_errors else None,
         )
     typer.echo(f"wrote {out} ({_describe(summary)})")
+    if calibration_errors:
+        from rovslam.sim import draw_calibration
+
+        d = draw_calibration(CalibrationErrors(), seed)
+        typer.echo(f"calibration errors of seed {seed}: compass {math.degrees(d.compass_deviation_rad):+.2f} deg, "
+                   f"laser rig {100 * d.laser_baseline_error:+.2f} %, sonar {100 * d.sonar_offset_m:+.2f} cm "
+                   "(sequence.toml [metadata])")
 
 
 def _h(text: str) -> str:
