@@ -18,19 +18,21 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-SIGMA = {"compass": math.radians(0.5), "laser": 0.0076, "sonar": 0.01}  # the configured one-sigma errors
-
 
 def errors() -> list[tuple[str, dict[str, float]]]:
+    from rovslam.sim import CalibrationErrors
+
+    one = CalibrationErrors()  # the one-sigma errors, those the configuration tells the filter of
+    sigma = {"compass": one.compass_deviation_sigma_rad, "laser": one.laser_baseline_sigma,
+             "sonar": one.sonar_offset_sigma_m}
     out: list[tuple[str, dict[str, float]]] = [("exact", {})]
     for kind, key in (("compass", "compass_deviation_rad"), ("laser", "laser_baseline_error"),
                       ("sonar", "sonar_offset_m")):
         for sign in (1, -1):
-            out.append((f"{kind} {'+' if sign > 0 else '-'}2 sigma", {key: 2.0 * sign * SIGMA[kind]}))
+            out.append((f"{kind} {'+' if sign > 0 else '-'}2 sigma", {key: 2.0 * sign * sigma[kind]}))
     return out
 
 

@@ -127,10 +127,8 @@ def simulate(
             calibration=CalibrationErrors() if calibration_errors else None,
         )
     typer.echo(f"wrote {out} ({_describe(summary)})")
-    if calibration_errors:
-        from rovslam.sim import draw_calibration
-
-        d = draw_calibration(CalibrationErrors(), seed)
+    d = summary.calibration
+    if d is not None:
         typer.echo(f"calibration errors of seed {seed}: compass {math.degrees(d.compass_deviation_rad):+.2f} deg, "
                    f"laser rig {100 * d.laser_baseline_error:+.2f} %, sonar {100 * d.sonar_offset_m:+.2f} cm "
                    "(sequence.toml [metadata])")

@@ -302,6 +302,7 @@ class SimulationSummary:
     y_range_m: tuple[float, float]
     altitude_range_m: tuple[float, float]
     wall_time_s: float
+    calibration: DrawnCalibration | None = None  # the lasting sensor errors the dive was given (None: exact sensors)
 
 
 def frame_pose(traj: Trajectory, k: int) -> Pose:
@@ -533,4 +534,5 @@ def simulate(
         y_range_m=(float(traj.y_m.min()), float(traj.y_m.max())),
         altitude_range_m=(float(traj.altitude_m.min()), float(traj.altitude_m.max())),
         wall_time_s=time.perf_counter() - t_start,
+        calibration=drawn,
     )
