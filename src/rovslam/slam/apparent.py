@@ -52,13 +52,16 @@ def apparent_sigmas(config: RunConfig, graph: bool) -> tuple[float, float, float
     the altimeter's lasting error, its offset (metres) and the laser rig's share of the depth
     (relative; :func:`rovslam.slam.motion.altitude_offset_sigma_m` combines them): the EKF
     (``graph`` False) holds that one in its state ``b`` (both 0 here), the iSAM2 graph (``graph``
-    True) does not. Each back end's own drift model decides whether the compass drift is shared.
+    True) does not. As for the EKF's ``b``, the share counts only with an offset sigma > 0
+    (``altitude_bias_sigma_m = 0``: no lasting altitude error). Each back end's own drift model
+    decides whether the compass drift is shared.
     """
     drift_estimated = (config.smoother if graph else config.slam).heading_bias_sigma_rad > 0
     heading = shared_heading_sigma_rad(config.odometry, drift_estimated)
-    if not graph:
-        return heading, 0.0, 0.0
-    return heading, config.slam.altitude_bias_sigma_m, config.slam.altitude_scale_sigma
+    slam = config.slam
+    if not graph or slam.altitude_bias_sigma_m == 0:
+        return heading, (slam.altitude_bias_sigma_m if graph else 0.0), 0.0
+    return heading, slam.altitude_bias_sigma_m, slam.altitude_scale_sigma
 
 
 def apparent_frame_cov_m2(xy_m, depth_m, tilt_sigma_rad, rotation_sigma_rad, scale_sigma=0.0) -> np.ndarray:
