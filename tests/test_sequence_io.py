@@ -296,3 +296,31 @@ def test_rows_must_have_one_value_per_column_and_attitude_in_range(tmp_path):
     with pytest.raises(SequenceFormatError, match="line 4: column 'roll_rad' is 1.7 rad, beyond"):
         open_sequence(tmp_path / "s")
     assert os.path.isfile(p)
+
+
+def _seq_with_angles(folder, heading, roll=None):
+    n = len(heading)
+    rng = np.random.default_rng(1)
+    with SequenceWriter(folder, INFO, with_attitude=roll is not None) as w:
+        for k in range(n):
+            w.write_frame(0.2 * k, rng.integers(0, 256, size=(48, 64, 3), dtype=np.uint8), heading[k], 1.3,
+                          None if roll is None else roll[k], None if roll is None else 0.0)
+    return open_sequence(folder)
+
+
+def test_angles_that_look_like_degrees_are_warned_of_not_refused(tmp_path):
+    rng = np.random.default_rng(7)
+    survey_rad = np.deg2rad(90.0 + np.cumsum(rng.normal(0.0, 0.3, 40)))  # a compass at 5 Hz: 0.3 deg a reading
+    assert _seq_with_angles(tmp_path / "rad", survey_rad).warnings == []
+    seq = _seq_with_angles(tmp_path / "deg", np.rad2deg(survey_rad))  # the same column in degrees
+    assert len(seq) == 40 and len(seq.warnings) == 1
+    assert "heading_rad changes by" in seq.warnings[0] and "is the column in degrees?" in seq.warnings[0]
+    assert str(tmp_path / "deg" / "frames.csv") in seq.warnings[0]
+    # a fast turn (12 degrees a frame, one third of the dive) is not mistaken for degrees
+    turn_rad = np.concatenate([np.zeros(27), np.deg2rad(12.0) * np.arange(1, 14)])
+    assert _seq_with_angles(tmp_path / "turn", turn_rad).warnings == []
+    # roll in degrees (1.2 "rad", inside the +-pi/2 that is refused) is warned of; 3 degrees of real roll is not
+    roll_deg = np.full(40, 1.2)
+    assert _seq_with_angles(tmp_path / "r_rad", survey_rad, np.deg2rad(roll_deg)).warnings == []
+    w = _seq_with_angles(tmp_path / "r_deg", survey_rad, roll_deg).warnings
+    assert len(w) == 1 and "roll_rad is 1.20 rad (69 degrees)" in w[0]

@@ -122,6 +122,13 @@ class GroundTruth:
 
 MAX_TEXT_BYTES = 512 * 2**20  # a frames.csv of a million frames is ~80 MB
 MAX_GROUNDTRUTH_M = 1e8  # a ground-truth coordinate beyond this is no place on Earth (its squares overflowed)
+# A heading column whose median step between frames is above this looks like degrees read as radians
+# (a survey's compass moves by a few hundredths of a radian a frame; 0.1 rad a frame, sustained over half
+# the dive, is a turn of 29 degrees a second at 5 Hz).
+DEGREES_LIKE_STEP_RAD = 0.1
+# ... and roll or pitch whose median size is above this (20 degrees: an ROV's camera tilted that far on
+# half of the frames is rare; 3 degrees written as 3 "radians" is refused anyway, 0.5 to 1.5 degrees is not).
+DEGREES_LIKE_ATTITUDE_RAD = 0.35
 MAX_ATTITUDE_RAD = math.pi / 2  # roll or pitch beyond 90 degrees: the camera no longer looks down
 MAX_HEADING_RAD = 1e4  # an unwrapped heading of 1,600 turns is still one; 1e308 is garbage (cos of it means nothing)
 
@@ -495,6 +502,34 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
     return out
 
 
+def angle_unit_warnings(rows: Sequence[FrameRow], where: str = "frames.csv") -> list[str]:
+    """Warnings for angle columns of ``rows`` that look like degrees written where radians are read.
+
+    The heading's median wrapped step between consecutive readings above ``DEGREES_LIKE_STEP_RAD``,
+    or the median size of roll or pitch above ``DEGREES_LIKE_ATTITUDE_RAD``: read as radians such a
+    column turns the estimate by tens of degrees a frame (and the compass gate then refuses much of
+    it). Only a warning: a dive can turn that fast, a camera can be mounted that tilted.
+    """
+    out: list[str] = []
+    heading = np.array([r.heading_rad for r in rows], dtype=np.float64)
+    heading = heading[np.isfinite(heading)]
+    if len(heading) >= 3:
+        step = float(np.median(np.abs(np.angle(np.exp(1j * np.diff(heading))))))
+        if step > DEGREES_LIKE_STEP_RAD:
+            out.append(
+                f"{where}: heading_rad changes by {step:.2f} rad ({math.degrees(step):.0f} degrees) from one frame to "
+                f"the next (median over {len(heading)} readings): is the column in degrees? headings are in radians "
+                "(multiply degrees by pi/180)")
+    for key in ATTITUDE_COLUMNS:
+        v = np.array([getattr(r, key) for r in rows if getattr(r, key) is not None], dtype=np.float64)
+        if len(v) and float(np.median(np.abs(v))) > DEGREES_LIKE_ATTITUDE_RAD:
+            size = float(np.median(np.abs(v)))
+            out.append(
+                f"{where}: {key} is {size:.2f} rad ({math.degrees(size):.0f} degrees) on half of the frames: is the "
+                "column in degrees? attitudes are in radians (multiply degrees by pi/180)")
+    return out
+
+
 def read_groundtruth(path: str | Path) -> GroundTruth:
     """Read ``groundtruth.csv`` (t_s,x_m,y_m,altitude_m,heading_rad[,relief_m]), validated."""
     p = Path(path)
@@ -620,6 +655,7 @@ class Sequence:
         self.groundtruth_path = groundtruth_path
         self.has_attitude = any(r.roll_rad is not None for r in rows)
         self._root = Path(os.path.realpath(folder))
+        self.warnings: list[str] = angle_unit_warnings(rows, str(folder / "frames.csv"))
 
     def __len__(self) -> int:
         return len(self.rows)
