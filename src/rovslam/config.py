@@ -302,7 +302,7 @@ class OdometryConfig(_Checked):
     # true: the zoom between the two frames from the tokens (a similarity fit), the measured altitudes'
     # ratio its prior (the lasers' step-to-step noise over relief zooms one frame against the next).
     # 10 to 50 % less ATE on the check matrix, but the real-photo survey with turns' worst seed falls
-    # (91.6 -> 87.2 % inside 2-sigma): off (README, "The zoom between frames")
+    # (91.6 -> 87.2 % inside 2-sigma): off (docs/consistency.md, "The zoom between frames")
     token_scale: bool = False
     common_sigma_px: float = _num(0.15, ge=0)  # an error all tokens of a step share (compression, lighting): not / n
     gap_speed_sigma_mps: float = _num(0.02, ge=0)  # landmark search: the speed may change by this per second
