@@ -45,6 +45,23 @@ def test_run_eval_report_and_config(tiny_seq, tmp_path):
     assert res.exit_code == 0 and "min_correlation = 0.89" in (tmp_path / "c.toml").read_text()
 
 
+def test_eval_names_a_bad_groundtruth_once(tiny_seq, tmp_path):
+    out = tmp_path / "out"
+    assert runner.invoke(app, ["run", str(tiny_seq / "seq"), "--out", str(out), "--quiet"]).exit_code == 0
+    bad = tmp_path / "truth.csv"
+    bad.write_text("hello\n1,2\n")
+    res = runner.invoke(app, ["eval", str(out), "--groundtruth", str(bad)])
+    assert res.exit_code == 2, res.output
+    assert res.output.count(str(bad)) == 1, res.output
+    assert "header is missing column(s) t_s, x_m" in res.output
+    short = tmp_path / "short.csv"  # times that do not cover the run: evaluate's error, named here
+    rows = (tiny_seq / "seq" / "groundtruth.csv").read_text().splitlines()[:4]
+    short.write_text("\n".join(rows) + "\n")
+    res = runner.invoke(app, ["eval", str(out), "--groundtruth", str(short)])
+    assert res.exit_code == 2, res.output
+    assert str(short) in res.output
+
+
 @pytest.mark.parametrize(
     "args,needle",
     [

@@ -498,7 +498,8 @@ def evaluate_run(
 
         seq = open_sequence(sequence_dir)
         pc = phase_correlation_path(seq, results.trajectory.get("altitude_m"), results.t_s)
+    truth = read_groundtruth(groundtruth)  # its errors name the file already
     try:
-        return evaluate(results, read_groundtruth(groundtruth), segment_m, pc)
+        return evaluate(results, truth, segment_m, pc)
     except SequenceFormatError as exc:  # the ground truth's times do not cover the run's
         raise SequenceFormatError(f"{groundtruth}: {exc}") from None
