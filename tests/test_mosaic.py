@@ -16,8 +16,10 @@ from rovslam.viz.mosaic import (
     MosaicGrid,
     Poses,
     TiledAccumulator,
+    Mosaic,
     build_mosaic,
     decorate,
+    label_origin_px,
     plan_grid,
     read_world_file,
     truth_poses,
@@ -147,3 +149,26 @@ def test_mosaic_command_lays_the_estimate_where_the_truth_lays_the_frames(dive, 
     b = _highpass(cv2.cvtColor(tru.rgb, cv2.COLOR_RGB2GRAY))[both]
     # the estimate is within a millimetre of the truth on this short dive: the two mosaics agree
     assert float(np.corrcoef(a, b)[0, 1]) > 0.9
+
+
+def test_a_label_that_would_cover_another_is_moved_below_it():
+    drawn: list[tuple[int, int, int, int]] = []
+    assert label_origin_px((10, 20), (12, 8), drawn) == (10, 20)
+    assert label_origin_px((13, 21), (12, 8), drawn) == (13, 31)  # overlapped the first: one row (8 + 2 px) down
+    assert label_origin_px((12, 20), (12, 8), drawn) == (12, 40)  # ... and the second: two rows down
+    assert label_origin_px((40, 20), (12, 8), drawn) == (40, 20)  # clear of them all: where it was asked
+    for i, a in enumerate(drawn):
+        for b in drawn[i + 1:]:
+            assert not (a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]), (a, b)
+
+
+def test_landmarks_a_centimetre_apart_get_their_ids_on_separate_rows():
+    grid = MosaicGrid(x_top_m=0.5, y_left_m=-0.5, mm_per_px=5.0, width_px=200, height_px=200)
+    blank = Mosaic(rgb=np.full((200, 200, 3), 255, np.uint8), covered=np.ones((200, 200), bool), grid=grid,
+                   frames_used=1, tiles=1)
+    lms = {"id": np.array([1, 2]), "x_m": np.array([0.0, 0.001]), "y_m": np.array([0.0, 0.002])}
+    img = decorate(blank, None, lms)[:200]
+    red = (img[:, :, 0] > 150) & (img[:, :, 1] < 120)
+    rows = np.flatnonzero(red[:, 106:125].any(axis=1))  # the labels' columns, right of the 9 px markers
+    bands = np.split(rows, np.flatnonzero(np.diff(rows) > 1) + 1)
+    assert len(bands) == 2, bands  # two separate rows of text, not one id printed over the other

@@ -327,6 +327,27 @@ def nice_length_m(max_m: float) -> float:
     return e
 
 
+def label_origin_px(origin_uv_px: tuple[int, int], size_wh_px: tuple[int, int],
+                    drawn: list[tuple[int, int, int, int]], max_moves: int = 8) -> tuple[int, int]:
+    """Where to put a text label so that it does not cover the labels already drawn.
+
+    ``origin_uv_px`` is the wanted bottom-left corner (OpenCV's text origin), ``size_wh_px`` the
+    text's width and height; ``drawn`` holds the boxes ``(u0, v0, u1, v1)`` of the labels placed so
+    far, and the new label's box is appended to it. A label that would overlap one is moved down by
+    its height plus 2 px, at most ``max_moves`` times (landmarks mapped a centimetre apart stack
+    their ids instead of printing one over the other). Returns the origin ``(u, v)`` to draw at.
+    """
+    u, v = int(origin_uv_px[0]), int(origin_uv_px[1])
+    w, h = int(size_wh_px[0]), int(size_wh_px[1])
+    for _ in range(max_moves):
+        box = (u, v - h, u + w, v)
+        if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in drawn):
+            break
+        v += h + 2
+    drawn.append((u, v - h, u + w, v))
+    return u, v
+
+
 def decorate(mosaic: Mosaic, path_xy_m: np.ndarray | None = None, landmarks: dict | None = None,
              path_colour=(30, 110, 230)) -> np.ndarray:
     """The mosaic with the path and landmarks drawn and, in a band below it, a scale bar and a north arrow.
@@ -345,12 +366,16 @@ def decorate(mosaic: Mosaic, path_xy_m: np.ndarray | None = None, landmarks: dic
     if landmarks and len(landmarks.get("id", [])):
         lp = g.world_to_px(np.column_stack([landmarks["x_m"], landmarks["y_m"]]))
         h_px, w_px = img.shape[:2]
+        drawn: list[tuple[int, int, int, int]] = []
         for (c, r), lid in zip(lp, landmarks["id"]):
             if not (np.isfinite(c) and np.isfinite(r) and -w_px <= c <= 2 * w_px and -h_px <= r <= 2 * h_px):
                 continue  # a landmark far off the mosaic (a damaged landmarks.csv): no marker to draw
             c, r = int(round(c)), int(round(r))
             cv2.drawMarker(img, (c, r), (220, 30, 30), cv2.MARKER_CROSS, 9, 1, aa)
-            cv2.putText(img, str(int(lid)), (c + 4, r - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (220, 30, 30), 1, aa)
+            text = str(int(lid))
+            (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.35, 1)
+            u, v = label_origin_px((c + 4, r - 4), (tw, th), drawn)
+            cv2.putText(img, text, (u, v), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (220, 30, 30), 1, aa)
     band = np.full((LEGEND_BAND_PX, img.shape[1], 3), 255, np.uint8)
     w_px = img.shape[1]
     bar_m = nice_length_m(max(0.25 * w_px * g.m_per_px, 1e-4))
