@@ -19,7 +19,7 @@ from rovslam.viz.mosaic import (
     Mosaic,
     build_mosaic,
     decorate,
-    label_origin_px,
+    landmark_labels,
     plan_grid,
     read_world_file,
     truth_poses,
@@ -151,15 +151,24 @@ def test_mosaic_command_lays_the_estimate_where_the_truth_lays_the_frames(dive, 
     assert float(np.corrcoef(a, b)[0, 1]) > 0.9
 
 
-def test_a_label_that_would_cover_another_is_moved_below_it():
-    drawn: list[tuple[int, int, int, int]] = []
-    assert label_origin_px((10, 20), (12, 8), drawn) == (10, 20)
-    assert label_origin_px((13, 21), (12, 8), drawn) == (13, 31)  # overlapped the first: one row (8 + 2 px) down
-    assert label_origin_px((12, 20), (12, 8), drawn) == (12, 40)  # ... and the second: two rows down
-    assert label_origin_px((40, 20), (12, 8), drawn) == (40, 20)  # clear of them all: where it was asked
-    for i, a in enumerate(drawn):
-        for b in drawn[i + 1:]:
+def test_landmark_ids_never_overlap_and_a_lone_one_sits_above_right_of_its_cross():
+    crowd = np.array([[100.0, 100.0], [101.0, 100.0], [100.0, 101.0], [102.0, 102.0], [99.0, 100.0], [100.0, 99.0]])
+    points = np.vstack([crowd, [[20.0, 150.0]]])
+    texts = [str(i) for i in range(len(crowd))] + ["17"]
+    labels = landmark_labels(points, texts, (200, 200))
+    boxes = []
+    for text, (u, v), _ in labels:
+        (w, h), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.35, 1)
+        boxes.append((u, v - h, u + w, v))  # putText's origin is the text's bottom-left corner
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1:]:
             assert not (a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]), (a, b)
+    for (u0, v0, u1, v1), (pu, pv) in zip(boxes, points):
+        assert 0 <= u0 and u1 <= 200 and 0 <= v0 and v1 <= 200  # inside the mosaic
+        assert max(u0 - pu, pu - u1, v0 - pv, pv - v1) < 40  # near its cross
+    text, (u, v), leader = labels[-1]
+    assert leader is None and 20 < u < 30 and 140 < v < 150  # above and to the right of (20, 150)
+    assert sum(leader is not None for _, _, leader in labels) >= 1  # the crowd's later ids point back
 
 
 def test_landmarks_a_centimetre_apart_get_their_ids_on_separate_rows():

@@ -32,6 +32,7 @@ import numpy as np
 
 from rovslam.camera import Camera, level_from_camera
 from rovslam.errors import ImageReadError, InvalidArgumentError, OutputError
+from rovslam.viz.labels import place_labels
 
 TILE_PX = 512
 MAX_MOSAIC_PX = 40_000  # per side; beyond it, ask for a coarser --mm-per-px
@@ -327,25 +328,40 @@ def nice_length_m(max_m: float) -> float:
     return e
 
 
-def label_origin_px(origin_uv_px: tuple[int, int], size_wh_px: tuple[int, int],
-                    drawn: list[tuple[int, int, int, int]], max_moves: int = 8) -> tuple[int, int]:
-    """Where to put a text label so that it does not cover the labels already drawn.
+LANDMARK_RGB = (220, 30, 30)
+LABEL_FONT = 0  # cv2.FONT_HERSHEY_SIMPLEX
+LABEL_SCALE = 0.35
 
-    ``origin_uv_px`` is the wanted bottom-left corner (OpenCV's text origin), ``size_wh_px`` the
-    text's width and height; ``drawn`` holds the boxes ``(u0, v0, u1, v1)`` of the labels placed so
-    far, and the new label's box is appended to it. A label that would overlap one is moved down by
-    its height plus 2 px, at most ``max_moves`` times (landmarks mapped a centimetre apart stack
-    their ids instead of printing one over the other). Returns the origin ``(u, v)`` to draw at.
+
+def landmark_labels(points_px: np.ndarray, texts: list[str], shape_hw: tuple[int, int]
+                    ) -> list[tuple[str, tuple[int, int], tuple[tuple[int, int], tuple[int, int]] | None]]:
+    """Where to write each landmark's id on the mosaic so that no two ids overlap.
+
+    ``points_px`` ``(N, 2)`` the landmarks' pixels (u right, v down), ``texts`` their ids,
+    ``shape_hw`` the image's size. The boxes come from :func:`rovslam.viz.labels.place_labels`
+    (the report's placement), worked in v up so that a label's first choice is above and to the
+    right of its cross, as before; landmarks mapped a few pixels apart get their ids side by side
+    instead of one over the other. Returns per label ``(text, origin (u, v) for cv2.putText,
+    leader line ((u, v), (u, v)) or None)``; a label moved off its first place has a leader line
+    from its cross to the nearest point of its box.
     """
-    u, v = int(origin_uv_px[0]), int(origin_uv_px[1])
-    w, h = int(size_wh_px[0]), int(size_wh_px[1])
-    for _ in range(max_moves):
-        box = (u, v - h, u + w, v)
-        if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in drawn):
-            break
-        v += h + 2
-    drawn.append((u, v - h, u + w, v))
-    return u, v
+    import cv2
+
+    if len(texts) == 0:
+        return []
+    sizes = np.array([cv2.getTextSize(t, LABEL_FONT, LABEL_SCALE, 1)[0] for t in texts], float)
+    up = points_px * np.array([1.0, -1.0])
+    h_px, w_px = shape_hw
+    centres, moved = place_labels(up, sizes, gap_px=1.0, bounds_px=(0.0, -float(h_px), float(w_px), 0.0))
+    out = []
+    for text, (w, h), (cu, cv_up), m, (pu, pv) in zip(texts, sizes, centres, moved, points_px):
+        u0, v0 = cu - w / 2.0, -cv_up - h / 2.0  # the box's top-left corner in the image (v down)
+        leader = None
+        if m:
+            end = (int(round(min(max(pu, u0), u0 + w))), int(round(min(max(pv, v0), v0 + h))))
+            leader = ((int(pu), int(pv)), end)
+        out.append((text, (int(round(u0)), int(round(v0 + h))), leader))
+    return out
 
 
 def decorate(mosaic: Mosaic, path_xy_m: np.ndarray | None = None, landmarks: dict | None = None,
@@ -366,16 +382,18 @@ def decorate(mosaic: Mosaic, path_xy_m: np.ndarray | None = None, landmarks: dic
     if landmarks and len(landmarks.get("id", [])):
         lp = g.world_to_px(np.column_stack([landmarks["x_m"], landmarks["y_m"]]))
         h_px, w_px = img.shape[:2]
-        drawn: list[tuple[int, int, int, int]] = []
+        points, texts = [], []
         for (c, r), lid in zip(lp, landmarks["id"]):
             if not (np.isfinite(c) and np.isfinite(r) and -w_px <= c <= 2 * w_px and -h_px <= r <= 2 * h_px):
                 continue  # a landmark far off the mosaic (a damaged landmarks.csv): no marker to draw
             c, r = int(round(c)), int(round(r))
-            cv2.drawMarker(img, (c, r), (220, 30, 30), cv2.MARKER_CROSS, 9, 1, aa)
-            text = str(int(lid))
-            (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.35, 1)
-            u, v = label_origin_px((c + 4, r - 4), (tw, th), drawn)
-            cv2.putText(img, text, (u, v), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (220, 30, 30), 1, aa)
+            cv2.drawMarker(img, (c, r), LANDMARK_RGB, cv2.MARKER_CROSS, 9, 1, aa)
+            points.append((c, r))
+            texts.append(str(int(lid)))
+        for text, (u, v), leader in landmark_labels(np.array(points, float).reshape(-1, 2), texts, (h_px, w_px)):
+            if leader is not None:
+                cv2.line(img, *leader, LANDMARK_RGB, 1, aa)
+            cv2.putText(img, text, (u, v), LABEL_FONT, LABEL_SCALE, LANDMARK_RGB, 1, aa)
     band = np.full((LEGEND_BAND_PX, img.shape[1], 3), 255, np.uint8)
     w_px = img.shape[1]
     bar_m = nice_length_m(max(0.25 * w_px * g.m_per_px, 1e-4))
