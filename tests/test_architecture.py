@@ -31,7 +31,9 @@ NEVER = {
     "association": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.vision"],
     "slam": ["rovslam.vision", "rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.sim"],
     "pipeline": ["rovslam.cli", "rovslam.viz", "rovslam.sim", "rovslam.eval", "rovslam.batch"],
-    "io": ["rovslam.slam.ekf", "rovslam.slam.gating", "rovslam.cli", "rovslam.viz", "rovslam.pipeline"],
+    "core": ["rovslam.config", "rovslam.vision", "rovslam.slam", "rovslam.io", "rovslam.viz", "rovslam.cli",
+             "rovslam.pipeline", "rovslam.sim", "rovslam.eval", "rovslam.nav", "rovslam.odometry", "rovslam.heading"],
+    "io": ["rovslam.slam.ekf", "rovslam.slam.gating", "rovslam.cli", "rovslam.viz", "rovslam.pipeline", "rovslam.nav"],
     "sim": ["rovslam.slam", "rovslam.pipeline", "rovslam.cli", "rovslam.viz", "rovslam.eval"],
     "eval": ["rovslam.cli", "rovslam.viz"],
     "viz": ["rovslam.slam.ekf", "rovslam.slam.gating", "rovslam.cli"],
@@ -75,3 +77,76 @@ def test_only_the_cli_imports_the_batch_runner():
 def test_the_rules_cover_every_part_of_the_package():
     parts = {_part(p) for p in MODULES} - {"__init__", "__main__", "cli", "runner", "batch"}
     assert parts <= set(NEVER), f"add the new parts to NEVER and to docs/architecture.md: {parts - set(NEVER)}"
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(SRC.parent).with_suffix("")
+    name = ".".join(rel.parts)
+    return name.removesuffix(".__init__")
+
+
+def _import_graph() -> dict[str, set[str]]:
+    """Module -> the package's modules it imports (lazy imports included; a package's own
+    ``__init__`` re-exporting its submodules is not an edge)."""
+    names = {_module_name(p): p for p in MODULES}
+    graph = {}
+    for name, path in names.items():
+        deps = set()
+        for m in _imports(path):
+            while m and m not in names:  # "rovslam.io.sequence.Frame" -> "rovslam.io.sequence"
+                m = m.rpartition(".")[0]
+            if m and m != name and not m.startswith(name + "."):
+                deps.add(m)
+        graph[name] = deps
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                found.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_no_import_circle():
+    assert _cycles(_import_graph()) == []
+
+
+def test_the_circle_check_finds_a_circle():
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert _cycles(graph) == [["a", "b", "c"]]
+
+
+def test_input_never_depends_on_navigation():
+    io_modules = [p for p in MODULES if _part(p) == "io"]
+    assert io_modules
+    users = [str(p.relative_to(SRC)) for p in io_modules if any(m.startswith("rovslam.nav") for m in _imports(p))]
+    assert users == []

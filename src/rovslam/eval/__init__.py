@@ -1,6 +1,10 @@
 """Evaluation against ground truth: trajectory errors, consistency, revisit table, baselines."""
 
-from rovslam.eval.baselines import frame_shifts_px, integrate_shifts, phase_correlation_path
+from rovslam.eval.baselines import (
+    frame_shifts_px,
+    integrate_shifts,
+    phase_correlation_path,
+)
 from rovslam.eval.metrics import (
     Consistency,
     Evaluation,

@@ -143,7 +143,7 @@ def phase_correlation_path(
     rows = list(sequence.rows)
     keep = np.arange(len(rows))
     if t_s is not None:
-        from rovslam.eval.metrics import align_by_time
+        from rovslam.eval.align import align_by_time
 
         keep = align_by_time(np.asarray(t_s, dtype=np.float64), np.array([r.t_s for r in rows]))
     n = len(keep)

@@ -19,9 +19,10 @@ import numpy as np
 from scipy.stats import chi2
 
 from rovslam.camera import rot2, step_mean_heading_rad
+from rovslam.core import GroundTruth
 from rovslam.errors import InvalidArgumentError, ResultsFormatError, SequenceFormatError
+from rovslam.eval.align import align_by_time
 from rovslam.io.results import RunResults
-from rovslam.io.sequence import GroundTruth
 
 _COV_FLOOR_M2 = 1e-12  # the start is known exactly; keep P invertible there
 
@@ -40,22 +41,6 @@ class TrajectoryErrors:
     relative_error_m_per_m: float | None  # RMS drift per metre over segments of `segment_m`; None: path shorter
     relative_error_pct: float | None
     segment_m: float
-
-
-def align_by_time(t_est_s: np.ndarray, t_gt_s: np.ndarray, tol_s: float = 1e-4) -> np.ndarray:
-    """Index into ``t_gt_s`` of the row at each ``t_est_s`` (same clock). (N,) int."""
-    idx = np.clip(np.searchsorted(t_gt_s, t_est_s), 0, len(t_gt_s) - 1)
-    prev = np.clip(idx - 1, 0, len(t_gt_s) - 1)
-    better = np.abs(t_gt_s[prev] - t_est_s) < np.abs(t_gt_s[idx] - t_est_s)
-    idx = np.where(better, prev, idx)
-    gap = np.abs(t_gt_s[idx] - t_est_s)
-    if len(gap) and float(gap.max()) > tol_s:
-        k = int(np.argmax(gap))
-        raise SequenceFormatError(
-            f"ground truth has no row at t_s={t_est_s[k]:.6f} (nearest {t_gt_s[idx[k]]:.6f}); "
-            "give the groundtruth.csv of the sequence that was run."
-        )
-    return idx
 
 
 def path_length_m(xy_m: np.ndarray) -> np.ndarray:

@@ -1,11 +1,9 @@
 """Input and output: sequence folders (format v1), result files."""
 
+from rovslam.core import Frame, GroundTruth, SequenceInfo
 from rovslam.io.sequence import (
-    Frame,
     FrameRow,
-    GroundTruth,
     Sequence,
-    SequenceInfo,
     SequenceWriter,
     open_sequence,
     read_groundtruth,

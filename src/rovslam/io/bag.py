@@ -35,10 +35,21 @@ from typing import Any
 import numpy as np
 
 from rovslam.camera import Camera
-from rovslam.errors import BagError, ImageReadError, NavigationError, SequenceFormatError
+from rovslam.core import Frame, SequenceInfo
+from rovslam.errors import (
+    BagError,
+    ImageReadError,
+    NavigationError,
+    SequenceFormatError,
+)
 from rovslam.io.camera_file import CameraFile
-from rovslam.io.nav import Navigation, NavTrack, default_max_gap_s, quaternions_to_heading
-from rovslam.io.sequence import Frame, SequenceInfo, decode_image, to_rgb
+from rovslam.io.nav import (
+    Navigation,
+    NavTrack,
+    default_max_gap_s,
+    quaternions_to_heading,
+)
+from rovslam.io.sequence import decode_image, to_rgb
 from rovslam.io.source import InputOptions, SourceDescription, option_flag
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")

@@ -13,8 +13,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from rovslam.core import SequenceInfo
 from rovslam.errors import SequenceFormatError
-from rovslam.io.sequence import SequenceInfo, info_from_toml, load_toml
+from rovslam.io.sequence import info_from_toml, load_toml
 
 CAMERA_TABLES = "[camera] (width_px, height_px, fx_px, fy_px, cx_px, cy_px), optional [[laser]], [vehicle] altitude_m and [nav]"
 

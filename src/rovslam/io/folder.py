@@ -16,10 +16,12 @@ import re
 from collections.abc import Iterator
 from pathlib import Path
 
+from rovslam.core import Frame
 from rovslam.errors import ImageReadError, SequenceFormatError
 from rovslam.io.camera_file import CameraFile
-from rovslam.io.sequence import MAX_TIME_S, Frame, _inside, read_csv_table, read_image, time_cell
+from rovslam.io.sequence import read_image
 from rovslam.io.source import SourceDescription
+from rovslam.io.text import MAX_TIME_S, inside_folder, read_csv_table, time_cell
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 TIMES_COLUMNS = ("image", "t_s")
@@ -89,7 +91,7 @@ class ImageFolderSource:
                 f"{self.folder}: no image files (PNG, JPEG or TIFF: {', '.join(IMAGE_SUFFIXES)}) in this folder."
             )
         for name in names:
-            _inside(root, name, f"{self.folder}: image '{name}'")
+            inside_folder(root, name, f"{self.folder}: image '{name}'")
         self.names = names
         self.times_s = times
         self._root = root
@@ -106,7 +108,7 @@ class ImageFolderSource:
             if name in seen:
                 raise SequenceFormatError(f"{where}: image '{name}' is listed twice.")
             seen.add(name)
-            resolved = _inside(root, name, f"{where}: column 'image'")
+            resolved = inside_folder(root, name, f"{where}: column 'image'")
             if not resolved.is_file():
                 raise SequenceFormatError(f"{where}: image file '{name}' not found in {self.folder}.")
             listed.append((time_cell(row, where), name, where))
@@ -135,7 +137,7 @@ class ImageFolderSource:
             name = self.names[k]
             where = f"{self.folder / name}"
             try:
-                resolved = _inside(self._root, name, where)  # checked again: the folder may have changed
+                resolved = inside_folder(self._root, name, where)  # checked again: the folder may have changed
                 image, error = read_image(resolved, self.info.camera, self.info.bit_depth, "the camera file"), None
             except (ImageReadError, SequenceFormatError) as exc:
                 image, error = None, str(exc)

@@ -27,8 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from rovslam.errors import InvalidMeasurementError, ResultsFormatError, SequenceFormatError
-from rovslam.io.sequence import read_text
+from rovslam.errors import (
+    InvalidMeasurementError,
+    ResultsFormatError,
+    SequenceFormatError,
+)
+from rovslam.io.text import read_text
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 
 __all__ = [

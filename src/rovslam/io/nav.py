@@ -39,8 +39,9 @@ from typing import Any
 
 import numpy as np
 
+from rovslam.core import Frame
 from rovslam.errors import NavigationError
-from rovslam.io.sequence import MAX_ATTITUDE_RAD, Frame, read_csv_table
+from rovslam.io.sequence import MAX_ATTITUDE_RAD, read_csv_table
 from rovslam.io.source import SourceDescription
 
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
+from rovslam.core import Goal
 from rovslam.errors import PoiFormatError
-from rovslam.io.sequence import float_cell, read_csv_table
-from rovslam.nav.guidance import Goal
+from rovslam.io.text import float_cell, read_csv_table
 
 __all__ = ["MAX_POI_DISTANCE_M", "read_poi_csv"]
 

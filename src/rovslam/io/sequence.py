@@ -24,23 +24,32 @@ from __future__ import annotations
 
 import csv
 import difflib
-import io
 import math
 import os
 import stat
 import struct
 import tomllib
-from collections.abc import Iterator, Sequence
+from collections import abc
+from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from rovslam.camera import Camera, LaserPointer
-from rovslam.errors import ImageReadError, RovslamError, SequenceFormatError, parse_toml
+from rovslam.core import Frame, GroundTruth, SequenceInfo
+from rovslam.errors import ImageReadError, SequenceFormatError, parse_toml
 from rovslam.io.source import ALTITUDE_INPUTS, HEADING_INPUTS, SourceDescription
+from rovslam.io.text import (
+    float_cell,
+    inside_folder,
+    not_a_file,
+    read_csv_table,
+    read_text,
+    time_cell,
+)
 
 FORMAT_V1 = "rovslam-sequence/1"
 FRAMES_COLUMNS = ("t_s", "image", "heading_rad", "sonar_altitude_m")
@@ -51,18 +60,6 @@ _CAMERA_REQUIRED = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
 _CAMERA_OPTIONAL = ("distortion", "yaw_offset_rad", "readout_s", "bit_depth")
 _LASER_KEYS = ("origin_m", "direction")
 _TOP_KEYS = ("format", "name", "camera", "laser", "vehicle", "metadata")
-
-
-@dataclass(frozen=True)
-class SequenceInfo:
-    """What ``sequence.toml`` holds."""
-
-    name: str
-    camera: Camera
-    lasers: tuple[LaserPointer, ...] = ()
-    fixed_altitude_m: float | None = None
-    metadata: dict[str, Any] = field(default_factory=dict)
-    bit_depth: int | None = None  # [camera] bit_depth: significant bits of 16-bit image files (None: 16)
 
 
 @dataclass(frozen=True)
@@ -78,49 +75,8 @@ class FrameRow:
     pitch_rad: float | None = None
 
 
-@dataclass(frozen=True)
-class Frame:
-    """One timestamped frame from any source (sequence folder, video, bag).
-
-    ``image`` is ``(H, W, 3) uint8`` RGB, or ``None`` when it could not be read (``error``
-    then says why). Attitude is 0 when the source gives none (level camera, as the paper).
-    """
-
-    index: int
-    t_s: float
-    image: np.ndarray | None
-    heading_rad: float
-    sonar_altitude_m: float | None = None
-    roll_rad: float = 0.0
-    pitch_rad: float = 0.0
-    has_attitude: bool = False
-    source: str = ""
-    error: str | None = None
-
-
-@dataclass(frozen=True)
-class GroundTruth:
-    """``groundtruth.csv`` as arrays, each ``(N,)`` float64."""
-
-    t_s: np.ndarray
-    x_m: np.ndarray
-    y_m: np.ndarray
-    altitude_m: np.ndarray
-    heading_rad: np.ndarray
-    relief_m: np.ndarray | None = None  # (N,) when the file has the optional relief_m column
-
-    def __len__(self) -> int:
-        return len(self.t_s)
-
-    @property
-    def xy_m(self) -> np.ndarray:
-        """(N, 2) true positions."""
-        return np.column_stack([self.x_m, self.y_m])
-
-
 # --------------------------------------------------------------------------- reading
 
-MAX_TEXT_BYTES = 512 * 2**20  # a frames.csv of a million frames is ~80 MB
 MAX_GROUNDTRUTH_M = 1e8  # a ground-truth coordinate beyond this is no place on Earth (its squares overflowed)
 # A heading column whose median step between frames is above this looks like degrees read as radians
 # (a survey's compass moves by a few hundredths of a radian a frame; 0.1 rad a frame, sustained over half
@@ -150,35 +106,6 @@ def _triple(value: Any, where: str) -> tuple[float, float, float]:
     return tuple(_number(v, f"{where}[{i}]") for i, v in enumerate(value))  # type: ignore[return-value]
 
 
-def read_text(path: Path, error: type[RovslamError] = SequenceFormatError) -> str:
-    """The text of a UTF-8 file (a UTF-8 byte-order mark is accepted), or ``error`` naming the line.
-
-    A file that is not UTF-8 (Latin-1, UTF-16 from a spreadsheet, binary) is refused with the
-    line and byte offset of the first bad byte: guessing an encoding could misread numbers.
-    """
-    try:
-        st = path.stat()
-        if not stat.S_ISREG(st.st_mode):  # a pipe would block the read for ever, a device never end
-            raise error(f"{path}: {not_a_file(path)}.")
-        size = st.st_size
-        if size > MAX_TEXT_BYTES:
-            raise error(f"{path}: {size} bytes, more than the {MAX_TEXT_BYTES // 2**20} MiB a text file of rovslam may hold.")
-        data = path.read_bytes()
-    except OSError as exc:
-        raise error(f"{path}: cannot be read ({exc.strerror or exc}).") from None
-    bom = 3 if data.startswith(b"\xef\xbb\xbf") else 0
-    try:
-        return data[bom:].decode("utf-8")
-    except UnicodeDecodeError as exc:
-        if data[:2] in (b"\xff\xfe", b"\xfe\xff"):
-            raise error(f"{path}: UTF-16 text; rovslam reads UTF-8. Save the file as UTF-8 (CSV UTF-8).") from None
-        at = bom + exc.start
-        line = data.count(b"\n", 0, at) + 1
-        raise error(
-            f"{path}, line {line}: not UTF-8 text (byte 0x{data[at]:02x} at offset {at}). Save the file as UTF-8."
-        ) from None
-
-
 def parse_sequence_toml(path: Path, root: Path | None = None) -> SequenceInfo:
     """Read and validate ``sequence.toml`` (``root``: the folder it must resolve inside, if any)."""
     if not path.is_file():
@@ -187,7 +114,7 @@ def parse_sequence_toml(path: Path, root: Path | None = None) -> SequenceInfo:
             "a folder of plain images runs with --camera CAMERA.toml and --fps or --times (README, 'Real dives in')."
         )
     if root is not None:
-        _inside(root, path.name, f"{path}")
+        inside_folder(root, path.name, f"{path}")
     return info_from_toml(load_toml(path), path)
 
 
@@ -299,131 +226,10 @@ def info_from_toml(data: dict[str, Any], path: Path, *, require_format: bool = T
     )
 
 
-def read_csv_table(
-    path: Path, required: tuple[str, ...], error: type[RovslamError] = SequenceFormatError, *, drop_torn_last_line: bool = False
-) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
-    """Read a UTF-8 CSV whose header holds ``required``: (header, [(line number, row dict)]).
-
-    Every row must have as many fields as the header; blank lines are ignored. With
-    ``drop_torn_last_line`` a last line without its newline (a write cut short) is dropped.
-    Raises ``error`` naming the file and line.
-    """
-    if not path.is_file():
-        raise error(f"{path}: {not_a_file(path)}.")
-    text = read_text(path, error)
-    if drop_torn_last_line and text and not text.endswith("\n") and "\n" in text:
-        text = text[: text.rindex("\n") + 1]
-    reader = csv.reader(io.StringIO(text, newline=""))
-    try:
-        header = [h.strip() for h in next(reader, [])]
-        if not any(header):
-            raise error(f"{path}: empty file; the first line must be the header {','.join(required)}.")
-        if not set(required) & set(header) and _is_number(header[0]):
-            raise error(f"{path}, line 1: holds values ({','.join(header)[:60]}), not the header; "
-                        f"add the header line {','.join(required)} above the first row.")
-        dup = sorted({h for h in header if header.count(h) > 1})
-        if dup:
-            raise error(f"{path}: header names column(s) {', '.join(dup)} more than once.")
-        missing = [c for c in required if c not in header]
-        if missing:
-            read = ",".join(header)
-            sep = next((f" It is separated by {n}: use commas." for c, n in ((";", "';'"), ("\t", "tabs")) if c in read), "")
-            case = " Column names are lower case." if not sep and any(c.lower() in read.lower() for c in missing) else ""
-            raise error(
-                f"{path}: header is missing column(s) {', '.join(missing)}. "
-                f"The header must start with: {','.join(required)}; it reads {read[:80]!r}.{sep}{case}"
-            )
-        rows = []
-        for fields in reader:
-            if not fields or (len(fields) == 1 and not fields[0].strip()):
-                continue
-            if len(fields) != len(header):
-                raise error(
-                    f"{path}, line {reader.line_num}: {len(fields)} fields, the header has {len(header)}; "
-                    "every row needs one value per column (empty for a missing optional value)."
-                )
-            rows.append((reader.line_num, dict(zip(header, fields, strict=True))))
-    except csv.Error as exc:
-        raise error(f"{path}, line {reader.line_num}: not a readable CSV line ({exc}).") from None
-    return header, rows
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
-def not_a_file(path: Path) -> str:
-    """Why ``path`` (which is not a regular file) cannot be read: missing, a folder, or a special file."""
-    if path.is_dir():
-        return "is a folder, not a file"
-    if path.exists():
-        return "is not a regular file (a pipe, socket or device)"
-    return "missing"
-
-
-def float_cell(
-    row: dict[str, str], key: str, where: str, *, optional: bool = False, allow_nan: bool = False,
-    error: type[RovslamError] = SequenceFormatError,
-) -> float | None:
-    """The number in column ``key`` of a CSV row; empty gives None when ``optional``, NaN only when ``allow_nan``."""
-    text = (row.get(key) or "").strip()
-    if text == "":
-        if optional:
-            return None
-        raise error(f"{where}: column '{key}' is empty; it needs a number.")
-    try:
-        v = float(text)
-    except ValueError:
-        raise error(f"{where}: column '{key}' is not a number: {text!r}.") from None
-    if math.isnan(v) and allow_nan:
-        return v
-    if not math.isfinite(v):
-        raise error(f"{where}: column '{key}' is not finite: {text!r}.")
-    return v
-
-
-MAX_TIME_S = 1e12  # |t_s| above this is no clock's (31,700 years; UNIX times are 1.7e9): its steps would overflow
-
-
-def time_cell(row: dict[str, str], where: str, key: str = "t_s") -> float:
-    """The time in column ``key`` (seconds): a finite number of at most :data:`MAX_TIME_S` in size."""
-    t = float(float_cell(row, key, where))  # type: ignore[arg-type]
-    if abs(t) > MAX_TIME_S:
-        raise SequenceFormatError(f"{where}: column '{key}' = {t:g} s is no clock's time (more than {MAX_TIME_S:g} s "
-                                  "from 0); give times in seconds (UNIX times or from the start of the dive).")
-    return t
-
-
-def _inside(root: Path, relative: str, where: str) -> Path:
-    """``root / relative`` with every link resolved, or SequenceFormatError when it is not inside ``root``.
-
-    ``root`` must already be resolved (``os.path.realpath``). Absolute paths, ``..`` that climbs
-    out and symbolic links to elsewhere are all refused; nothing is opened.
-    """
-    if "\x00" in relative:
-        raise SequenceFormatError(f"{where}: path {relative!r} holds a NUL character.")
-    if os.path.isabs(relative) or relative.startswith(("/", "\\")) or (len(relative) > 1 and relative[1] == ":"):
-        raise SequenceFormatError(
-            f"{where}: path '{relative}' is absolute; image paths must be relative to the sequence folder "
-            f"({root}) and stay inside it."
-        )
-    resolved = Path(os.path.realpath(root / relative))
-    if not resolved.is_relative_to(root):
-        raise SequenceFormatError(
-            f"{where}: path '{relative}' leads outside the sequence folder {root} (to {resolved}); "
-            "keep every file of a sequence inside its folder (copy it in rather than linking it)."
-        )
-    return resolved
-
-
 _KNOWN_STEMS = ("roll", "pitch", "heading", "yaw", "sonar", "altitude")
 
 
-def _meant_as_known_columns(header: Sequence[str]) -> list[str]:
+def _meant_as_known_columns(header: abc.Sequence[str]) -> list[str]:
     """The header's extra columns that look like one ``frames.csv`` reads: misspelt (``rol_rad``) or in
     other units (``roll_deg``). Read as extra, they would be ignored without a word; any other extra
     column (a navigation log's ``depth_m``, ``lat``) is ignored, as the format allows."""
@@ -439,7 +245,7 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
     (no reading); ``roll_rad``/``pitch_rad`` must be within +-90 degrees.
     """
     root = Path(os.path.realpath(folder))
-    _inside(root, path.name, str(path))
+    inside_folder(root, path.name, str(path))
     header, rows = read_csv_table(path, FRAMES_COLUMNS)
     unknown = _meant_as_known_columns(header)
     if unknown:  # a misspelt roll_rad would leave the tilt uncompensated without a word
@@ -463,7 +269,7 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
         image = (row.get("image") or "").strip()
         if not image:
             raise SequenceFormatError(f"{where}: column 'image' is empty.")
-        resolved = _inside(root, image, f"{where}: column 'image'")
+        resolved = inside_folder(root, image, f"{where}: column 'image'")
         try:
             present = not check_images or resolved.is_file()
         except OSError as exc:  # a folder on the way that may not be searched (chmod)
@@ -502,7 +308,7 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
     return out
 
 
-def angle_unit_warnings(rows: Sequence[FrameRow], where: str = "frames.csv") -> list[str]:
+def angle_unit_warnings(rows: abc.Sequence[FrameRow], where: str = "frames.csv") -> list[str]:
     """Warnings for angle columns of ``rows`` that look like degrees written where radians are read.
 
     The heading's median wrapped step between consecutive readings above ``DEGREES_LIKE_STEP_RAD``,
@@ -689,7 +495,7 @@ class Sequence:
         path = self.folder / row.image
         try:
             # Checked again at the moment of reading: the folder may have changed since it was opened.
-            resolved = _inside(self._root, row.image, f"{self.folder / 'frames.csv'}, frame {row.index}")
+            resolved = inside_folder(self._root, row.image, f"{self.folder / 'frames.csv'}, frame {row.index}")
             image, error = read_image(resolved, self.info.camera, self.info.bit_depth), None
         except (ImageReadError, SequenceFormatError) as exc:
             image, error = None, str(exc)
@@ -742,7 +548,7 @@ def open_sequence(folder: str | Path, check_images: bool = True) -> Sequence:
     rows = read_frames_csv(f / "frames.csv", f, check_images=check_images)
     gt = f / "groundtruth.csv"
     if gt.is_file() or gt.is_symlink():
-        _inside(root, gt.name, str(gt))
+        inside_folder(root, gt.name, str(gt))
     return Sequence(f, info, rows, gt if gt.is_file() else None)
 
 

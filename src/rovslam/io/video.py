@@ -19,9 +19,9 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from rovslam.core import Frame, SequenceInfo
 from rovslam.errors import SequenceFormatError
 from rovslam.io.camera_file import read_camera_file
-from rovslam.io.sequence import Frame, SequenceInfo
 from rovslam.io.source import SourceDescription
 
 MAX_WARNINGS = 20

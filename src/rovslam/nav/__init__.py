@@ -7,12 +7,18 @@
 * :mod:`~rovslam.nav.closed_loop`: the closed loop in the simulator (frames rendered from the true state).
 """
 
+from rovslam.core import Goal
 from rovslam.nav.api import Navigator, NavStep
-from rovslam.nav.dynamics import Command, DynamicsParams, SimulatedVehicle, VehicleState, step_vehicle
+from rovslam.nav.dynamics import (
+    Command,
+    DynamicsParams,
+    SimulatedVehicle,
+    VehicleState,
+    step_vehicle,
+)
 from rovslam.nav.estimate import ESTIMATORS, DeadReckoningCovariance, nav_estimate
 from rovslam.nav.guidance import (
     Arrival,
-    Goal,
     GuidanceConfig,
     HoldEnd,
     Mission,

@@ -26,9 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from rovslam.config import RunConfig
+from rovslam.core import Goal
 from rovslam.nav.dynamics import Command
 from rovslam.nav.estimate import DeadReckoningCovariance, check_estimator, nav_estimate
-from rovslam.nav.guidance import Goal, GuidanceConfig, Mission, NavEstimate
+from rovslam.nav.guidance import GuidanceConfig, Mission, NavEstimate
 from rovslam.pipeline import FrameResult, SlamPipeline
 
 __all__ = ["NavStep", "Navigator"]

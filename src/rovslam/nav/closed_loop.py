@@ -21,10 +21,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from rovslam.config import RunConfig
+from rovslam.core import Goal
 from rovslam.errors import InvalidArgumentError, SimulationError
 from rovslam.nav.api import Navigator, NavStep
 from rovslam.nav.dynamics import DynamicsParams, SimulatedVehicle
-from rovslam.nav.guidance import Arrival, Goal, GuidanceConfig, HoldEnd
+from rovslam.nav.guidance import Arrival, GuidanceConfig, HoldEnd
 from rovslam.sim.live import LiveSimulator, TrueState
 from rovslam.sim.scenarios import SCENARIOS, Scenario
 from rovslam.sim.vehicle import GridPattern

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rovslam.camera import rot2
+from rovslam.core import Goal
 from rovslam.errors import InvalidArgumentError
 from rovslam.nav.dynamics import Command
 
@@ -104,17 +105,6 @@ class NavEstimate:
     cov_m2: np.ndarray  # (2, 2)
     heading_rad: float
     ground_velocity_mps: np.ndarray | None = None  # (2,) world frame, measured (None: no measurement this frame)
-
-
-@dataclass(frozen=True)
-class Goal:
-    """A place to go: a survey way-point (passed through) or a point of interest (arrive, then hold)."""
-
-    name: str
-    xy_m: np.ndarray | None  # (2,) map frame; None: resolved from the map (``landmark_id``)
-    kind: str = "poi"  # "poi" | "survey"
-    hold_s: float | None = None  # None: the guidance's hold_s
-    landmark_id: int | None = None
 
 
 @dataclass(frozen=True)

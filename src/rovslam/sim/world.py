@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from rovslam.errors import SimulationError
-from rovslam.sim.relief import ReliefSource
+from rovslam.sim.relief import ProceduralRelief, ReliefSource
 from rovslam.sim.texture import ImageSeabed, ProceduralSeabed, TextureParams, TextureSource
 
 BLUR_STEP_TEXELS = 0.25  # prefilter sigmas are quantised to this step (one canvas per level)
@@ -251,10 +251,8 @@ def shared_seabed(seed: int, params: TextureParams) -> ProceduralSeabed:
 
 
 @lru_cache(maxsize=2)
-def shared_relief(seed: int, texture: TextureParams, params) -> "ProceduralRelief":
+def shared_relief(seed: int, texture: TextureParams, params) -> ProceduralRelief:
     """One :class:`~rovslam.sim.relief.ProceduralRelief` per (seed, texture, relief params) in a process."""
-    from rovslam.sim.relief import ProceduralRelief
-
     return ProceduralRelief(params, shared_seabed(seed, texture))
 
 

@@ -65,7 +65,7 @@ import numpy as np
 
 from rovslam.camera import rot2, wrap_angle
 from rovslam.config import ROBUST_LOSSES, SmootherConfig
-from rovslam.errors import FilterInconsistencyError, InvalidMeasurementError
+from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError
 from rovslam.slam.measurements import FrameMeasurements
 
 __all__ = ["SmootherConfig", "Isam2Smoother", "OnlineEstimate", "SmoothedResult", "ROBUST_LOSSES"]

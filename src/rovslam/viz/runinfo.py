@@ -19,7 +19,7 @@ import numpy as np
 
 from rovslam.errors import ResultsFormatError
 from rovslam.io.results import RunResults
-from rovslam.io.sequence import read_text
+from rovslam.io.text import read_text
 
 # Altitude sources written by the laser altimeter (rovslam.vision.laser): measured or assumed.
 MEASURED_ALTITUDE = ("laser", "laser+sonar", "sonar", "held")  # held: predicted from the readings between them
