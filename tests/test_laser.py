@@ -20,16 +20,14 @@ from rovslam.config import LaserConfig
 from rovslam.errors import InvalidArgumentError, InvalidMeasurementError
 from rovslam.vision.laser import (
     LaserAltimeter,
-    detect_laser_spots,
-    find_faint_spots,
-    lasers_never_in_view,
     fuse_altitude,
+    lasers_never_in_view,
     predict_spot_pixels,
-    red_excess,
     spot_altitude_sigmas,
     triangulate_points,
     triangulate_spots,
 )
+from rovslam.vision.spots import detect_laser_spots, find_faint_spots, red_excess
 
 CAM = paper_camera()
 LASERS = paper_lasers()

@@ -123,7 +123,7 @@ def test_codec_smeared_spots_keep_their_centre_in_turbid_water():
     from rovslam.sim import scenarios as S
     from rovslam.sim.codec import H264RoundTrip
     from rovslam.sim.vehicle import simulate_trajectory
-    from rovslam.vision.laser import detect_laser_spots
+    from rovslam.vision.spots import detect_laser_spots
 
     sc = S.SCENARIOS["turbid-relief"]
     seed, n = 1, 60

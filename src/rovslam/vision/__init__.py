@@ -9,13 +9,13 @@ from rovslam.vision.filters import bandpass, local_variance, template_channel
 from rovslam.vision.laser import (
     AltitudeEstimate,
     LaserAltimeter,
-    detect_laser_spots,
     fuse_altitude,
     predict_spot_pixels,
     spot_altitude_sigmas,
     triangulate_points,
     triangulate_spots,
 )
+from rovslam.vision.spots import detect_laser_spots
 from rovslam.vision.templates import (
     Template,
     extract_templates,
@@ -23,7 +23,13 @@ from rovslam.vision.templates import (
     inhibition_mask,
     window_inhibited,
 )
-from rovslam.vision.tracking import Match, TokenTracker, TokenTracks, global_shift, match_template
+from rovslam.vision.tracking import (
+    Match,
+    TokenTracker,
+    TokenTracks,
+    global_shift,
+    match_template,
+)
 
 __all__ = [
     "AltitudeEstimate",

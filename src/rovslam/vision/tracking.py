@@ -39,7 +39,12 @@ from rovslam.averages import median0
 from rovslam.config import SpeedTemplateConfig, TrackerConfig
 from rovslam.errors import InvalidArgumentError
 from rovslam.vision.filters import local_variance
-from rovslam.vision.templates import Template, extract_templates, second_peak, window_inhibited
+from rovslam.vision.templates import (
+    Template,
+    extract_templates,
+    second_peak,
+    window_inhibited,
+)
 
 # Reasons of a failed match (Match.reason).
 REASON_OUTSIDE = "search window outside the image"
