@@ -46,7 +46,7 @@ class AltitudeFilter:
         self._t_s = None
 
     def _predict(self, t_s: float) -> None:
-        dt = t_s - self._t_s
+        dt = t_s - self._t_s  # type: ignore[operator]
         if dt <= 0.0:
             return
         f = np.array([[1.0, dt], [0.0, 1.0]])

@@ -76,7 +76,7 @@ def _check_value(table: str, key: str, value: Any, tp: Any, meta: typing.Mapping
             raise ConfigError(f"{where}: must be a number or one of {', '.join(allowed)}")
         raise errors[0]
     if typing.get_origin(tp) is Literal:
-        allowed = typing.get_args(tp)
+        allowed = typing.get_args(tp)  # type: ignore[assignment]
         if value not in allowed:
             raise ConfigError(f"{where}: must be one of {', '.join(repr(a) for a in allowed)}")
         return
@@ -500,7 +500,7 @@ def from_dict(cls: type, data: dict[str, Any], source: str = "<dict>", prefix: s
             )
         tp = hints[key]
         if dataclasses.is_dataclass(tp):
-            kwargs[key] = from_dict(tp, value, source, where)
+            kwargs[key] = from_dict(tp, value, source, where)  # type: ignore[arg-type]
         else:
             kwargs[key] = _convert(value, tp, f"{source}: {where}")
     try:

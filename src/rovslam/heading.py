@@ -232,7 +232,7 @@ class HeadingFilter:
             if self.heading_rad is None:
                 self.heading_rad, self.var_rad2 = 0.0, 0.0
             elif measured:
-                self.heading_rad = wrap_angle(self.heading_rad + float(dpsi_rad))
+                self.heading_rad = wrap_angle(self.heading_rad + float(dpsi_rad))  # type: ignore[arg-type]
                 self.var_rad2 += float(dpsi_sigma_rad) ** 2
             else:  # nothing measured the turn of this step
                 self.var_rad2 += float(unmeasured_sigma_rad) ** 2
@@ -243,7 +243,7 @@ class HeadingFilter:
             self.heading_rad, self.var_rad2, self._last_compass_rad = c, r, c
             return c
         if measured:
-            psi = self.heading_rad + float(dpsi_rad)
+            psi = self.heading_rad + float(dpsi_rad)  # type: ignore[arg-type]
             var = self.var_rad2 + self.turn_noise_scale * float(dpsi_sigma_rad) ** 2
         else:
             self._forget_window()
@@ -263,7 +263,7 @@ class HeadingFilter:
         if measured:  # learned always (for the run's warnings), used only when learn_noise
             self._learn_noise(innovation, var, r)
             if self.learn_turn_noise:
-                self._learn_turn_noise(last_compass, c, float(dpsi_rad), float(dpsi_sigma_rad) ** 2)
+                self._learn_turn_noise(last_compass, c, float(dpsi_rad), float(dpsi_sigma_rad) ** 2)  # type: ignore[arg-type]
         self._last_compass_rad = c
         k = var / (var + r)
         self.heading_rad = wrap_angle(psi + k * innovation)
@@ -408,9 +408,9 @@ class HeadingTracker:
         smoothing = self.odometry.compass_sigma_rad > 0 and prior.has_compass
         sigma = self.filter.sigma_rad if smoothing or not prior.has_compass else None
         if smoothing and self.slam.heading_bias_sigma_rad == 0:
-            obs_sigma = math.hypot(sigma, self.odometry.compass_drift_sigma_rad)
+            obs_sigma = math.hypot(sigma, self.odometry.compass_drift_sigma_rad)  # type: ignore[arg-type]
         else:
-            obs_sigma = sigma
+            obs_sigma = sigma  # type: ignore[assignment]
         walk = self._walk_var_rad2(prior.has_compass, var_before)
         self._remember(psi, prior.compass_rad)
         if walk is not None:

@@ -65,4 +65,4 @@ def mn_at_frame_time(camera: Camera, v_px: float, mn_px: np.ndarray, mn_rate: np
     """``[m, n]`` seen at image row ``v_px`` moved to the frame's time: ``mn - rate row_time(v)``. ``(2,)``."""
     if camera.readout_s == 0.0:
         return mn_px
-    return np.asarray(mn_px, dtype=np.float64) - np.asarray(mn_rate) * float(camera.row_time_s(v_px))
+    return np.asarray(mn_px, dtype=np.float64) - np.asarray(mn_rate) * float(camera.row_time_s(v_px))  # type: ignore[arg-type]

@@ -443,8 +443,8 @@ def evaluate(
     sm = sm_cons = None
     if results.smoothed is not None:
         sm_gt = to_run_frame(gt.xy_m[align_by_time(results.smoothed["t_s"], gt.t_s)] - start, turn)
-        sm = trajectory_errors(results.smoothed_xy_m, sm_gt, segment_m)
-        sm_cons = consistency(results.smoothed_xy_m - sm_gt, results.smoothed_cov_m2, results.smoothed["t_s"])
+        sm = trajectory_errors(results.smoothed_xy_m, sm_gt, segment_m)  # type: ignore[arg-type]
+        sm_cons = consistency(results.smoothed_xy_m - sm_gt, results.smoothed_cov_m2, results.smoothed["t_s"])  # type: ignore[arg-type]
     return Evaluation(
         frames=int(len(est)),
         duration_s=float(results.t_s[-1] - results.t_s[0]),

@@ -384,7 +384,7 @@ def read_bag_navigation(reader: _Reader, options: InputOptions, t0_ns: int) -> N
                 v = float(m.data)
                 return v if math.isfinite(v) and v > 0 else math.nan
         t, v, _ = _series(reader, name, t0_ns, reading)
-        v = np.asarray(v)
+        v = np.asarray(v)  # type: ignore[assignment]
         keep = np.isfinite(v)
         if not np.any(keep):
             raise NavigationError(f"{reader.path}: topic {name} ({msgtype}) holds no usable altitude (every reading is "

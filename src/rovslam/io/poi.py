@@ -78,7 +78,7 @@ def _row_goal(row: dict[str, str], where: str, has_xy: bool, has_landmark: bool)
     x = float_cell(row, "x_m", where, error=PoiFormatError)
     y = float_cell(row, "y_m", where, error=PoiFormatError)
     for key, v in (("x_m", x), ("y_m", y)):
-        if abs(v) > MAX_POI_DISTANCE_M:
+        if abs(v) > MAX_POI_DISTANCE_M:  # type: ignore[arg-type]
             raise PoiFormatError(f"{where}, column '{key}': {v:g} m is more than {MAX_POI_DISTANCE_M:g} m from the "
                                  "start; coordinates are metres in the map frame.")
     return Goal(name, np.array([x, y]), hold_s=hold)

@@ -318,7 +318,7 @@ class Mission:
                         events.append(Arrival(self.p.index, goal.name, t, target.copy(), np.array(est.xy_m, dtype=float),
                                               ellipse_semi_major_m(est.cov_m2), state == "arrived"))
                         self.p.phase, self.p.hold_until_s = "hold", t + hold
-            if self.p.phase == "hold" and t >= self.p.hold_until_s:
+            if self.p.phase == "hold" and t >= self.p.hold_until_s:  # type: ignore[operator]
                 self._next(t, events)
                 continue
             vel = waypoint_velocity(est.xy_m, target, cfg) + self._integral(target - est.xy_m, dt_s)

@@ -104,11 +104,11 @@ def lattice_noise_grid(
     ``cell_m`` is the lattice spacing (one value, or (along x, along y) for streaky,
     anisotropic noise). The field is a function of world position only.
     """
-    cx, cy = (cell_m, cell_m) if np.isscalar(cell_m) else cell_m
+    cx, cy = (cell_m, cell_m) if np.isscalar(cell_m) else cell_m  # type: ignore[misc]
     key = layer_key(seed, layer)
     ox, oy = _layer_offset(key)
-    rows, wr = _taps((x0_m + step_m * np.arange(n_rows)) / cx + ox)
-    cols, wc = _taps((y0_m + step_m * np.arange(n_cols)) / cy + oy)
+    rows, wr = _taps((x0_m + step_m * np.arange(n_rows)) / cx + ox)  # type: ignore[operator]
+    cols, wc = _taps((y0_m + step_m * np.arange(n_cols)) / cy + oy)  # type: ignore[operator]
     lat = hash_normal(
         key,
         (rows[0] - 1 + np.arange(rows[-1] - rows[0] + 4))[:, None],
@@ -132,11 +132,11 @@ def lattice_noise_points(
     seed: int, layer: int, x_m: np.ndarray, y_m: np.ndarray, cell_m: float | tuple[float, float]
 ) -> np.ndarray:
     """The field of :func:`lattice_noise_grid` at arbitrary world points: (N,) -> (N,) float64."""
-    cx, cy = (cell_m, cell_m) if np.isscalar(cell_m) else cell_m
+    cx, cy = (cell_m, cell_m) if np.isscalar(cell_m) else cell_m  # type: ignore[misc]
     key = layer_key(seed, layer)
     ox, oy = _layer_offset(key)
-    gx = np.asarray(x_m, dtype=np.float64) / cx + ox
-    gy = np.asarray(y_m, dtype=np.float64) / cy + oy
+    gx = np.asarray(x_m, dtype=np.float64) / cx + ox  # type: ignore[operator]
+    gy = np.asarray(y_m, dtype=np.float64) / cy + oy  # type: ignore[operator]
     bx, by = np.floor(gx), np.floor(gy)
     wx = _bspline_weights(gx - bx)  # (N, 4)
     wy = _bspline_weights(gy - by)

@@ -93,4 +93,4 @@ class H264RoundTrip:
     def close(self) -> None:
         """Flush the encoder (nothing is pending with these settings) and drop the codecs."""
         self._enc.encode(None)
-        self._enc = self._dec = None
+        self._enc = self._dec = None  # type: ignore[assignment]

@@ -107,8 +107,8 @@ def _caching(sc: Scenario, area_m: tuple[float, float, float, float] | None) -> 
 
     changes = {"texture": replace(sc.texture, cache_chunks=chunks(sc.texture))}
     if isinstance(sc.relief, ReliefParams):
-        changes["relief"] = replace(sc.relief, cache_chunks=chunks(sc.relief))
-    return replace(sc, **changes)
+        changes["relief"] = replace(sc.relief, cache_chunks=chunks(sc.relief))  # type: ignore[assignment]
+    return replace(sc, **changes)  # type: ignore[arg-type]
 
 
 class LiveSimulator:

@@ -216,7 +216,7 @@ class ArrayRelief:
         self.heights = np.ascontiguousarray(arr)
         self.heights.setflags(write=False)
         self._texel_m = float(mm_per_px) * 1e-3
-        self._r0, self._c0 = origin_px if origin_px is not None else ((arr.shape[0] - 1) // 2, (arr.shape[1] - 1) // 2)
+        self._r0, self._c0 = origin_px if origin_px is not None else ((arr.shape[0] - 1) // 2, (arr.shape[1] - 1) // 2)  # type: ignore[var-annotated]
         self._range = (float(arr.min()), float(arr.max()))
 
     @property

@@ -349,7 +349,7 @@ class ProceduralSeabed(ChunkedGrid):
         i_lo, i_hi = int(np.floor((x0 - reach) / cell)), int(np.floor((x0 + extent + reach) / cell))
         j_lo, j_hi = int(np.floor((y0 - reach) / cell)), int(np.floor((y0 + extent + reach) / cell))
         ii, jj = np.meshgrid(np.arange(i_lo, i_hi + 1), np.arange(j_lo, j_hi + 1), indexing="ij")
-        ii, jj = ii.ravel(), jj.ravel()
+        ii, jj = ii.ravel(), jj.ravel()  # type: ignore[assignment]
         lam = np.full(len(ii), density * cell * cell)
         if kind == _K_PEBBLE and self.params.gravel_patchiness > 0:
             g = lattice_noise_points(self.seed, _L_GRAVEL, (ii + 0.5) * cell, (jj + 0.5) * cell, 0.22)
@@ -357,7 +357,7 @@ class ProceduralSeabed(ChunkedGrid):
             lam *= (1.0 - self.params.gravel_patchiness) + self.params.gravel_patchiness * patch
         cols: list[list[np.ndarray]] = [[] for _ in range(8)]
         for ci, cj, lam_k in zip(ii.tolist(), jj.tolist(), lam.tolist()):
-            rng = np.random.default_rng([self.seed, kind, ci & 0xFFFFFFFF, cj & 0xFFFFFFFF])
+            rng = np.random.default_rng([self.seed, kind, ci & 0xFFFFFFFF, cj & 0xFFFFFFFF])  # type: ignore[operator]
             k = int(rng.poisson(lam_k))
             if k == 0:
                 continue
@@ -381,7 +381,7 @@ class ProceduralSeabed(ChunkedGrid):
                  rng.uniform(0.0, 2.0 * np.pi, (k, 4))], axis=-1,
             )
             for lst, val in zip(cols, (x, y, a, b, angle, rgb, extra, harm)):
-                lst.append(val)
+                lst.append(val)  # type: ignore[arg-type]
         if not cols[0]:
             empty = np.zeros(0)
             return _Objects(empty, empty, empty, empty, empty, np.zeros((0, 3)), empty, np.zeros((0, 4, 2)))

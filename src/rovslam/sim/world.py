@@ -147,10 +147,10 @@ class World:
         self._check_size(need)
         key = level if step == 1 else (level, step)
         with self._lock:
-            current = self._canvases.get(key)
+            current = self._canvases.get(key)  # type: ignore[arg-type]
             if current is None or not current.contains(*need):
                 current = self._build(need, level, current, step)
-                self._canvases[key] = current
+                self._canvases[key] = current  # type: ignore[index]
         view = current.texels[(win[0] - current.row0) // step : (win[1] - current.row0) // step,
                               (win[2] - current.col0) // step : (win[3] - current.col0) // step]
         return Canvas(view, win[0], win[2], level, step)
@@ -230,8 +230,8 @@ class World:
 
     def _build_relief(self, bounds: tuple[int, int, int, int]) -> ReliefCanvas:
         r_lo, r_hi, c_lo, c_hi = bounds
-        apron = self.relief.region(r_lo - 1, c_lo - 1, r_hi - r_lo + 2, c_hi - c_lo + 2).astype(np.float32)
-        inv2t = np.float32(0.5 / self.relief.texel_m)
+        apron = self.relief.region(r_lo - 1, c_lo - 1, r_hi - r_lo + 2, c_hi - c_lo + 2).astype(np.float32)  # type: ignore[union-attr]
+        inv2t = np.float32(0.5 / self.relief.texel_m)  # type: ignore[union-attr]
         relief = np.empty((r_hi - r_lo, c_hi - c_lo, 3), dtype=np.float32)
         relief[..., 0] = apron[1:-1, 1:-1]
         relief[..., 1] = (apron[2:, 1:-1] - apron[:-2, 1:-1]) * inv2t

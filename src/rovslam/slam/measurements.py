@@ -120,9 +120,9 @@ class _RecordEq:
     def __eq__(self, other) -> bool:
         if type(other) is not type(self):
             return NotImplemented
-        return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
+        return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))  # type: ignore[arg-type]
 
-    __hash__ = None  # holds arrays: not hashable
+    __hash__ = None  # type: ignore[assignment]  # holds arrays: not hashable
 
 
 @dataclass(frozen=True, eq=False)

@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -175,7 +176,7 @@ class Isam2Smoother:
         self._has_compass: list[bool] = []
         self._landmarks: dict[int, _Landmark] = {}
         self._prev: FrameMeasurements | None = None
-        self._pose = None  # latest gtsam.Pose2 estimate
+        self._pose: Any = None  # latest gtsam.Pose2 estimate
         self._t0_s = 0.0
         self._robust = self._make_robust()
         # Compass drift: blocks opened so far, the slot of the last block's prior in iSAM2.
@@ -371,7 +372,7 @@ class Isam2Smoother:
         tail_position = None
         if j > self._block:  # open the drift blocks up to j (a gap in the compass may skip some)
             if self._block >= 0:  # the old last block is now inside the chain: swap its prior
-                removed.append(self._tail_prior_slot)
+                removed.append(self._tail_prior_slot)  # type: ignore[arg-type]
                 graph.add(self._bias_prior(self._block, last=False))
             link = self._sigmas(_FRAME_SIGMA_M, _FRAME_SIGMA_M, math.sqrt(self._bias_q / self._bias_a))
             for b in range(self._block + 1, j + 1):

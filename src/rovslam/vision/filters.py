@@ -283,4 +283,4 @@ def local_variance(img: np.ndarray, size_px: int) -> np.ndarray:
     # float32 cancellation can leave tiny negatives on flat areas.
     cv2.multiply(mean, mean, dst=mean)
     cv2.subtract(var, mean, dst=var)
-    return cv2.max(var, 0.0, dst=var)
+    return cv2.max(var, 0.0, dst=var)  # type: ignore[call-overload]

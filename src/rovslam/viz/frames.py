@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -24,7 +25,7 @@ class FrameStore:
 
     path: Path
     camera: Camera
-    source: object  # rovslam.io.sequence.Sequence or rovslam.io.video.VideoSource
+    source: Any  # rovslam.io.sequence.Sequence or rovslam.io.video.VideoSource
     roll_rad: np.ndarray  # (N,) per frame (0 when the source has none)
     pitch_rad: np.ndarray  # (N,)
 

@@ -49,7 +49,7 @@ def select_views(res: RunResults, landmark_id: int, max_views: int = 6) -> list[
         keep = np.unique(np.round(np.linspace(0, len(rows) - 1, max_views)).astype(int))
         rows = [rows[k] for k in keep]
     obs = res.observations
-    kinds = np.asarray(obs.get("kind", np.full(len(obs["t_s"]), "track")), dtype=str) if rows else []
+    kinds = np.asarray(obs.get("kind", np.full(len(obs["t_s"]), "track")), dtype=str) if rows else []  # type: ignore[var-annotated]
     return [
         View(landmark_id, int(obs["frame"][r]), float(obs["t_s"][r]), str(kinds[r]), float(obs["score"][r]),
              float(obs["nis"][r]), np.array([obs["u_px"][r], obs["v_px"][r]]), np.zeros((0, 2)))

@@ -240,7 +240,7 @@ def flat_field(images: Iterable[np.ndarray], sigma_frac: float = 0.12) -> np.nda
     mean = acc / n
     sigma = sigma_frac * max(mean.shape[:2])
     flat = cv2.GaussianBlur(mean, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-    flat /= np.maximum(flat.reshape(-1, 3).mean(axis=0), 1e-3)
+    flat /= np.maximum(flat.reshape(-1, 3).mean(axis=0), 1e-3)  # type: ignore[misc]
     return np.maximum(flat, 0.05)
 
 

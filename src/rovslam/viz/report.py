@@ -223,7 +223,7 @@ def _jpeg(png: Path, quality: int = 88) -> Path:
 
     img = cv2.imread(str(png), cv2.IMREAD_COLOR)
     jpg = png.with_suffix(".jpg")
-    cv2.imwrite(str(jpg), img, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    cv2.imwrite(str(jpg), img, [cv2.IMWRITE_JPEG_QUALITY, quality])  # type: ignore[arg-type]
     return jpg
 
 
@@ -282,7 +282,7 @@ def write_report(
         if gt_xy is not None:  # a run without compass: the truth in its frame (its first heading)
             from rovslam.eval.metrics import run_frame_turn_rad, to_run_frame
 
-            gt_xy = to_run_frame(gt_xy, run_frame_turn_rad(res, float(runinfo.truth_at(res, gt.t_s, gt.heading_rad)[0])))
+            gt_xy = to_run_frame(gt_xy, run_frame_turn_rad(res, float(runinfo.truth_at(res, gt.t_s, gt.heading_rad)[0])))  # type: ignore[index]
         if gt_xy is None:
             notes.append(f"{groundtruth}: its times do not match the run's frames; accuracy figures left out.")
         else:
@@ -317,7 +317,7 @@ def write_report(
                         "<p>Displacement since the landmark was initialised, as in the paper.</p>"
                         + _table1_html(table1(res, gt_xy, t1_id), t1_id))
     if mosaic:
-        rep.sections.append(_mosaic_section(folder, out, seq_path, Path(groundtruth) if gt_xy is not None else None,
+        rep.sections.append(_mosaic_section(folder, out, seq_path, Path(groundtruth) if gt_xy is not None else None,  # type: ignore[arg-type]
                                             mosaic_every, progress, cam_path))
     rep.sections.append(_config_html(folder, res))
     path = out / "index.html"
