@@ -335,11 +335,6 @@ def simulate_variant(out_dir, base: str, name: str, seed: int, **fields):
 
 def photo_available() -> bool:
     """Whether the shared real seabed photo (chamber3) is there for the photo presets."""
-    from rovslam.errors import SimulationError
-    from rovslam.sim import scenarios
+    from rovslam import data
 
-    try:
-        scenarios.shared_data_file("chamber3/seabed.jpg")
-    except SimulationError:
-        return False
-    return True
+    return data.available("chamber3")

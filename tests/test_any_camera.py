@@ -19,22 +19,31 @@ import re
 from pathlib import Path
 
 import cv2
+import datasets
 import numpy as np
 import pytest
+from synth import colourise, paper_camera, render_grey, seabed_spectrum
 
 from rovslam.camera import Camera, ground_to_pixels, pixels_to_ground
-from rovslam.config import ConfigError, OdometryConfig, ProcessingConfig, RunConfig, SpeedTemplateConfig, TrackerConfig, from_dict
+from rovslam.config import (
+    ConfigError,
+    OdometryConfig,
+    ProcessingConfig,
+    RunConfig,
+    SpeedTemplateConfig,
+    TrackerConfig,
+    from_dict,
+)
 from rovslam.io.sequence import Frame, SequenceInfo, open_sequence
 from rovslam.odometry import SpeedEstimator
 from rovslam.pipeline import SlamPipeline
 from rovslam.vision.filters import bandpass, local_variance, template_channel
 from rovslam.vision.scale import ProcessingScale, auto_scale, processing_scale
 from rovslam.vision.tracking import TokenTracker, leaving_mask
-from synth import colourise, paper_camera, render_grey, seabed_spectrum
 
 ROOT = Path(__file__).resolve().parents[1]
-SPARUS = ROOT / ".." / "shared" / "data" / "sparus"
-needs_sparus = pytest.mark.skipif(not (SPARUS / "sparus_snippet.mp4").is_file(), reason="../shared/data/sparus is not beside the repo")
+SPARUS = datasets.folder("sparus")
+needs_sparus = datasets.needs("sparus")
 Z_M = 1.3
 HD = Camera(width_px=1920, height_px=1080, fx_px=4800.0, fy_px=4800.0, cx_px=959.5, cy_px=539.5)
 

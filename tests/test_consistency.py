@@ -21,15 +21,16 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import datasets
 import numpy as np
 import pytest
+from synth import paper_camera, seabed_frame, seabed_spectrum, simulate_variant
 
 from rovslam.association import RecoveryMonitor
 from rovslam.config import AssociationConfig, RunConfig
 from rovslam.io.sequence import Frame, SequenceInfo, open_sequence, read_groundtruth
 from rovslam.pipeline import SlamPipeline
 from rovslam.sim import simulate
-from synth import paper_camera, seabed_frame, seabed_spectrum, simulate_variant
 
 TWO_SIGMA_NEES = 4.0  # inside the 2-sigma ellipse: Mahalanobis distance <= 2 (as `rovslam eval`)
 
@@ -312,13 +313,8 @@ def test_without_the_self_similarity_test_the_grating_is_a_landmark():
 def test_the_real_photo_survey_with_turns_stays_inside_its_bounds(tmp_path, seed):
     """2 minutes (600 frames) of ``photo-turns`` (the chamber3 photomosaic, heading turns, yaw
     oscillation, tilt, compass noise): truth inside the 2-sigma ellipse on >= 95 % of frames."""
-    from rovslam.sim import shared_data_file
-    from rovslam.errors import SimulationError
 
-    try:
-        shared_data_file("chamber3/seabed.jpg")
-    except SimulationError as exc:
-        pytest.skip(str(exc))
+    datasets.skip_unless("chamber3")
     simulate("photo-turns", tmp_path / "seq", frames=600, seed=seed)
     _, _, nees = _run(tmp_path / "seq")
     assert np.mean(nees < TWO_SIGMA_NEES) >= 0.95
@@ -330,13 +326,9 @@ def test_a_compass_deviation_stays_inside_the_bounds_it_is_given(tmp_path):
     estimate turns by it about the start. Told the compass's accuracy (``[odometry]
     compass_offset_sigma_rad = 0.0175``) the reported covariance carries that turn: measured
     97.2 % inside 2-sigma; without the term 83.2 %."""
-    from rovslam.errors import SimulationError
-    from rovslam.sim import SCENARIOS, shared_data_file
+    from rovslam.sim import SCENARIOS
 
-    try:
-        shared_data_file("chamber3/seabed.jpg")
-    except SimulationError as exc:
-        pytest.skip(str(exc))
+    datasets.skip_unless("chamber3")
     nav = dataclasses.replace(SCENARIOS["photo-survey"].nav, compass_bias_rad=math.radians(1.0))
     simulate_variant(tmp_path / "seq", "photo-survey", "photo-survey-deviated", 0, n_frames=600, nav=nav)
     cfg = RunConfig()

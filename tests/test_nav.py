@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import datasets
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -22,8 +23,8 @@ from rovslam.io.nav import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-SPARUS = ROOT / ".." / "shared" / "data" / "sparus"
-needs_sparus = pytest.mark.skipif(not (SPARUS / "sparus_snippet.csv").is_file(), reason="../shared/data/sparus is not beside the repo")
+SPARUS = datasets.folder("sparus")
+needs_sparus = datasets.needs("sparus")
 
 
 # --------------------------------------------------------------------------- interpolation

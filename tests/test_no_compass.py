@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import math
 
+import datasets
 import numpy as np
 import pytest
 
@@ -22,7 +23,6 @@ from rovslam.io.sequence import read_groundtruth
 from rovslam.runner import run_sequence
 from rovslam.sim import simulate
 from rovslam.slam import EkfSlam
-from synth import photo_available
 
 
 def test_tracker_reports_each_steps_heading_variance_as_a_walk():
@@ -71,7 +71,7 @@ def test_an_unmeasured_turn_grows_the_heading_error_by_the_turn_rate_over_the_st
     assert tracker.skip(math.nan, 0.1).walk_var_rad2 == pytest.approx(0.025**2)
 
 
-@pytest.mark.skipif(not photo_available(), reason="the chamber3 photo is not available (set ROVSLAM_SHARED_DATA)")
+@datasets.needs("chamber3")
 @pytest.mark.parametrize("seed", [0, pytest.param(3, marks=pytest.mark.slow)])  # seed 3: another 25 s of CPU
 def test_photo_turns_without_compass_stays_inside_its_covariance(tmp_path, seed):
     """2 minutes of the real-photo survey with turns as a bare video. Seed 3 (and seed 0 after a

@@ -16,18 +16,19 @@ import math
 import shutil
 from pathlib import Path
 
+import datasets
 import numpy as np
 import pytest
+from rosbag_writer import sequence_to_bag
 from typer.testing import CliRunner
 
-from rosbag_writer import sequence_to_bag
 from rovslam.cli import app
 from rovslam.io.results import read_results
 from rovslam.io.sequence import open_sequence
 
 ROOT = Path(__file__).resolve().parents[1]
-SPARUS = ROOT / ".." / "shared" / "data" / "sparus"
-needs_sparus = pytest.mark.skipif(not (SPARUS / "sparus_snippet.mp4").is_file(), reason="../shared/data/sparus is not beside the repo")
+SPARUS = datasets.folder("sparus")
+needs_sparus = datasets.needs("sparus")
 N_FRAMES = 60
 SAME_M = 1e-8
 

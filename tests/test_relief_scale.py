@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import datasets
 import numpy as np
 import pytest
 
@@ -105,13 +106,9 @@ def test_the_relief_correlation_time_is_checked_at_load():
 
 
 def _photo_turns(tmp_path, seed: int, frames: int):
-    from rovslam.errors import SimulationError
-    from rovslam.sim import shared_data_file, simulate
+    from rovslam.sim import simulate
 
-    try:
-        shared_data_file("chamber3/seabed.jpg")
-    except SimulationError as exc:
-        pytest.skip(str(exc))
+    datasets.skip_unless("chamber3")
     seq = tmp_path / f"seq{seed}"
     simulate("photo-turns", seq, frames=frames, seed=seed)
     return seq
@@ -168,7 +165,7 @@ def test_a_flat_seabed_keeps_the_altimeter_offset_alone(tmp_path):
     from rovslam.slam.motion import altitude_offset_sigma_m
 
     if not photo_available():
-        pytest.skip("the shared real seabed photo (chamber3) is not there")
+        datasets.skip_unless("chamber3")
     seq = simulate_variant(tmp_path / "flat", "photo-survey", "photo-survey-flat", 0, n_frames=150, relief=None)
     _, sigmas = _inside_2sigma(seq, _ON)
     slam = RunConfig().slam

@@ -6,16 +6,17 @@ import os
 import subprocess
 import sys
 
+import datasets
 import numpy as np
 import pytest
+from synth import photo_available
+from test_sim_presets_frozen import folder_digest
 
 from rovslam.camera import pixels_to_ground, rot2
 from rovslam.errors import SimulationError
 from rovslam.io.sequence import SequenceInfo, SequenceWriter, open_sequence, read_groundtruth
 from rovslam.sim import SCENARIOS, simulate, simulate_trajectory
 from rovslam.sim import scenarios as scenarios_module
-from synth import photo_available
-from test_sim_presets_frozen import folder_digest
 
 NEW_PRESETS = ("portofino-relief", "photo-survey", "photo-turns", "hd-survey", "still-camera", "turbid-relief",
                "coral-repetitive", "swell")
@@ -24,7 +25,7 @@ PHOTO = {"photo-survey", "photo-turns"}
 
 def _skip_without_photo(name: str) -> None:
     if name in PHOTO and not photo_available():
-        pytest.skip("the chamber3 photo is not available (set ROVSLAM_SHARED_DATA)")
+        datasets.skip_unless("chamber3")
 
 
 def test_every_new_preset_is_listed_with_a_dive_of_3_to_10_minutes():
@@ -102,25 +103,27 @@ def test_photo_surveys_keep_the_footprint_on_the_photo(name):
 
 
 def test_a_missing_photo_names_where_it_looked_and_the_variable(tmp_path, monkeypatch):
-    monkeypatch.setattr(scenarios_module, "_REPO_ROOT", tmp_path / "repo")
-    monkeypatch.setenv("ROVSLAM_SHARED_DATA", str(tmp_path / "nowhere"))
+    from rovslam import data
+
+    monkeypatch.setattr(data, "_seed_folders", lambda: [])  # no shared data beside the checkout
+    monkeypatch.setenv("ROVSLAM_DATA", str(tmp_path / "nowhere"))
     with pytest.raises(SimulationError) as info:
         simulate("photo-survey", tmp_path / "out", frames=2)
     msg = str(info.value)
     assert str(tmp_path / "nowhere" / "chamber3" / "seabed.jpg") in msg
-    assert str(tmp_path / "shared" / "data" / "chamber3" / "seabed.jpg") in msg
-    assert "ROVSLAM_SHARED_DATA" in msg
+    assert "ROVSLAM_DATA" in msg
     assert not (tmp_path / "out").exists()
 
 
 def test_the_photo_is_found_through_the_environment_variable(tmp_path, monkeypatch):
-    if not photo_available():
-        pytest.skip("the chamber3 photo is not available")
+    datasets.skip_unless("chamber3")
+    from rovslam import data
+
     real = scenarios_module.shared_data_file("chamber3/seabed.jpg")
     (tmp_path / "data" / "chamber3").mkdir(parents=True)
     os.symlink(real, tmp_path / "data" / "chamber3" / "seabed.jpg")
-    monkeypatch.setattr(scenarios_module, "_REPO_ROOT", tmp_path / "repo")
-    monkeypatch.setenv("ROVSLAM_SHARED_DATA", str(tmp_path / "data"))
+    monkeypatch.setattr(data, "_seed_folders", lambda: [])
+    monkeypatch.setenv("ROVSLAM_DATA", str(tmp_path / "data"))
     assert scenarios_module.shared_data_file("chamber3/seabed.jpg") == tmp_path / "data" / "chamber3" / "seabed.jpg"
 
 

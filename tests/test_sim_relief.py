@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import cv2
+import datasets
 import numpy as np
 import pytest
+from test_sim_geometry import BACKGROUND, MM_PER_PX, _centroid
+from test_sim_lasers import red_dominance_centres
 
 from rovslam.camera import Camera, ground_to_pixels, rot2
 from rovslam.errors import SimulationError
@@ -30,8 +33,6 @@ from rovslam.sim.relief import (
     sonar_first_return_m,
 )
 from rovslam.sim.texture import ImageSeabed, ProceduralSeabed, TextureParams
-from test_sim_geometry import BACKGROUND, MM_PER_PX, _centroid
-from test_sim_lasers import red_dominance_centres
 
 CAM = PORTOFINO_CAMERA
 RELIEF_MM = 2.0
@@ -299,10 +300,8 @@ def test_procedural_relief_is_seamless_bounded_and_centred():
 def test_relief_from_the_chamber3_photo_puts_dark_crevices_lower():
     from rovslam.sim.scenarios import shared_data_file
 
-    try:
-        photo = shared_data_file("chamber3/seabed.jpg")
-    except SimulationError as exc:
-        pytest.skip(str(exc))
+    datasets.skip_unless("chamber3")
+    photo = shared_data_file("chamber3/seabed.jpg")
     seabed = ImageSeabed.from_file(photo, 1.0)
     relief = relief_from_photo(seabed, PhotoReliefParams(relief_m=0.08))
     h = relief.heights

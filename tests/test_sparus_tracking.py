@@ -7,9 +7,8 @@ absent.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
+import datasets
 import numpy as np
 import pytest
 
@@ -17,7 +16,7 @@ from rovslam.config import BandpassConfig, SpeedTemplateConfig, TrackerConfig
 from rovslam.vision.filters import bandpass, local_variance, template_channel
 from rovslam.vision.tracking import TokenTracker, global_shift
 
-SPARUS = Path(__file__).parents[1] / ".." / "shared" / "data" / "sparus"
+SPARUS = datasets.folder("sparus")
 VIDEO = SPARUS / "sparus_snippet.mp4"
 
 
@@ -36,7 +35,7 @@ def _frames() -> list[np.ndarray]:
 @pytest.fixture(scope="module")
 def track_images() -> list[np.ndarray]:
     if not VIDEO.is_file():
-        pytest.skip(f"real data not found at {VIDEO}")
+        datasets.skip_unless("sparus")
     bp = BandpassConfig()
     return [
         bandpass(template_channel(f, bp.channel), bp.sigma_fine_px, bp.sigma_coarse_px)

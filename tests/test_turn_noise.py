@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import datasets
 import numpy as np
 import pytest
 
@@ -178,12 +179,13 @@ def test_the_worst_real_photo_dive_with_turns_stays_inside_its_bounds(tmp_path, 
     false``): the relief under the tokens in ``b`` takes this dive to 98.3 % (tests/test_relief_scale.py),
     and the turns' part is what this test isolates."""
     from synth import photo_available
-    from test_consistency import TWO_SIGMA_NEES, _run as run_dive
+    from test_consistency import TWO_SIGMA_NEES
+    from test_consistency import _run as run_dive
 
     from rovslam.sim import simulate
 
     if not photo_available():
-        pytest.skip("the shared real seabed photo (chamber3) is not there")
+        datasets.skip_unless("chamber3")
     simulate("photo-turns", tmp_path / "seq", frames=1500, seed=2)
     cfg = RunConfig()
     cfg = dataclasses.replace(cfg, odometry=dataclasses.replace(cfg.odometry, turn_noise_learned=learned),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import datasets
 import numpy as np
 import pytest
 
@@ -14,9 +15,9 @@ from rovslam.io.video import open_video
 from rovslam.runner import run_sequence
 
 ROOT = Path(__file__).resolve().parents[1]
-SPARUS = ROOT / ".." / "shared" / "data" / "sparus" / "sparus_snippet.mp4"
+SPARUS = datasets.folder("sparus") / "sparus_snippet.mp4"
 CAMERA = ROOT / "examples" / "sparus-camera.toml"
-needs_sparus = pytest.mark.skipif(not SPARUS.is_file(), reason="../shared/data/sparus is not beside the repo")
+needs_sparus = datasets.needs("sparus")
 
 
 @needs_sparus

@@ -69,6 +69,10 @@ class SimulationError(RovslamError):
     """A simulation request is invalid (unknown scenario, bad frame count, bad texture)."""
 
 
+class DataNotFoundError(RovslamError):
+    """A sample dataset (:mod:`rovslam.data`) is not on this machine and cannot be fetched."""
+
+
 def finite_scalar(
     name: str, value: object, *, positive: bool = False, nonnegative: bool = False, nan_hint: str = "", suffix: str = ""
 ) -> float:

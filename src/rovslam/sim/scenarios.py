@@ -37,7 +37,6 @@ byte-identical images, and a frame does not depend on which frames were rendered
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -66,8 +65,6 @@ from rovslam.sim.water import WaterParams
 from rovslam.sim.world import World
 
 _STREAM_FRAMES = 13
-SHARED_DATA_ENV = "ROVSLAM_SHARED_DATA"  # folder holding the shared data (chamber3/seabed.jpg, ...)
-_REPO_ROOT = Path(__file__).resolve().parents[3]
 
 PORTOFINO_CAMERA = Camera(width_px=360, height_px=272, fx_px=1075.0, fy_px=1075.0, cx_px=179.5, cy_px=135.5)
 PAPER_LASERS = tuple(
@@ -319,24 +316,19 @@ def frame_rng(seed: int, k: int) -> np.random.Generator:
 
 
 def shared_data_file(relative: str) -> Path:
-    """A file of the project's shared data folder (e.g. ``chamber3/seabed.jpg``).
+    """A file of the sample data (e.g. ``chamber3/seabed.jpg``: dataset ``chamber3``, file ``seabed.jpg``).
 
-    Looked up in ``$ROVSLAM_SHARED_DATA`` when that is set, then in ``../shared/data``
-    beside the repository; the path returned is absolute. A missing file raises SimulationError
-    naming where it looked.
+    Found by :func:`rovslam.data.file_path` (``$ROVSLAM_DATA``, the user cache, the project's shared
+    data); the path returned is absolute. A missing file raises SimulationError saying how to get it.
     """
-    candidates = []
-    env = os.environ.get(SHARED_DATA_ENV)
-    if env:
-        candidates.append(Path(env).expanduser().absolute() / relative)  # a relative setting: from where it was set
-    candidates.append(_REPO_ROOT.parent / "shared" / "data" / relative)
-    for path in candidates:
-        if path.is_file():
-            return path
-    raise SimulationError(
-        f"the seabed photo {relative} was not found (looked in: {', '.join(str(c) for c in candidates)}); "
-        f"set {SHARED_DATA_ENV} to the shared data folder that holds {relative}"
-    )
+    from rovslam import data
+    from rovslam.errors import DataNotFoundError
+
+    name, _, file = relative.partition("/")
+    try:
+        return data.file_path(name, file)
+    except DataNotFoundError as exc:
+        raise SimulationError(f"the seabed photo {relative} was not found: {exc}") from None
 
 
 MAX_FRAMES = 1_000_000  # one simulated dive: 55 hours at 5 Hz (its trajectory arrays alone are 0.4 GB)
