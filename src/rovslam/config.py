@@ -169,7 +169,7 @@ class ProcessingConfig(_Checked):
     """
 
     TABLE: ClassVar[str] = "processing"
-    scale: float | Auto = "auto"
+    scale: float | Auto = "auto"  # "auto" (see above) or a fixed reduction in (0, 1] (1: full resolution)
     max_side_px: int = _num(480, ge=64)  # auto: the long side of the processed image at most this
     min_px_per_m: float = _num(500.0, ge=0)  # auto: ground pixels per metre kept at least (0: no limit)
 
@@ -200,8 +200,8 @@ class LandmarkTemplateConfig(_Checked):
     size_px: int = _num(32, ge=4)  # paper: 32x32
     min_local_variance: float = _num(12.3, ge=0)  # paper: 12.3
     search_margin_px: int = _num(6, ge=0)  # search window beyond the 3-sigma predicted uncertainty
-    max_search_radius_px: int = _num(60, ge=1)
-    border_px: int = _num(8, ge=0)
+    max_search_radius_px: int = _num(60, ge=1)  # the search window around the prediction never wider than this
+    border_px: int = _num(8, ge=0)  # a new landmark template keeps this far from the image border
     inhibit_margin_px: int = _num(4, ge=0)  # speed templates keep this far from landmark templates
 
 
@@ -225,19 +225,19 @@ class AssociationConfig(_Checked):
 
     TABLE: ClassVar[str] = "association"
     max_self_similarity: float = _num(0.8, gt=0, le=1)  # 1: no test (the paper)
-    similarity_radius_px: int = _num(24, ge=1)
-    candidates: int = _num(5, ge=1)
+    similarity_radius_px: int = _num(24, ge=1)  # radius of the candidate's autocorrelation searched for a second peak
+    candidates: int = _num(5, ge=1)  # strongest candidate templates among which the most distinctive is chosen
     confirm_observations: int = _num(3, ge=0)  # 0: a landmark corrects the vehicle from its first re-observation
-    joint_compatibility: bool = True
+    joint_compatibility: bool = True  # test a frame's landmark matches together (false: each on its own, the paper)
     joint_quantile: float = _num(0.999, gt=0, le=1)  # chi-square quantile of the joint test (2K dof)
-    recovery: bool = True
-    strong_correlation: float = _num(0.95, gt=0, le=1)
-    recovery_after_frames: int = _num(3, ge=1)
+    recovery: bool = True  # admit strong matches refused frame after frame, inflating the vehicle covariance
+    strong_correlation: float = _num(0.95, gt=0, le=1)  # a refused match this well correlated counts as evidence
+    recovery_after_frames: int = _num(3, ge=1)  # frames in a row of such refusals before the recovery
     recovery_min_landmarks: int = _num(2, ge=1)  # different landmarks that must speak against the estimate
     recovery_memory_s: float = _num(10.0, ge=0)  # how long a refused match's told offset counts as evidence
     recovery_offset_agreement_m: float = _num(0.01, gt=0)  # the refused matches' vehicle offsets agree within this
-    wide_search_after_frames: int = _num(5, ge=1)
-    wide_search_radius_px: int = _num(150, ge=1)
+    wide_search_after_frames: int = _num(5, ge=1)  # a confirmed landmark expected but not found this many frames: wide search
+    wide_search_radius_px: int = _num(150, ge=1)  # radius of that wide search
 
 
 @dataclass(frozen=True)
@@ -261,8 +261,8 @@ class LaserConfig(_Checked):
 
     TABLE: ClassVar[str] = "laser"
     min_red_excess: float = _num(60.0, ge=0, le=255)  # red - max(green, blue), 8-bit units
-    min_spot_area_px: int = _num(3, ge=1)
-    max_spot_area_px: int = _num(400, ge=1)
+    min_spot_area_px: int = _num(3, ge=1)  # a red blob smaller than this is noise, not a laser spot
+    max_spot_area_px: int = _num(400, ge=1)  # a red blob larger than this is a red object, not a laser spot
     search_radius_px: float = _num(40.0, gt=0)  # around the spot predicted from the last altitude
     inhibit_radius_px: int = _num(14, ge=0)  # templates keep this far from a spot centre
     max_relative_disagreement: float = _num(0.05, gt=0)  # a spot whose altitude differs more is an outlier
@@ -274,11 +274,11 @@ class LaserConfig(_Checked):
     # a spot missed by min_red_excess is searched this close to its prediction, its blob at 30 % of its peak,
     # when the peak reaches faint_red_excess (0: no faint spots, as before)
     faint_red_excess: float = _num(20.0, ge=0, le=255)
-    faint_search_radius_px: float = _num(8.0, gt=0)
-    sonar_sigma_m: float = _num(0.05, gt=0)
-    fixed_altitude_sigma_m: float = _num(0.10, gt=0)
+    faint_search_radius_px: float = _num(8.0, gt=0)  # a faint spot is looked for this close to its predicted pixel
+    sonar_sigma_m: float = _num(0.05, gt=0)  # one-sigma error of a sonar (altimeter) reading
+    fixed_altitude_sigma_m: float = _num(0.10, gt=0)  # one-sigma error of an assumed altitude (no laser, no sonar)
     min_altitude_m: float = _num(0.05, gt=0)  # altitudes (laser or sonar) outside this range are rejected
-    max_altitude_m: float = _num(30.0, gt=0)
+    max_altitude_m: float = _num(30.0, gt=0)  # altitudes (laser or sonar) above this are rejected
     assumed_altitude_m: float = _num(1.31, gt=0)  # no laser, no sonar, no [vehicle] altitude_m: the paper's 1.31 m
     altitude_accel_sigma_mps2: float = _num(0.05, gt=0)  # vertical acceleration of the altitude filter (rovslam.altitude)
 
@@ -295,7 +295,7 @@ class OdometryConfig(_Checked):
 
     TABLE: ClassVar[str] = "odometry"
     outlier_threshold_px: float = _num(1.0, gt=0)  # residual beyond which a token is an outlier
-    min_inliers: int = _num(2, ge=1)
+    min_inliers: int = _num(2, ge=1)  # fewer tokens agreeing than this: no speed measured this frame
     min_speed_sigma_mps: float = _num(0.0005, gt=0)  # floor of the speed standard deviation
     token_sigma_px: float = _num(0.15, gt=0)  # one token's displacement noise (floor)
     token_noise_prior_dof: float = _num(4.0, ge=0)  # the dive's recent token scatter counts as this many degrees of freedom in each step's noise (0: each step alone)
@@ -323,13 +323,13 @@ class OdometryConfig(_Checked):
     # a compass reading farther than this many sigmas from the heading the tokens' turn predicts is a glitch,
     # refused (0: off); after compass_gate_max_readings refused in a row the compass is believed again
     compass_gate_sigmas: float = _num(6.0, ge=0)
-    compass_gate_max_readings: int = _num(10, ge=0)
+    compass_gate_max_readings: int = _num(10, ge=0)  # see compass_gate_sigmas above
     compass_sigma_learned: bool = True  # the compass noise its readings show is used when above compass_sigma_rad
     compass_drift_sigma_rad: float = _num(0.0175, ge=0)  # slow compass error no smoothing removes (magnetic disturbance, 1 deg)
     # the tokens' turn errors are correlated from step to step over relief: the variance of their sum over
     # turn_noise_window_steps steps, checked against the compass, scales each step's (never below 1; false: as measured)
     turn_noise_learned: bool = True
-    turn_noise_window_steps: int = _num(25, ge=2)
+    turn_noise_window_steps: int = _num(25, ge=2)  # see turn_noise_learned above
     compass_offset_sigma_rad: float = _num(0.0087, ge=0)  # the compass's constant error (deviation, 0.5 deg calibrated): turns the whole estimate
     attitude_sigma_rad: float = _num(0.0035, ge=0)  # AHRS roll / pitch accuracy (0.2 deg), when frames.csv has them
     attitude_noise_sigma_rad: float = _num(0.0002, ge=0)  # AHRS reading-to-reading noise (0.01 deg): moves each frame's seabed
@@ -364,7 +364,7 @@ class SlamConfig(_Checked):
     # revisit then pulled the estimate 8 mm off (README); false: b is the altimeter's offset, widened only by the
     # relief under the laser spots
     altitude_bias_relief: bool = False
-    altitude_bias_relief_tau_s: float = _num(5.0, gt=0)
+    altitude_bias_relief_tau_s: float = _num(5.0, gt=0)  # correlation time of that relief term
     altitude_bias_consider: bool = True  # b a consider state (Schmidt): its uncertainty carried, never learned (False: learned)
     speed_bias_sigma_mps: float = _num(0.002, ge=0)  # > 0: the odometry's slow world-frame speed error w in the state, while sunlight drags the tokens (0: none)
     speed_bias_tau_s: float = _num(60.0, gt=0)  # its correlation time (Ornstein-Uhlenbeck)
