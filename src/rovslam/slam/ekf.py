@@ -96,8 +96,6 @@ from rovslam.slam.state import SlamState, StateLayout
 
 __all__ = ["ConsistencyReport", "EkfSlam", "MotionInput", "UpdateResult"]
 
-_finite = checked_scalar
-
 
 @dataclass(frozen=True, eq=False)
 class UpdateResult:
@@ -142,7 +140,7 @@ class EkfSlam(SlamState):
     ):
         self.config = config  # validated when it was built (rovslam.config)
         xy = checked_vector2("initial_xy_m", initial_xy_m)
-        z0 = None if initial_altitude_m is None else _finite("initial_altitude_m", initial_altitude_m, positive=True)
+        z0 = None if initial_altitude_m is None else checked_scalar("initial_altitude_m", initial_altitude_m, positive=True)
         if initial_cov_m2 is None:
             cov = np.eye(2) * config.initial_position_sigma_m**2
         else:
@@ -192,7 +190,8 @@ class EkfSlam(SlamState):
 
     # ------------------------------------------------------------------ (3)
     def _observation_terms(self, k: int, psi: float, z: float, f: float):
-        """h (2,) by (3), the non-zero columns of H (2, 4 to 6), their state indices, and the depth, of landmark row k."""
+        """Landmark row k's h (2,) by (3), the non-zero columns of H (2, vehicle_dim + landmark_dim), their
+        state indices, and its depth."""
         lay = self.layout
         depth = self._depth(k, z)
         h, hs = observe_landmarks(lay, self._x, np.array([k], dtype=np.intp), self._x[:2], self.map_heading_rad(psi),
@@ -202,10 +201,10 @@ class EkfSlam(SlamState):
 
     def _noise_args(self, pixel_sigma_px, altitude_sigma_m, heading_sigma_rad):
         sp = self.config.pixel_sigma_px if pixel_sigma_px is None else pixel_sigma_px
-        sp = _finite("pixel_sigma_px", sp, positive=True)
-        sz = _finite("altitude_sigma_m", altitude_sigma_m, nonnegative=True)
+        sp = checked_scalar("pixel_sigma_px", sp, positive=True)
+        sz = checked_scalar("altitude_sigma_m", altitude_sigma_m, nonnegative=True)
         sh = self.config.heading_sigma_rad if heading_sigma_rad is None else heading_sigma_rad
-        sh = _finite("heading_sigma_rad", sh, nonnegative=True)
+        sh = checked_scalar("heading_sigma_rad", sh, nonnegative=True)
         return sp, sz, sh
 
     def predict_observation(
@@ -220,9 +219,9 @@ class EkfSlam(SlamState):
     ) -> tuple[np.ndarray, np.ndarray]:
         """Predicted [m, n] of landmark i by (3) and its innovation covariance S (2, 2) px^2."""
         k = self._index(i)
-        psi = _finite("heading_rad", heading_rad)
-        z = _finite("altitude_m", altitude_m, positive=True)
-        f = _finite("focal_px", focal_px, positive=True)
+        psi = checked_scalar("heading_rad", heading_rad)
+        z = checked_scalar("altitude_m", altitude_m, positive=True)
+        f = checked_scalar("focal_px", focal_px, positive=True)
         sp, sz, sh = self._noise_args(pixel_sigma_px, altitude_sigma_m, heading_sigma_rad)
         h, hs, idx, depth = self._observation_terms(k, psi, z, f)
         s = hs @ self._P[np.ix_(idx, idx)] @ hs.T + observation_noise_px2(h, sp, depth, sz, sh)
@@ -245,9 +244,9 @@ class EkfSlam(SlamState):
         """
         ids = np.asarray(ids, dtype=np.intp).reshape(-1)
         rows = np.array([self._index(i) for i in ids], dtype=np.intp).reshape(-1)  # (K,) first state row
-        psi = _finite("heading_rad", heading_rad)
-        z = _finite("altitude_m", altitude_m, positive=True)
-        f = _finite("focal_px", focal_px, positive=True)
+        psi = checked_scalar("heading_rad", heading_rad)
+        z = checked_scalar("altitude_m", altitude_m, positive=True)
+        f = checked_scalar("focal_px", focal_px, positive=True)
         sp, _, _ = self._noise_args(pixel_sigma_px, 0.0, 0.0)
         offset = checked_vector2("vehicle_offset_m", vehicle_offset_m)
         lay, x, p = self.layout, self._x, self._P
@@ -269,9 +268,9 @@ class EkfSlam(SlamState):
         """(nu (2,), H columns, state indices, R_m, first state row) of one observation, its inputs checked."""
         k = self._index(i)
         mn = checked_vector2("mn_px", mn_px)
-        psi = _finite("heading_rad", heading_rad)
-        z = _finite("altitude_m", altitude_m, positive=True)
-        f = _finite("focal_px", focal_px, positive=True)
+        psi = checked_scalar("heading_rad", heading_rad)
+        z = checked_scalar("altitude_m", altitude_m, positive=True)
+        f = checked_scalar("focal_px", focal_px, positive=True)
         sp, sz, sh = self._noise_args(pixel_sigma_px, altitude_sigma_m, heading_sigma_rad)
         h, hs, idx, depth = self._observation_terms(k, psi, z, f)
         return mn - h, hs, idx, observation_noise_px2(h, sp, depth, sz, sh), k
@@ -399,9 +398,9 @@ class EkfSlam(SlamState):
             InvalidMeasurementError: NaN/inf or invalid input; the state is unchanged.
         """
         mn = checked_vector2("mn_px", mn_px)
-        psi = _finite("heading_rad", heading_rad)
-        z = _finite("altitude_m", altitude_m, positive=True)
-        f = _finite("focal_px", focal_px, positive=True)
+        psi = checked_scalar("heading_rad", heading_rad)
+        z = checked_scalar("altitude_m", altitude_m, positive=True)
+        f = checked_scalar("focal_px", focal_px, positive=True)
         sp, sz, sh = self._noise_args(pixel_sigma_px, altitude_sigma_m, heading_sigma_rad)
         lay = self.layout
         theta = self.map_heading_rad(psi)
@@ -420,11 +419,11 @@ class EkfSlam(SlamState):
 
     def _footprint(self, heading_rad, altitude_m, focal_px, width_px, height_px) -> np.ndarray:
         """D of (5) at the map heading, the inputs checked."""
-        psi = _finite("heading_rad", heading_rad)
-        z = _finite("altitude_m", altitude_m, positive=True)
-        f = _finite("focal_px", focal_px, positive=True)
-        w = _finite("width_px", width_px, positive=True)
-        hgt = _finite("height_px", height_px, positive=True)
+        psi = checked_scalar("heading_rad", heading_rad)
+        z = checked_scalar("altitude_m", altitude_m, positive=True)
+        f = checked_scalar("focal_px", focal_px, positive=True)
+        w = checked_scalar("width_px", width_px, positive=True)
+        hgt = checked_scalar("height_px", height_px, positive=True)
         return gating.footprint_matrix_m2(self.map_heading_rad(psi), z, f, w, hgt)
 
     def visibility_statistics(

@@ -100,7 +100,7 @@ class MotionInput:
     altitude_bias_tau_s: float | None = None
 
     def __post_init__(self) -> None:
-        checks = (
+        checks: tuple[tuple[str, dict[str, bool] | None], ...] = (
             ("surge_mps", {}), ("sway_mps", {}), ("speed_cov_mps2", None), ("heading_rad", {}),
             ("dt_s", {"positive": True}), ("heading_sigma_rad", {"nonnegative": True}),
             ("altitude_m", {"positive": True}), ("altitude_bias_sigma_m", {"nonnegative": True}),

@@ -111,6 +111,11 @@ class SlamState:
         capacity: landmarks the buffers hold before their first growth.
     """
 
+    _x: np.ndarray  # (cap,) the mean; entries >= state_dim unused
+    _P: np.ndarray  # (cap, cap) the covariance; rows and columns >= state_dim unused
+    _cap: int
+    _vpad: np.ndarray  # (cap, 4) work array of the update
+
     def __init__(self, layout: StateLayout, capacity: int):
         self.layout = layout
         self._n = layout.vehicle_dim
