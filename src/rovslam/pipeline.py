@@ -687,8 +687,7 @@ class SlamPipeline:
         """Prediction (1) of the filter and of the dead reckoning reported beside it."""
         drag_sigma = self._speed_bias_sigma_mps()
         self.ekf.predict(MotionInput(speed.surge_mps, speed.sway_mps, speed.cov_mps2, heading_rad, dt_s, heading_sigma_rad,
-                                     altitude_m, altitude_bias_sigma_m, heading_walk_var_rad2, drag_sigma,
-                                     altitude_bias_tau_s))
+                                     altitude_m, altitude_bias_sigma_m, heading_walk_var_rad2, drag_sigma, altitude_bias_tau_s))
         if drag_sigma > 0.0:
             self._drag_frames += 1
             self._drag_sum_mps += self.ekf.speed_bias_mps
