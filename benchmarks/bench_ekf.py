@@ -36,7 +36,7 @@ import numpy as np  # noqa: E402
 
 from rovslam.camera import rot2  # noqa: E402
 from rovslam.config import SlamConfig  # noqa: E402
-from rovslam.slam import EkfSlam, observation_noise_px2  # noqa: E402
+from rovslam.slam import EkfSlam, MotionInput, observation_noise_px2  # noqa: E402
 
 Z_M, F_PX, W_PX, H_PX, DT_S = 1.31, 1075.0, 360, 272, 0.2
 Q = np.eye(2) * 0.002**2
@@ -52,7 +52,7 @@ def build(n_landmarks: int, seed: int = 0) -> EkfSlam:
     ekf = EkfSlam(SlamConfig(), initial_capacity=n_landmarks + 8)
     for _ in range(n_landmarks):
         psi = rng.uniform(-np.pi, np.pi)
-        ekf.predict(0.1, 0.0, Q, psi, DT_S)
+        ekf.predict(MotionInput(0.1, 0.0, Q, psi, DT_S))
         ekf.augment(rng.uniform(-120, 120, 2), psi, Z_M, F_PX)
     return ekf
 
@@ -87,7 +87,7 @@ def time_ours(ekf: EkfSlam, repeats: int, rng) -> tuple[float, int]:
         mn, _ = ekf.predict_observation(i, psi, Z_M, F_PX)
         mn = mn + rng.normal(0.0, 0.5, 2)
         t0 = time.perf_counter()
-        ekf.predict(0.0, 0.0, Q, psi, DT_S)
+        ekf.predict(MotionInput(0.0, 0.0, Q, psi, DT_S))
         res = ekf.update(i, mn, psi, Z_M, F_PX)
         times.append(time.perf_counter() - t0)
         accepted += res.accepted

@@ -53,7 +53,7 @@ from synth import SurveyNoise, crosshatch_track, landmark_field, survey_measurem
 
 from rovslam.camera import rot2  # noqa: E402
 from rovslam.config import SlamConfig  # noqa: E402
-from rovslam.slam import EkfSlam, observation_noise_px2, observe_mn  # noqa: E402
+from rovslam.slam import EkfSlam, MotionInput, observation_noise_px2, observe_mn  # noqa: E402
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement  # noqa: E402
 from rovslam.slam.smoother import Isam2Smoother, SmootherConfig  # noqa: E402
 
@@ -123,8 +123,8 @@ class EkfRunner:
     def add_frame(self, f: FrameMeasurements) -> None:
         ekf = self.ekf
         if self.prev is not None:
-            ekf.predict(f.speed_mps[0], f.speed_mps[1], f.speed_cov_mps2, self.prev.heading_rad, f.dt_s,
-                        f.heading_sigma_rad)
+            ekf.predict(MotionInput(f.speed_mps[0], f.speed_mps[1], f.speed_cov_mps2, self.prev.heading_rad, f.dt_s,
+                                    f.heading_sigma_rad))
         for ob in f.landmarks:
             if ob.kind == "init":
                 ekf.augment(ob.mn_px, f.heading_rad, f.altitude_m, f.focal_px)

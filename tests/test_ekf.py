@@ -9,7 +9,7 @@ from scipy.stats import chi2
 from rovslam.camera import Camera, ground_to_pixels, rot2
 from rovslam.config import SlamConfig
 from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError
-from rovslam.slam import EkfSlam, UpdateResult, landmark_from_mn, observation_noise_px2, observe_mn, pixels_to_mn
+from rovslam.slam import EkfSlam, MotionInput, UpdateResult, landmark_from_mn, observation_noise_px2, observe_mn, pixels_to_mn
 
 Z, F, W, H, DT = 1.31, 1075.0, 360, 272, 0.2
 
@@ -32,7 +32,7 @@ def dense_update(x, p, k, mn, psi, z, f, r_m):
 def random_filter(rng, n_landmarks, config=SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0)):
     ekf = EkfSlam(config, initial_capacity=2)
     for _ in range(n_landmarks):
-        ekf.predict(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT)
+        ekf.predict(MotionInput(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT))
         ekf.augment(rng.uniform(-120, 120, 2), rng.uniform(-3, 3), Z, F, altitude_sigma_m=0.02)
     return ekf
 
@@ -46,13 +46,13 @@ def test_predict_moves_by_equation_1_and_projects_q():
     ekf = EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0, heading_sigma_rad=0.0), initial_xy_m=(1.0, 2.0), initial_cov_m2=np.eye(2) * 1e-4)
     q = np.array([[4e-6, 1e-6], [1e-6, 9e-6]])
     psi = 0.6
-    ekf.predict(0.1, -0.03, q, psi, DT)
+    ekf.predict(MotionInput(0.1, -0.03, q, psi, DT))
     r = rot2(psi)
     np.testing.assert_allclose(ekf.vehicle_xy_m, [1.0, 2.0] + r @ [0.1, -0.03] * DT, atol=1e-15)
     np.testing.assert_allclose(ekf.vehicle_cov_m2, np.eye(2) * 1e-4 + DT**2 * r @ q @ r.T, atol=1e-18)
     # Heading noise adds sigma^2 J J^T with J = dR/dpsi [u, v] dt.
     ekf2 = EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0), initial_cov_m2=np.eye(2) * 1e-4)
-    ekf2.predict(0.1, -0.03, q, psi, DT, heading_sigma_rad=0.01)
+    ekf2.predict(MotionInput(0.1, -0.03, q, psi, DT, heading_sigma_rad=0.01))
     dr = np.array([[-np.sin(psi), -np.cos(psi)], [np.cos(psi), -np.sin(psi)]])
     j = dr @ [0.1, -0.03] * DT
     np.testing.assert_allclose(
@@ -64,7 +64,7 @@ def test_predict_leaves_landmarks_and_cross_terms_except_process_noise():
     rng = np.random.default_rng(1)
     ekf = random_filter(rng, 5)
     x0, p0 = snapshot(ekf)
-    ekf.predict(0.1, 0.0, np.eye(2) * 1e-6, 0.3, DT)
+    ekf.predict(MotionInput(0.1, 0.0, np.eye(2) * 1e-6, 0.3, DT))
     x1, p1 = snapshot(ekf)
     np.testing.assert_array_equal(x1[2:], x0[2:])  # (2): static landmarks
     np.testing.assert_array_equal(p1[2:, :], p0[2:, :])
@@ -72,7 +72,7 @@ def test_predict_leaves_landmarks_and_cross_terms_except_process_noise():
     for _ in range(3):
         noisy.augment(rng.uniform(-50, 50, 2), 0.0, Z, F)
     before = noisy.landmarks_cov_m2()
-    noisy.predict(0.0, 0.0, np.zeros((2, 2)), 0.0, DT)
+    noisy.predict(MotionInput(0.0, 0.0, np.zeros((2, 2)), 0.0, DT))
     grown = noisy.landmarks_cov_m2() - before
     np.testing.assert_allclose(grown, np.broadcast_to(np.eye(2) * 1e-6, (3, 2, 2)), atol=1e-18)
 
@@ -180,7 +180,7 @@ def test_capacity_growth_preserves_the_state():
     for _ in range(37):
         u, psi, mn = rng.uniform(0, 0.1), rng.uniform(-3, 3), rng.uniform(-100, 100, 2)
         for ekf in (small, big):
-            ekf.predict(u, 0.0, np.eye(2) * 1e-6, psi, DT)
+            ekf.predict(MotionInput(u, 0.0, np.eye(2) * 1e-6, psi, DT))
             ekf.augment(mn, psi, Z, F)
     for i in (0, 17, 36):
         mn_pred, _ = big.predict_observation(i, 0.2, Z, F)
@@ -210,8 +210,8 @@ def test_revisit_shrinks_the_vehicle_covariance_dead_reckoning_grows():
         for _ in range(100):
             truth = truth + rot2(psi) @ [0.1, 0.0] * DT
             u, v = np.array([0.1, 0.0]) + rng.normal(0, 0.002, 2)
-            slam.predict(u, v, q, psi, DT)
-            dr.predict(u, v, q, psi, DT)
+            slam.predict(MotionInput(u, v, q, psi, DT))
+            dr.predict(MotionInput(u, v, q, psi, DT))
             sigma_dr.append(np.sqrt(np.trace(dr.vehicle_cov_m2) / 2))
     sigma_before = np.sqrt(np.trace(slam.vehicle_cov_m2) / 2)
     # Dead reckoning: variance grows linearly with time, without bound.
@@ -235,7 +235,7 @@ def test_revisit_shrinks_the_vehicle_covariance_dead_reckoning_grows():
     assert np.linalg.norm(slam.vehicle_xy_m - truth) < 3 * sigma_after
     # Dead reckoning keeps growing: twice the time, twice the variance.
     for _ in range(400):
-        dr.predict(0.0, 0.0, q, 0.0, DT)
+        dr.predict(MotionInput(0.0, 0.0, q, 0.0, DT))
     assert np.trace(dr.vehicle_cov_m2) / 2 - sig0**2 == pytest.approx(2 * (sigma_dr[399] ** 2 - sig0**2), rel=1e-9)
 
 
@@ -289,7 +289,7 @@ def survey_nees(seed, augmentation="full", drift_rad=0.0, drift_tau_s=60.0, mode
     nees = np.empty(k_steps)
     n_upd = n_rej = 0
     for k in range(k_steps):
-        ekf.predict(speed_meas[k, 0], speed_meas[k, 1], q, psi_meas[k], DT)
+        ekf.predict(MotionInput(speed_meas[k, 0], speed_meas[k, 1], q, psi_meas[k], DT))
         mn_all = observe_mn(landmarks, pos[k + 1], psi_frame[k + 1], Z, F)
         inside = np.all(np.abs(mn_all) < lim, axis=1)
         noise = rng.normal(0.0, SIG_PX, (8, 2))
@@ -351,14 +351,14 @@ def test_monte_carlo_nees_of_the_paper_augmentation_is_reported():
 @pytest.mark.parametrize(
     "call",
     [
-        lambda e: e.predict(np.nan, 0.0, np.eye(2) * 1e-6, 0.0, DT),
-        lambda e: e.predict(0.1, np.inf, np.eye(2) * 1e-6, 0.0, DT),
-        lambda e: e.predict(0.1, 0.0, np.eye(2) * 1e-6, np.nan, DT),
-        lambda e: e.predict(0.1, 0.0, np.eye(2) * np.nan, 0.0, DT),
-        lambda e: e.predict(0.1, 0.0, np.eye(2) * 1e-6, 0.0, np.inf),
-        lambda e: e.predict(0.1, 0.0, np.eye(2) * 1e-6, 0.0, 0.0),
-        lambda e: e.predict(0.1, 0.0, -np.eye(2), 0.0, DT),
-        lambda e: e.predict(0.1, 0.0, np.eye(2) * 1e-6, 0.0, DT, heading_sigma_rad=np.nan),
+        lambda e: e.predict(MotionInput(np.nan, 0.0, np.eye(2) * 1e-6, 0.0, DT)),
+        lambda e: e.predict(MotionInput(0.1, np.inf, np.eye(2) * 1e-6, 0.0, DT)),
+        lambda e: e.predict(MotionInput(0.1, 0.0, np.eye(2) * 1e-6, np.nan, DT)),
+        lambda e: e.predict(MotionInput(0.1, 0.0, np.eye(2) * np.nan, 0.0, DT)),
+        lambda e: e.predict(MotionInput(0.1, 0.0, np.eye(2) * 1e-6, 0.0, np.inf)),
+        lambda e: e.predict(MotionInput(0.1, 0.0, np.eye(2) * 1e-6, 0.0, 0.0)),
+        lambda e: e.predict(MotionInput(0.1, 0.0, -np.eye(2), 0.0, DT)),
+        lambda e: e.predict(MotionInput(0.1, 0.0, np.eye(2) * 1e-6, 0.0, DT, heading_sigma_rad=np.nan)),
         lambda e: e.update(0, [np.nan, 1.0], 0.0, Z, F),
         lambda e: e.update(0, [1.0, 1.0], np.inf, Z, F),
         lambda e: e.update(0, [1.0, 1.0], 0.0, np.nan, F),
@@ -413,7 +413,7 @@ def test_long_run_stays_symmetric_and_positive():
     rng = np.random.default_rng(9)
     ekf = random_filter(rng, 40)
     for step in range(600):
-        ekf.predict(0.05, 0.0, np.eye(2) * 1e-6, 0.1 * step, DT)
+        ekf.predict(MotionInput(0.05, 0.0, np.eye(2) * 1e-6, 0.1 * step, DT))
         i = int(rng.integers(40))
         mn, s = ekf.predict_observation(i, 0.1 * step, Z, F)
         ekf.update(i, mn + rng.normal(0, 0.5, 2), 0.1 * step, Z, F)
@@ -453,7 +453,7 @@ def test_heading_bias_state_matches_a_dense_ekf():
     cfg = SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=sig_b, heading_bias_tau_s=tau, heading_sigma_rad=0.0, pixel_sigma_px=0.5)
     ekf = EkfSlam(cfg, initial_cov_m2=np.eye(2) * 1e-4)
     for _ in range(5):
-        ekf.predict(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT)
+        ekf.predict(MotionInput(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT))
         ekf.augment(rng.uniform(-120, 120, 2), rng.uniform(-3, 3), Z, F, altitude_sigma_m=0.02)
     ekf.update(1, ekf.predict_observation(1, 0.3, Z, F)[0] + [1.5, -1.0], 0.3, Z, F)  # eps now non-zero
     assert ekf.state_dim == 3 + 2 * 5 and abs(ekf.heading_bias_rad) > 0
@@ -469,7 +469,7 @@ def test_heading_bias_state_matches_a_dense_ekf():
         y[2] *= a
         return y
 
-    ekf.predict(u, v, q, psi, DT)
+    ekf.predict(MotionInput(u, v, q, psi, DT))
     fj = _numjac(f, x0)
     g = np.zeros((len(x0), 2))
     g[:2] = rot2(psi - x0[2]) * DT
@@ -576,7 +576,7 @@ def test_landmark_height_and_altitude_bias_states_match_a_dense_ekf(bias_b, bias
     w = 4 if bias_b else 3  # first row of w
     v0 = w + (2 if bias_w else 0)
     for _ in range(4):
-        ekf.predict(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT, altitude_m=Z, speed_bias_sigma_mps=bias_w)
+        ekf.predict(MotionInput(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT, altitude_m=Z, speed_bias_sigma_mps=bias_w))
         ekf.augment(rng.uniform(-120, 120, 2), rng.uniform(-3, 3), Z, F, altitude_sigma_m=0.02)
     ekf.update(1, ekf.predict_observation(1, 0.3, Z, F)[0] + [1.5, -1.0], 0.3, Z, F)  # biases non-zero
     assert ekf.state_dim == v0 + 3 * 4 and ekf.has_landmark_heights
@@ -603,7 +603,7 @@ def test_landmark_height_and_altitude_bias_states_match_a_dense_ekf(bias_b, bias
             y[w : w + 2] *= a_w
         return y
 
-    ekf.predict(u, v, q, psi_p, DT, altitude_m=Z, speed_bias_sigma_mps=bias_w)
+    ekf.predict(MotionInput(u, v, q, psi_p, DT, altitude_m=Z, speed_bias_sigma_mps=bias_w))
     fj = _numjac(fpred, x0)
     gq = np.zeros((len(x0), 2))
     gq[:2] = rot2(psi_p - x0[2]) * DT * (Z + bias(x0)) / Z
@@ -718,7 +718,7 @@ def test_landmark_heights_keep_the_filter_consistent_over_relief():
         for k in range(250):
             v = np.array([0.1 + 0.02 * np.sin(k / 10), 0.03 * np.cos(k / 15)])
             vm = v + rng.normal(0, 5e-4, 2)
-            ekf.predict(vm[0], vm[1], np.eye(2) * 5e-4**2, 0.0, DT)
+            ekf.predict(MotionInput(vm[0], vm[1], np.eye(2) * 5e-4**2, 0.0, DT))
             truth = truth + v * DT
             _observe_landmarks_in_view(ekf, ids, lm_xy, truth, rng, lm_h)
             e = ekf.vehicle_xy_m - truth
@@ -747,9 +747,9 @@ def test_consider_altitude_bias_is_a_schmidt_update_of_the_dense_ekf():
                      altitude_bias_sigma_m=0.01, speed_bias_sigma_mps=0.0, altitude_bias_tau_s=30.0, altitude_bias_consider=True)
     ekf = EkfSlam(cfg, initial_cov_m2=np.eye(2) * 1e-4)
     for _ in range(3):
-        ekf.predict(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT, altitude_m=Z)
+        ekf.predict(MotionInput(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT, altitude_m=Z))
         ekf.augment(rng.uniform(-120, 120, 2), rng.uniform(-3, 3), Z, F, altitude_sigma_m=0.02)
-    ekf.predict(0.1, 0.0, np.diag([4e-6, 2e-6]), 0.3, DT, altitude_m=Z)
+    ekf.predict(MotionInput(0.1, 0.0, np.diag([4e-6, 2e-6]), 0.3, DT, altitude_m=Z))
     x1, p1 = snapshot(ekf)
     b, k, psi = 3, 4 + 3 * 1, -0.4  # state rows: x, y, eps, b, then landmarks of 3
     assert ekf.altitude_bias_m == 0.0 and p1[b, b] > 0.0
@@ -791,7 +791,7 @@ def _persistent_offset_nees(cfg: SlamConfig, seed: int, steps: int = 400) -> np.
     for k in range(steps):
         v = np.array([0.1 + 0.02 * np.sin(k / 10), 0.03 * np.cos(k / 15)])
         vm = v * z_meas / Z + rng.normal(0, 5e-4, 2)
-        ekf.predict(vm[0], vm[1], np.eye(2) * 5e-4**2, 0.0, DT, altitude_m=z_meas)
+        ekf.predict(MotionInput(vm[0], vm[1], np.eye(2) * 5e-4**2, 0.0, DT, altitude_m=z_meas))
         truth = truth + v * DT
         mn_all = (F / (Z - lm_h[:, None])) * (lm_xy - truth)
         seen = np.all(np.abs(mn_all) <= lim, axis=1)
@@ -834,24 +834,24 @@ def test_speed_bias_variance_rises_when_its_sigma_does_and_fades_without_it():
     assert ekf.state_dim == 4 and plain.state_dim == 2
     # Not driven (the caller's sigma 0, the default): w stays 0 with no variance, the filter is the plain one.
     for f in (ekf, plain):
-        f.predict(0.1, 0.02, np.eye(2) * 4e-6, 0.4, DT)
+        f.predict(MotionInput(0.1, 0.02, np.eye(2) * 4e-6, 0.4, DT))
     np.testing.assert_array_equal(ekf.speed_bias_cov_mps2, np.zeros((2, 2)))
     np.testing.assert_array_equal(ekf.vehicle_cov_m2, plain.vehicle_cov_m2)
     # Driven: its whole stationary variance at once (a fresh unknown), then the position feels it.
-    ekf.predict(0.1, 0.02, np.eye(2) * 4e-6, 0.4, DT, speed_bias_sigma_mps=0.002)
+    ekf.predict(MotionInput(0.1, 0.02, np.eye(2) * 4e-6, 0.4, DT, speed_bias_sigma_mps=0.002))
     np.testing.assert_allclose(ekf.speed_bias_cov_mps2, np.eye(2) * 0.002**2, rtol=1e-12)
     before = ekf.vehicle_cov_m2
-    ekf.predict(0.1, 0.02, np.eye(2) * 4e-6, 0.4, DT, speed_bias_sigma_mps=0.002)
+    ekf.predict(MotionInput(0.1, 0.02, np.eye(2) * 4e-6, 0.4, DT, speed_bias_sigma_mps=0.002))
     np.testing.assert_allclose(ekf.speed_bias_cov_mps2, np.eye(2) * 0.002**2, rtol=1e-12)  # stationary
     grown = ekf.vehicle_cov_m2 - before
     np.testing.assert_allclose(grown - DT**2 * rot2(0.4) @ (np.eye(2) * 4e-6) @ rot2(0.4).T,
                                np.eye(2) * 0.002**2 * DT**2, rtol=1e-9, atol=1e-20)  # + w dt
     # Undriven again: it fades as the Ornstein-Uhlenbeck process does.
     for _ in range(50):
-        ekf.predict(0.0, 0.0, np.zeros((2, 2)), 0.4, DT)
+        ekf.predict(MotionInput(0.0, 0.0, np.zeros((2, 2)), 0.4, DT))
     np.testing.assert_allclose(ekf.speed_bias_cov_mps2, np.eye(2) * 0.002**2 * np.exp(-2 * 50 * DT / 20.0), rtol=1e-9)
     with pytest.raises(InvalidMeasurementError):
-        ekf.predict(0.1, 0.0, np.zeros((2, 2)), 0.0, DT, speed_bias_sigma_mps=-1.0)
+        ekf.predict(MotionInput(0.1, 0.0, np.zeros((2, 2)), 0.0, DT, speed_bias_sigma_mps=-1.0))
 
 
 def _drag_run(sigma_w, seed, drag=(0.0017, 0.0010), steps=1000):
@@ -873,7 +873,7 @@ def _drag_run(sigma_w, seed, drag=(0.0017, 0.0010), steps=1000):
             if abs(truth[1] - 0.3 * ((lane % 8 + 1) if lane % 8 < 4 else (7 - lane % 8))) < 0.03:
                 lane, direction = lane + 1, -direction
         vm = v - np.asarray(drag) + rng.normal(0, sig_v, 2)
-        ekf.predict(vm[0], vm[1], np.eye(2) * sig_v**2, 0.0, DT, speed_bias_sigma_mps=sigma_w)
+        ekf.predict(MotionInput(vm[0], vm[1], np.eye(2) * sig_v**2, 0.0, DT, speed_bias_sigma_mps=sigma_w))
         truth = truth + v * DT
         _observe_landmarks_in_view(ekf, ids, lm, truth, rng)
         e = ekf.vehicle_xy_m - truth

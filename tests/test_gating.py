@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rovslam.config import SlamConfig
-from rovslam.slam import EkfSlam
+from rovslam.slam import EkfSlam, MotionInput
 from rovslam.slam.gating import (
     footprint_matrix_m2,
     mahalanobis_sq_2d,
@@ -129,10 +129,10 @@ def test_ekf_gate_and_new_landmark_test():
     # Fly 0.7 m forward (negligible speed noise): landmark 1 (0.994 m ahead of the start) is now
     # 0.294 m ahead, inside the gate; landmark 0 is 0.543 m = 3.27 half-footprints behind,
     # beyond sqrt(lambda) = 3.03: outside.
-    ekf.predict(0.1, 0.0, np.eye(2) * 1e-12, 0.0, 7.0)
+    ekf.predict(MotionInput(0.1, 0.0, np.eye(2) * 1e-12, 0.0, 7.0))
     np.testing.assert_array_equal(ekf.visible_landmarks(0.0, Z, F, W, H), [1])
     assert not ekf.may_add_landmark()  # landmark 1 is within 0.372 m
-    ekf.predict(0.0, 0.1, np.eye(2) * 1e-12, 0.0, 5.0)  # 0.5 m to starboard: far from both
+    ekf.predict(MotionInput(0.0, 0.1, np.eye(2) * 1e-12, 0.0, 5.0))  # 0.5 m to starboard: far from both
     assert ekf.may_add_landmark()
 
 

@@ -22,7 +22,7 @@ from rovslam.heading import NO_COMPASS_STEP_SIGMA_RAD, HeadingTracker
 from rovslam.io.sequence import read_groundtruth
 from rovslam.runner import run_sequence
 from rovslam.sim import simulate
-from rovslam.slam import EkfSlam
+from rovslam.slam import EkfSlam, MotionInput
 
 
 def test_tracker_reports_each_steps_heading_variance_as_a_walk():
@@ -46,11 +46,11 @@ def test_tracker_reports_each_steps_heading_variance_as_a_walk():
 def test_eps_walks_without_decay_and_carries_the_position_error_of_a_heading_error():
     cfg = SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0)
     walk, ou = EkfSlam(cfg), EkfSlam(cfg)
-    walk._x[walk._eps] = ou._x[ou._eps] = 0.02  # a learned heading error
+    walk._x[walk.layout.eps] = ou._x[ou.layout.eps] = 0.02  # a learned heading error
     var0 = walk.heading_bias_sigma_rad**2
     for _ in range(300):  # 60 s at 0.2 m/s
-        walk.predict(0.2, 0.0, np.eye(2) * 1e-8, 0.0, 0.2, 0.0, heading_walk_var_rad2=1e-6)
-        ou.predict(0.2, 0.0, np.eye(2) * 1e-8, 0.0, 0.2, 0.0)
+        walk.predict(MotionInput(0.2, 0.0, np.eye(2) * 1e-8, 0.0, 0.2, 0.0, heading_walk_var_rad2=1e-6))
+        ou.predict(MotionInput(0.2, 0.0, np.eye(2) * 1e-8, 0.0, 0.2, 0.0))
     assert walk.heading_bias_rad == pytest.approx(0.02)  # a random walk keeps what the landmarks taught it
     assert ou.heading_bias_rad < 0.02 * math.exp(-60.0 / cfg.heading_bias_tau_s) * 1.001
     assert walk.heading_bias_sigma_rad**2 == pytest.approx(var0 + 300 * 1e-6, rel=1e-9)

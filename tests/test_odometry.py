@@ -332,7 +332,7 @@ def test_result_is_frozen():
 
 
 def test_held_speed_drives_the_filter_through_a_gap():
-    from rovslam.slam import EkfSlam
+    from rovslam.slam import EkfSlam, MotionInput
 
     rng = np.random.default_rng(18)
     est = SpeedEstimator(OdometryConfig(held_speed_drift_mps2=0.02))
@@ -343,7 +343,7 @@ def test_held_speed_drives_the_filter_through_a_gap():
     for uv_a, uv_b in [(uv0, uv1), (empty, empty), (empty, empty)]:
         m = est.measure(CAM, uv_a, uv_b, Z, Z, DT)
         before = ekf.vehicle_cov_m2
-        ekf.predict(m.surge_mps, m.sway_mps, m.cov_mps2, 0.0, DT)
+        ekf.predict(MotionInput(m.surge_mps, m.sway_mps, m.cov_mps2, 0.0, DT))
         growth.append(ekf.vehicle_cov_m2 - before)
     # The filter keeps moving at the held 0.1 m/s through the gap...
     np.testing.assert_allclose(ekf.vehicle_xy_m, [0.06, 0.0], atol=1e-12)

@@ -23,7 +23,7 @@ import pytest
 
 from rovslam.config import RunConfig, SlamConfig
 from rovslam.errors import InvalidMeasurementError
-from rovslam.slam import EkfSlam
+from rovslam.slam import EkfSlam, MotionInput
 from rovslam.slam.motion import ou_sum_as_one
 
 # The relief in b is off by default (it also widens the landmarks' depths: README); these tests switch it on.
@@ -67,8 +67,8 @@ def _drift_var_m2(tau_s: float | None, steps: int, sigma_b_m: float = 0.02) -> f
                      heading_sigma_rad=0.0, altitude_bias_sigma_m=sigma_b_m, altitude_bias_tau_s=30.0)
     ekf = EkfSlam(cfg, initial_cov_m2=np.zeros((2, 2)))
     for _ in range(steps):
-        ekf.predict(U_MPS, 0.0, np.zeros((2, 2)), 0.0, DT_S, altitude_m=Z_M, altitude_bias_sigma_m=sigma_b_m,
-                    altitude_bias_tau_s=tau_s)
+        ekf.predict(MotionInput(U_MPS, 0.0, np.zeros((2, 2)), 0.0, DT_S, altitude_m=Z_M, altitude_bias_sigma_m=sigma_b_m,
+                                altitude_bias_tau_s=tau_s))
     return float(ekf.covariance_m2[0, 0])
 
 
@@ -90,7 +90,7 @@ def test_a_bad_correlation_time_is_refused_and_the_state_is_unchanged(bad):
     ekf = EkfSlam(SlamConfig(altitude_bias_sigma_m=0.01))
     before = ekf.covariance_m2.copy()
     with pytest.raises(InvalidMeasurementError, match="altitude_bias_tau_s"):
-        ekf.predict(U_MPS, 0.0, np.eye(2) * 1e-6, 0.0, DT_S, altitude_m=Z_M, altitude_bias_tau_s=bad)
+        ekf.predict(MotionInput(U_MPS, 0.0, np.eye(2) * 1e-6, 0.0, DT_S, altitude_m=Z_M, altitude_bias_tau_s=bad))
     np.testing.assert_array_equal(ekf.covariance_m2, before)
 
 

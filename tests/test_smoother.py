@@ -19,7 +19,7 @@ from rovslam.cli import app
 from rovslam.config import SlamConfig
 from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError
 from rovslam.io.measurements import write_measurements
-from rovslam.slam import EkfSlam, observation_noise_px2, observe_mn
+from rovslam.slam import EkfSlam, MotionInput, observation_noise_px2, observe_mn
 from rovslam.slam.apparent import apparent_frame_cov_m2
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 from rovslam.slam.smoother import Isam2Smoother, SmootherConfig
@@ -45,7 +45,7 @@ def run_ekf(frames, noise: SurveyNoise = NOISE):
     prev = None
     for k, f in enumerate(frames):
         if prev is not None:
-            ekf.predict(f.speed_mps[0], f.speed_mps[1], f.speed_cov_mps2, prev.heading_rad, f.dt_s, f.heading_sigma_rad)
+            ekf.predict(MotionInput(f.speed_mps[0], f.speed_mps[1], f.speed_cov_mps2, prev.heading_rad, f.dt_s, f.heading_sigma_rad))
         for ob in f.landmarks:
             if ob.kind == "init":
                 assert ekf.augment(ob.mn_px, f.heading_rad, f.altitude_m, f.focal_px,

@@ -38,7 +38,7 @@ from rovslam.io.sequence import Frame, SequenceInfo
 from rovslam.landmarks import LandmarkRecord, most_distinctive, oriented_patch
 from rovslam.odometry import SpeedEstimator, SpeedMeasurement
 from rovslam.shutter import mn_at_frame_time, mn_rate_px_s, tokens_at_frame_time
-from rovslam.slam import EkfSlam
+from rovslam.slam import EkfSlam, MotionInput
 from rovslam.slam.apparent import apparent_frame_cov_m2, apparent_sigmas
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 from rovslam.slam.motion import altitude_offset_sigma_m, motion_step_m, ou_sum_as_one
@@ -686,8 +686,8 @@ class SlamPipeline:
                  heading_walk_var_rad2: float | None = None, altitude_bias_tau_s: float | None = None) -> None:
         """Prediction (1) of the filter and of the dead reckoning reported beside it."""
         drag_sigma = self._speed_bias_sigma_mps()
-        self.ekf.predict(speed.surge_mps, speed.sway_mps, speed.cov_mps2, heading_rad, dt_s, heading_sigma_rad,
-                         altitude_m, altitude_bias_sigma_m, heading_walk_var_rad2, drag_sigma, altitude_bias_tau_s)
+        self.ekf.predict(MotionInput(speed.surge_mps, speed.sway_mps, speed.cov_mps2, heading_rad, dt_s, heading_sigma_rad,
+                                     altitude_m, altitude_bias_sigma_m, heading_walk_var_rad2, drag_sigma, altitude_bias_tau_s))
         if drag_sigma > 0.0:
             self._drag_frames += 1
             self._drag_sum_mps += self.ekf.speed_bias_mps

@@ -44,11 +44,13 @@ sunlight is being taken out, else 0, so ``w`` fades; without it ``w`` stays 0 wi
 when that sigma rises, ``w``'s variance rises at once. The landmarks tracked from frame to frame
 estimate it; observations do not depend on it.
 
-* Prediction (1), (2) (:mod:`rovslam.slam.motion`): ``[x, y] += R(psi) [u, v] dt``; the speed covariance Q is projected
+* Prediction (1), (2) (:mod:`rovslam.slam.motion`, its steps :mod:`rovslam.slam.prediction`, its inputs one
+  :class:`rovslam.slam.inputs.MotionInput`): ``[x, y] += R(psi) [u, v] dt``; the speed covariance Q is projected
   through ``R(psi) dt``, an optional heading noise through ``dR/dpsi [u, v] dt``; landmarks
   are static with an optional process noise per step.
-* Update (3) (:mod:`rovslam.slam.observation`): ``[m, n] = f/(Z - h_i) R(psi)^T (X_i - x)``. H is non-zero only in the vehicle's and the
-  landmark's columns, so the Joseph-form covariance update
+* Update (3) (:mod:`rovslam.slam.observation`; the predicted [m, n] and the stacked H of one or many landmarks:
+  :func:`rovslam.slam.kalman.observe_landmarks`): ``[m, n] = f/(Z - h_i) R(psi)^T (X_i - x)``. H is non-zero
+  only in the vehicle's and the landmark's columns, so the Joseph-form covariance update
   ``P' = (I - K H) P (I - K H)^T + K R K^T = P - K M^T - M K^T + K S K^T`` (``M = P H^T``)
   is a rank-4 correction ``P -= [K W] [W K]^T`` with ``W = M - K S / 2``, applied in place
   with one BLAS ``dgemm``: O(N^2) memory traffic, no dense (2N+2)^3 product, no inverse
@@ -60,9 +62,11 @@ estimate it; observations do not depend on it.
   diagonal block ``P_Xi = P_x + (Z/f)^2 R R_m R^T`` with no cross terms (``"paper"``).
 * Gate (5) and new-landmark test (6): :mod:`rovslam.slam.gating`, vectorised over landmarks.
 
-Storage: state and covariance live in preallocated buffers whose capacity doubles when full,
-so augmenting costs O(N) (plus an amortised copy on growth), never a reallocation per
-landmark. Landmark ids are 0..N-1 in order of creation.
+Storage and layout (:mod:`rovslam.slam.state`): which optional states exist and their rows are a
+:class:`~rovslam.slam.state.StateLayout` built once from the configuration; state and covariance live in
+preallocated buffers whose capacity doubles when full, so augmenting costs O(N) (plus an
+amortised copy on growth), never a reallocation per landmark. Landmark ids are 0..N-1 in order of
+creation. Health checks: :mod:`rovslam.slam.health`.
 """
 
 from __future__ import annotations
@@ -70,24 +74,27 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg.blas import dgemm
 
 from rovslam.config import SlamConfig
-from rovslam.errors import FilterInconsistencyError, InvalidMeasurementError, finite_scalar
-from rovslam.slam import gating
-from rovslam.slam.motion import altitude_offset_sigma_m, motion_jacobians, motion_step_m
+from rovslam.errors import FilterInconsistencyError, InvalidMeasurementError
+from rovslam.slam import gating, prediction
+from rovslam.slam.health import ConsistencyReport, check_blocks, check_consistency
+from rovslam.slam.inputs import (
+    MotionInput,
+    checked_cov2,
+    checked_scalar,
+    checked_vector2,
+)
+from rovslam.slam.kalman import joseph_update, observe_landmarks, symmetrise_rows
+from rovslam.slam.motion import altitude_offset_sigma_m
 from rovslam.slam.observation import (
     landmark_from_mn,
     landmark_jacobians,
-    observation_jacobians,
     observation_noise_px2,
-    observe_mn,
 )
+from rovslam.slam.state import SlamState, StateLayout
 
-__all__ = ["EkfSlam", "UpdateResult", "ConsistencyReport"]
-
-# Relative tolerance of the covariance health checks (negative variance, asymmetry).
-_PSD_RTOL = 1e-9
+__all__ = ["ConsistencyReport", "EkfSlam", "MotionInput", "UpdateResult"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,59 +116,10 @@ class UpdateResult:
     innovation_cov_px2: np.ndarray
 
 
-@dataclass(frozen=True)
-class ConsistencyReport:
-    """Figures of a full covariance check (:meth:`EkfSlam.check_consistency`)."""
-
-    state_dim: int
-    max_asymmetry: float  # max |P - P^T| before symmetrisation
-    min_eigenvalue: float
-    max_eigenvalue: float
-    min_diagonal: float
-
-
-def _finite(name: str, value, *, positive: bool = False, nonnegative: bool = False) -> float:
-    return finite_scalar(
-        name, value, positive=positive, nonnegative=nonnegative,
-        nan_hint="the filter state; drop this measurement or fix the sensor input (the state is unchanged)",
-        suffix=" (the state is unchanged)",
-    )
-
-
-def _vector2(name: str, value) -> np.ndarray:
-    a = np.asarray(value, dtype=np.float64)
-    if a.shape != (2,):
-        a = a.reshape(-1)
-        if a.shape != (2,):
-            raise InvalidMeasurementError(f"{name} must hold 2 numbers, got shape {np.shape(value)}")
-    if not np.all(np.isfinite(a)):
-        raise InvalidMeasurementError(
-            f"{name} = {a.tolist()} has a NaN or infinite value; drop this measurement (the state is unchanged)"
-        )
-    return a
-
-
-def _cov2(name: str, value) -> np.ndarray:
-    a = np.asarray(value, dtype=np.float64)
-    if a.shape != (2, 2):
-        raise InvalidMeasurementError(f"{name} must be a (2, 2) covariance, got shape {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise InvalidMeasurementError(
-            f"{name} has a NaN or infinite entry: {a.tolist()}; the state is unchanged"
-        )
-    scale = max(abs(a[0, 0]), abs(a[1, 1]), 1e-300)
-    if abs(a[0, 1] - a[1, 0]) > 1e-9 * scale:
-        raise InvalidMeasurementError(f"{name} must be symmetric, got {a.tolist()}")
-    if a[0, 0] < 0 or a[1, 1] < 0 or a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0] < -1e-12 * scale * scale:
-        raise InvalidMeasurementError(
-            f"{name} must be positive semi-definite (non-negative variances, |cov| <= sigma_x sigma_y), "
-            f"got {a.tolist()}"
-        )
-    return 0.5 * (a + a.T)
-
-
-class EkfSlam:
+class EkfSlam(SlamState):
     """EKF-SLAM over the vehicle position and N point landmarks (equations (1)-(6)).
+
+    The state's read access (the vehicle, the biases, the landmarks) is :class:`SlamState`'s.
 
     Args:
         config: noise figures, gates and the augmentation form.
@@ -181,91 +139,23 @@ class EkfSlam:
         initial_altitude_m: float | None = None,
     ):
         self.config = config  # validated when it was built (rovslam.config)
-        xy = _vector2("initial_xy_m", initial_xy_m)
-        z0 = None if initial_altitude_m is None else _finite("initial_altitude_m", initial_altitude_m, positive=True)
+        xy = checked_vector2("initial_xy_m", initial_xy_m)
+        z0 = None if initial_altitude_m is None else checked_scalar("initial_altitude_m", initial_altitude_m, positive=True)
         if initial_cov_m2 is None:
             cov = np.eye(2) * config.initial_position_sigma_m**2
         else:
-            cov = _cov2("initial_cov_m2", initial_cov_m2)
-        self._eps = 2 if config.heading_bias_sigma_rad > 0 else None  # state row of eps
-        self._b = (2 + (self._eps is not None)) if config.altitude_bias_sigma_m > 0 else None  # state row of b
-        self._w = (2 + (self._eps is not None) + (self._b is not None)) if config.speed_bias_sigma_mps > 0 else None
-        self._v = 2 + (self._eps is not None) + (self._b is not None) + 2 * (self._w is not None)  # x, y (, eps) (, b) (, w)
-        self._lm = 3 if config.landmark_height_sigma_m > 0 else 2  # landmark block: X, Y (, h)
-        self._n = self._v
-        self._alloc(self._v + self._lm * max(int(initial_capacity), 1))
+            cov = checked_cov2("initial_cov_m2", initial_cov_m2)
+        super().__init__(StateLayout.from_config(config), initial_capacity)
+        lay = self.layout
         self._x[:2] = xy
         self._P[:2, :2] = cov
-        if self._eps is not None:
-            self._P[self._eps, self._eps] = config.heading_bias_sigma_rad**2
-        if self._b is not None:
+        if lay.eps is not None:
+            self._P[lay.eps, lay.eps] = config.heading_bias_sigma_rad**2
+        if lay.b is not None:
             sb = config.altitude_bias_sigma_m if z0 is None else altitude_offset_sigma_m(
                 config.altitude_bias_sigma_m, config.altitude_scale_sigma, z0)
-            self._P[self._b, self._b] = sb**2
+            self._P[lay.b, lay.b] = sb**2
         self._w_sigma_mps = 0.0  # the speed error's stationary sigma over the last step (0: none yet)
-
-    # ------------------------------------------------------------------ storage
-    def _alloc(self, cap: int) -> None:
-        """(Re)allocate buffers of ``cap`` state entries, keeping the current state."""
-        n = self._n
-        x = np.zeros(cap)
-        p = np.zeros((cap, cap))
-        if hasattr(self, "_x"):
-            x[:n] = self._x[:n]
-            p[:n, :n] = self._P[:n, :n]
-        self._x, self._P, self._cap = x, p, cap
-        # Work array of the rank-4 update, Fortran order for BLAS; rows >= n stay zero.
-        self._vpad = np.zeros((cap, 4), order="F")
-
-    def _reserve(self, extra: int) -> None:
-        if self._n + extra > self._cap:
-            self._alloc(max(2 * self._cap, self._n + extra))
-
-    # ------------------------------------------------------------------ accessors
-    @property
-    def state_dim(self) -> int:
-        """2 (+1 with eps, +1 with b, +2 with w) + 2N (3N with the landmark heights)."""
-        return self._n
-
-    @property
-    def n_landmarks(self) -> int:
-        return (self._n - self._v) // self._lm
-
-    @property
-    def has_landmark_heights(self) -> bool:
-        return self._lm == 3
-
-    @property
-    def heading_bias_rad(self) -> float:
-        """Estimated slow heading error eps (true heading = input - eps); 0 without the state."""
-        return float(self._x[self._eps]) if self._eps is not None else 0.0
-
-    @property
-    def heading_bias_sigma_rad(self) -> float:
-        return float(np.sqrt(max(self._P[self._eps, self._eps], 0.0))) if self._eps is not None else 0.0
-
-    @property
-    def altitude_bias_m(self) -> float:
-        """Estimated offset b of the measured altitude from the seabed datum (true depth = Z + b); 0 without the state."""
-        return float(self._x[self._b]) if self._b is not None else 0.0
-
-    @property
-    def altitude_bias_sigma_m(self) -> float:
-        return float(np.sqrt(max(self._P[self._b, self._b], 0.0))) if self._b is not None else 0.0
-
-    @property
-    def speed_bias_mps(self) -> np.ndarray:
-        """(2,) estimated world-frame speed error w (true step = measured step + w dt); zeros without the state."""
-        return self._x[self._w : self._w + 2].copy() if self._w is not None else np.zeros(2)
-
-    @property
-    def speed_bias_cov_mps2(self) -> np.ndarray:
-        """(2, 2) its covariance; zeros without the state."""
-        return self._P[self._w : self._w + 2, self._w : self._w + 2].copy() if self._w is not None else np.zeros((2, 2))
-
-    def map_heading_rad(self, heading_rad: float) -> float:
-        """The heading the filter believes for a heading input: ``psi - eps`` (the input without its slow bias)."""
-        return float(heading_rad) - self.heading_bias_rad
 
     def inflate_vehicle_covariance(self, cov_m2) -> None:
         """Add a (2, 2) PSD covariance to the vehicle position block (an uncertainty the filter was not told of).
@@ -273,227 +163,48 @@ class EkfSlam:
         At the first frame this is the start's uncertainty (e.g. the AHRS tilt offset); the
         whole covariance stays positive semi-definite.
         """
-        self._P[:2, :2] += _cov2("added vehicle covariance", cov_m2)
-
-    @property
-    def landmark_ids(self) -> list[int]:
-        return list(range(self.n_landmarks))
-
-    @property
-    def vehicle_xy_m(self) -> np.ndarray:
-        """(2,) vehicle position (copy)."""
-        return self._x[:2].copy()
-
-    @property
-    def vehicle_cov_m2(self) -> np.ndarray:
-        """(2, 2) vehicle position covariance (copy)."""
-        return self._P[:2, :2].copy()
-
-    @property
-    def state_m(self) -> np.ndarray:
-        """(state_dim,) full state (copy)."""
-        return self._x[: self._n].copy()
-
-    @property
-    def covariance_m2(self) -> np.ndarray:
-        """(state_dim, state_dim) full covariance (copy; O(N^2))."""
-        return self._P[: self._n, : self._n].copy()
-
-    def _index(self, i) -> int:
-        try:
-            k = int(i)
-        except (TypeError, ValueError):
-            raise InvalidMeasurementError(f"landmark id must be an integer, got {i!r}") from None
-        if not 0 <= k < self.n_landmarks:
-            raise InvalidMeasurementError(
-                f"no landmark {k}: the map holds ids 0..{self.n_landmarks - 1}" if self.n_landmarks
-                else f"no landmark {k}: the map is empty; augment() first"
-            )
-        return self._v + self._lm * k
-
-    def landmark_height_m(self, i: int) -> float:
-        """Landmark i's height above the seabed Z refers to (0 without the height state)."""
-        r = self._index(i)
-        return float(self._x[r + 2]) if self._lm == 3 else 0.0
-
-    def landmark_height_sigma_m(self, i: int) -> float:
-        r = self._index(i)
-        return float(np.sqrt(max(self._P[r + 2, r + 2], 0.0))) if self._lm == 3 else 0.0
-
-    def landmark_xy_m(self, i: int) -> np.ndarray:
-        """(2,) position of landmark i."""
-        r = self._index(i)
-        return self._x[r : r + 2].copy()
-
-    def landmark_cov_m2(self, i: int) -> np.ndarray:
-        """(2, 2) covariance of landmark i."""
-        r = self._index(i)
-        return self._P[r : r + 2, r : r + 2].copy()
-
-    def landmarks_xy_m(self) -> np.ndarray:
-        """(N, 2) all landmark positions."""
-        return self._x[self._v : self._n].reshape(-1, self._lm)[:, :2].copy()
-
-    def landmarks_cov_m2(self) -> np.ndarray:
-        """(N, 2, 2) the landmarks' diagonal covariance blocks (O(N))."""
-        r = np.arange(self._v, self._n, self._lm)
-        p = self._P
-        out = np.empty((len(r), 2, 2))
-        out[:, 0, 0] = p[r, r]
-        out[:, 0, 1] = p[r, r + 1]
-        out[:, 1, 0] = p[r + 1, r]
-        out[:, 1, 1] = p[r + 1, r + 1]
-        return out
-
-    def vehicle_landmark_cov_m2(self) -> np.ndarray:
-        """(N, 2, 2) cross-covariances ``C_i = cov(x, X_i)`` (vehicle rows, landmark columns)."""
-        return self._P[0:2, self._v : self._n].reshape(2, -1, self._lm)[:, :, :2].transpose(1, 0, 2).copy()
+        self._P[:2, :2] += checked_cov2("added vehicle covariance", cov_m2)
 
     # ------------------------------------------------------------------ (1), (2)
-    def predict(
-        self,
-        surge_mps: float,
-        sway_mps: float,
-        speed_cov_mps2,
-        heading_rad: float,
-        dt_s: float,
-        heading_sigma_rad: float | None = None,
-        altitude_m: float | None = None,
-        altitude_bias_sigma_m: float | None = None,
-        heading_walk_var_rad2: float | None = None,
-        speed_bias_sigma_mps: float = 0.0,
-        altitude_bias_tau_s: float | None = None,
-    ) -> None:
-        """Prediction by (1) and (2) with the measured body speed and heading as inputs.
+    def predict(self, motion: MotionInput) -> None:
+        """Prediction by (1) and (2) with the measured body speed and heading of ``motion`` as inputs.
 
-        Args:
-            surge_mps, sway_mps: body-frame speed over the ground.
-            speed_cov_mps2: (2, 2) its covariance Q.
-            heading_rad: heading psi over the step.
-            dt_s: real time step (> 0).
-            heading_sigma_rad: heading noise; default ``config.heading_sigma_rad``.
-            altitude_m: the altitude Z the speed was measured at; with the altitude-bias state the
-                step is scaled by ``(Z + b) / Z``. None: no such coupling.
-            altitude_bias_sigma_m: the bias's stationary sigma over this step (the relief under
-                the lasers may be rougher here); default ``config.altitude_bias_sigma_m``.
-            heading_walk_var_rad2: a heading input integrated from turns, without a compass: the
-                variance it gained over this step. ``eps`` is then a random walk (no decay towards
-                0) driven by it, instead of the compass's Ornstein-Uhlenbeck drift. None: a compass.
-            speed_bias_sigma_mps: the stationary sigma of the speed error ``w`` over this step: the
-                odometry is dragged only while something moves over the seabed (the pipeline gives
-                ``config.speed_bias_sigma_mps`` while it takes sunlight out); 0 (the default) lets ``w`` fade.
-            altitude_bias_tau_s: the bias's correlation time over this step (the relief's part of it
-                decorrelates faster than the altimeter's offset); default ``config.altitude_bias_tau_s``.
+        The inputs were checked when ``motion`` was built (:class:`rovslam.slam.inputs.MotionInput`);
+        the steps are :mod:`rovslam.slam.prediction`'s.
 
         Raises:
-            InvalidMeasurementError: NaN/inf or invalid input; the state is unchanged.
+            InvalidMeasurementError: ``motion`` is not a :class:`MotionInput`; the state is unchanged.
         """
-        u = _finite("surge_mps", surge_mps)
-        v = _finite("sway_mps", sway_mps)
-        q = _cov2("speed_cov_mps2", speed_cov_mps2)
-        psi = _finite("heading_rad", heading_rad)
-        dt = _finite("dt_s", dt_s, positive=True)
-        s_psi = self.config.heading_sigma_rad if heading_sigma_rad is None else heading_sigma_rad
-        s_psi = _finite("heading_sigma_rad", s_psi, nonnegative=True)
-
-        z = None if altitude_m is None else _finite("altitude_m", altitude_m, positive=True)
-        sb = self.config.altitude_bias_sigma_m if altitude_bias_sigma_m is None else altitude_bias_sigma_m
-        sb = _finite("altitude_bias_sigma_m", sb, nonnegative=True)
-        tb = self.config.altitude_bias_tau_s if altitude_bias_tau_s is None else altitude_bias_tau_s
-        tb = _finite("altitude_bias_tau_s", tb, positive=True)
-        walk = None if heading_walk_var_rad2 is None else _finite("heading_walk_var_rad2", heading_walk_var_rad2,
-                                                                  nonnegative=True)
-        sw = _finite("speed_bias_sigma_mps", speed_bias_sigma_mps, nonnegative=True)
-
-        theta = self.map_heading_rad(psi)
-        speed = np.array([u, v])
-        scale = 1.0 if (self._b is None or z is None) else (z + self.altitude_bias_m) / z  # the true depth's share
-        g, j = motion_jacobians(speed * scale, theta, dt)  # d(position) / d(speed), d(position) / d(psi)
-        g = g * scale
-        step = motion_step_m(speed * scale, theta, dt)
-        self._x[:2] += step  # (1)
-        n = self._n
-        w = self._w
-        if w is not None:  # the odometry's slow world-frame error: the true step is the measured one + w dt
-            self._x[:2] += self._x[w : w + 2] * dt
-        p = self._P
-        # F = I except d(position)/d(eps) = -j, d(position)/d(b) = step / (Z + b) and d(position)/d(w) = dt I:
-        # P <- F P F^T.
-        cols, coef = [], []
-        if self._eps is not None:
-            cols.append(self._eps)
-            coef.append(-j)
-        if self._b is not None and z is not None:
-            cols.append(self._b)
-            coef.append(step / (z * scale))
-        if w is not None:
-            cols += [w, w + 1]
-            coef += [np.array([dt, 0.0]), np.array([0.0, dt])]
-        if cols:
-            e = np.column_stack(coef)  # (2, k)
-            p[0:2, :n] += e @ p[cols, :n]
-            p[:n, 0:2] += p[:n, cols] @ e.T
-        if w is not None:
-            if sw > self._w_sigma_mps:  # a drag appeared (or grew): its variance at once, as a fresh unknown
-                rise = sw**2 - self._w_sigma_mps**2
-                p[w, w] += rise
-                p[w + 1, w + 1] += rise
-            self._w_sigma_mps = sw
-        for row, tau, sigma in ((self._eps, self.config.heading_bias_tau_s, self.config.heading_bias_sigma_rad),
-                                (self._b, tb, sb),
-                                (w, self.config.speed_bias_tau_s, sw),
-                                (None if w is None else w + 1, self.config.speed_bias_tau_s, sw)):
-            if row is None:
-                continue
-            if row == self._eps and walk is not None:  # an integrated heading: its error walks, never decays
-                p[row, row] += walk
-                continue
-            a = np.exp(-dt / tau)  # Ornstein-Uhlenbeck
-            self._x[row] *= a
-            p[row, :n] *= a
-            p[:n, row] *= a
-            p[row, row] += sigma**2 * (1.0 - a * a)
-        add = g @ q @ g.T
-        if s_psi > 0.0:
-            add += s_psi**2 * np.outer(j, j)
-        self._P[:2, :2] += 0.5 * (add + add.T)
-        s_l = self.config.landmark_process_sigma_m
-        v0 = self._v
-        if s_l > 0.0 and self._n > v0:  # (2): static landmarks, optional process noise
-            diag = self._P.reshape(-1)[v0 * (self._cap + 1) : self._n * (self._cap + 1) : self._cap + 1]
-            diag += s_l**2
+        if not isinstance(motion, MotionInput):
+            raise InvalidMeasurementError(
+                f"predict takes a MotionInput (speed, its covariance, heading, dt, ...), got {type(motion).__name__}"
+            )
+        lay, n, x, p = self.layout, self._n, self._x, self._P
+        terms = prediction.motion_terms(motion, self.config, lay, self.heading_bias_rad, self.altitude_bias_m)
+        prediction.move_vehicle(x, lay, terms)  # (1)
+        prediction.couple_vehicle(p, n, lay, terms)  # P <- F P F^T
+        prediction.drive_biases(x, p, n, lay, terms, self._w_sigma_mps)
+        if lay.w is not None:
+            self._w_sigma_mps = terms.speed_bias_sigma_mps
+        prediction.add_process_noise(p, n, lay, terms)  # + G Q G^T, (2)
 
     # ------------------------------------------------------------------ (3)
-    def _depth(self, k: int, z: float) -> float:
-        """Depth of the landmark at state row k under a camera at measured altitude z: ``Z + b - h``."""
-        depth = z + self.altitude_bias_m - (float(self._x[k + 2]) if self._lm == 3 else 0.0)
-        if self._lm == 2 and self._b is None:
-            return z
-        if not depth > 0.05 * z:
-            raise FilterInconsistencyError(
-                f"FILTER INCONSISTENT: landmark at state row {k} is estimated {self._x[k + 2]:.3f} m high, "
-                f"above the camera's altitude {z:.3f} m"
-            )
-        return depth
-
     def _observation_terms(self, k: int, psi: float, z: float, f: float):
-        """h (2,) by (3), the non-zero columns of H (2, 4 to 6), their state indices, and the depth, of landmark row k."""
-        theta = self.map_heading_rad(psi)
+        """Landmark row k's h (2,) by (3), the non-zero columns of H (2, vehicle_dim + landmark_dim), their
+        state indices, and its depth."""
+        lay = self.layout
         depth = self._depth(k, z)
-        h = observe_mn(self._x[k : k + 2], self._x[:2], theta, depth, f)[0]
-        a, j_psi = observation_jacobians(h, theta, depth, f)
-        # d h / d eps = -d h / d psi; d h / d b = -h / depth; d h / d h_i = h / depth.
-        cols = ([-a] + ([-j_psi.T] if self._eps is not None else []) + ([-h[:, None] / depth] if self._b is not None else [])
-                + ([np.zeros((2, 2))] if self._w is not None else []) + [a] + ([h[:, None] / depth] if self._lm == 3 else []))
-        idx = list(range(self._v)) + list(range(k, k + self._lm))
-        return h, np.hstack(cols), np.array(idx), depth
+        h, hs = observe_landmarks(lay, self._x, np.array([k], dtype=np.intp), self._x[:2], self.map_heading_rad(psi),
+                                  np.array([depth]), f)
+        idx = np.concatenate([np.arange(lay.vehicle_dim), np.arange(k, k + lay.landmark_dim)])
+        return h[0], hs[0], idx, depth
 
     def _noise_args(self, pixel_sigma_px, altitude_sigma_m, heading_sigma_rad):
         sp = self.config.pixel_sigma_px if pixel_sigma_px is None else pixel_sigma_px
-        sp = _finite("pixel_sigma_px", sp, positive=True)
-        sz = _finite("altitude_sigma_m", altitude_sigma_m, nonnegative=True)
+        sp = checked_scalar("pixel_sigma_px", sp, positive=True)
+        sz = checked_scalar("altitude_sigma_m", altitude_sigma_m, nonnegative=True)
         sh = self.config.heading_sigma_rad if heading_sigma_rad is None else heading_sigma_rad
-        sh = _finite("heading_sigma_rad", sh, nonnegative=True)
+        sh = checked_scalar("heading_sigma_rad", sh, nonnegative=True)
         return sp, sz, sh
 
     def predict_observation(
@@ -508,13 +219,13 @@ class EkfSlam:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Predicted [m, n] of landmark i by (3) and its innovation covariance S (2, 2) px^2."""
         k = self._index(i)
-        psi = _finite("heading_rad", heading_rad)
-        z = _finite("altitude_m", altitude_m, positive=True)
-        f = _finite("focal_px", focal_px, positive=True)
+        psi = checked_scalar("heading_rad", heading_rad)
+        z = checked_scalar("altitude_m", altitude_m, positive=True)
+        f = checked_scalar("focal_px", focal_px, positive=True)
         sp, sz, sh = self._noise_args(pixel_sigma_px, altitude_sigma_m, heading_sigma_rad)
         h, hs, idx, depth = self._observation_terms(k, psi, z, f)
-        s = self._innovation_cov(hs, idx, observation_noise_px2(h, sp, depth, sz, sh))
-        return h, s
+        s = hs @ self._P[np.ix_(idx, idx)] @ hs.T + observation_noise_px2(h, sp, depth, sz, sh)
+        return h, 0.5 * (s + s.T)
 
     def predict_observations(
         self,
@@ -533,25 +244,17 @@ class EkfSlam:
         """
         ids = np.asarray(ids, dtype=np.intp).reshape(-1)
         rows = np.array([self._index(i) for i in ids], dtype=np.intp).reshape(-1)  # (K,) first state row
-        psi = _finite("heading_rad", heading_rad)
-        z = _finite("altitude_m", altitude_m, positive=True)
-        f = _finite("focal_px", focal_px, positive=True)
+        psi = checked_scalar("heading_rad", heading_rad)
+        z = checked_scalar("altitude_m", altitude_m, positive=True)
+        f = checked_scalar("focal_px", focal_px, positive=True)
         sp, _, _ = self._noise_args(pixel_sigma_px, 0.0, 0.0)
-        offset = _vector2("vehicle_offset_m", vehicle_offset_m)
-        theta = self.map_heading_rad(psi)
+        offset = checked_vector2("vehicle_offset_m", vehicle_offset_m)
+        lay, x, p = self.layout, self._x, self._P
         depth = np.array([self._depth(int(r), z) for r in rows]) if len(rows) else np.zeros(0)
-        lm_rows = rows[:, None] + np.arange(self._lm)[None, :]  # (K, lm)
-        x = self._x
-        h = observe_mn(x[lm_rows[:, :2]], x[:2] + offset, theta, depth[:, None], f)  # (3), one depth per landmark
-        a, j_psi = observation_jacobians(h, theta, depth[:, None, None], f)  # (K, 2, 2), (K, 2)
-        # H_v (K, 2, v) and H_l (K, 2, lm), as in _observation_terms.
-        hv = ([-a] + ([-j_psi[:, :, None]] if self._eps is not None else [])
-              + ([-(h / depth[:, None])[:, :, None]] if self._b is not None else [])
-              + ([np.zeros((len(h), 2, 2))] if self._w is not None else []))
-        hl = [a] + ([(h / depth[:, None])[:, :, None]] if self._lm == 3 else [])
-        hv_m, hl_m = np.concatenate(hv, axis=2), np.concatenate(hl, axis=2)
-        p = self._P
-        v = self._v
+        h, hh = observe_landmarks(lay, x, rows, x[:2] + offset, self.map_heading_rad(psi), depth, f)
+        v = lay.vehicle_dim
+        hv_m, hl_m = np.ascontiguousarray(hh[:, :, :v]), np.ascontiguousarray(hh[:, :, v:])  # (K, 2, v), (K, 2, lm)
+        lm_rows = lay.landmark_rows(rows)  # (K, lm)
         p_vv = p[:v, :v]
         p_vl = p[:v][:, lm_rows].transpose(1, 0, 2)  # (K, v, lm)
         p_ll = p[lm_rows[:, :, None], lm_rows[:, None, :]]  # (K, lm, lm)
@@ -560,19 +263,14 @@ class EkfSlam:
         s = s + np.eye(2) * sp**2
         return h, 0.5 * (s + np.swapaxes(s, 1, 2))
 
-    def _innovation_cov(self, hs: np.ndarray, idx: np.ndarray, r_m: np.ndarray) -> np.ndarray:
-        p = self._P[np.ix_(idx, idx)]
-        s = hs @ p @ hs.T + r_m
-        return 0.5 * (s + s.T)
-
     def _innovation(self, i, mn_px, heading_rad, altitude_m, focal_px, pixel_sigma_px, altitude_sigma_m,
                     heading_sigma_rad):
-        """(nu (2,), H columns, state indices, R_m) of one observation, its inputs checked."""
+        """(nu (2,), H columns, state indices, R_m, first state row) of one observation, its inputs checked."""
         k = self._index(i)
-        mn = _vector2("mn_px", mn_px)
-        psi = _finite("heading_rad", heading_rad)
-        z = _finite("altitude_m", altitude_m, positive=True)
-        f = _finite("focal_px", focal_px, positive=True)
+        mn = checked_vector2("mn_px", mn_px)
+        psi = checked_scalar("heading_rad", heading_rad)
+        z = checked_scalar("altitude_m", altitude_m, positive=True)
+        f = checked_scalar("focal_px", focal_px, positive=True)
         sp, sz, sh = self._noise_args(pixel_sigma_px, altitude_sigma_m, heading_sigma_rad)
         h, hs, idx, depth = self._observation_terms(k, psi, z, f)
         return mn - h, hs, idx, observation_noise_px2(h, sp, depth, sz, sh), k
@@ -617,7 +315,22 @@ class EkfSlam:
                                                altitude_sigma_m, heading_sigma_rad)
         n = self._n
         rows = self._P[idx, :n]  # (v + lm, n) = P[:, idx]^T (P symmetric), contiguous
-        s = hs @ rows[:, idx] @ hs.T + r_m
+        s, s_inv = self._innovation_cov(hs @ rows[:, idx] @ hs.T + r_m, i)
+        nis = float(nu @ s_inv @ nu)
+        limit = self.config.innovation_gate if gate is None else float(gate)
+        if nis > limit:
+            return UpdateResult(False, nis, nu, f"innovation test: NIS {nis:.1f} > {limit:g}", s)
+        m = rows.T @ hs.T  # (n, 2) M = P H^T
+        gain = self._gain(m @ s_inv, k, landmark_only)  # (n, 2) K
+        self._x[:n] += gain @ nu  # (3) state update
+        joseph_update(self._P, n, self._vpad, gain, m, s)
+        symmetrise_rows(self._P, n, idx)
+        check_blocks(self._P, n, k, f"update of landmark {i}")
+        return UpdateResult(True, nis, nu, "", s)
+
+    @staticmethod
+    def _innovation_cov(s: np.ndarray, i) -> tuple[np.ndarray, np.ndarray]:
+        """S (2, 2) symmetrised and its inverse; :class:`FilterInconsistencyError` when S is not positive definite."""
         s = 0.5 * (s + s.T)
         det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
         if not (det > 0.0 and s[0, 0] > 0.0):
@@ -625,36 +338,17 @@ class EkfSlam:
                 f"FILTER INCONSISTENT: innovation covariance of landmark {i} is not positive definite "
                 f"(S = {s.tolist()}); the covariance has lost positive semi-definiteness"
             )
-        s_inv = np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
-        nis = float(nu @ s_inv @ nu)
-        limit = self.config.innovation_gate if gate is None else float(gate)
-        if nis > limit:
-            return UpdateResult(False, nis, nu, f"innovation test: NIS {nis:.1f} > {limit:g}", s)
+        return s, np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
 
-        m = rows.T @ hs.T  # (n, 2) M = P H^T
-        gain = m @ s_inv  # (n, 2) K
-        if landmark_only:  # any K keeps the Joseph form exact: zero the rows outside the landmark
-            keep = np.zeros(n, dtype=bool)
-            keep[k : k + self._lm] = True
+    def _gain(self, gain: np.ndarray, k: int, landmark_only: bool) -> np.ndarray:
+        """The gain (n, 2) with the rows that must not learn zeroed (any K keeps the Joseph form exact)."""
+        if landmark_only:  # only the landmark at state row k learns
+            keep = np.zeros(self._n, dtype=bool)
+            keep[k : k + self.layout.landmark_dim] = True
             gain[~keep] = 0.0
-        if self._b is not None and self.config.altitude_bias_consider:  # a consider state: carried, never learned
-            gain[self._b] = 0.0
-        self._x[:n] += gain @ nu  # (3) state update
-        # Joseph form, rank 4: P -= K W^T + W K^T, W = M - K S / 2 (valid for any gain K).
-        w = m - 0.5 * (gain @ s)
-        u4 = np.empty((n, 4), order="F")
-        u4[:, :2] = gain
-        u4[:, 2:] = w
-        vpad = self._vpad
-        vpad[:n, :2] = w
-        vpad[:n, 2:] = gain
-        block_t = self._P[:n, :].T  # (cap, n) Fortran-contiguous view of the used rows
-        out = dgemm(-1.0, vpad, u4, beta=1.0, c=block_t, trans_b=1, overwrite_c=1)
-        if out is not block_t:  # BLAS wrapper made a copy (should not happen): write back
-            block_t[...] = out
-        self._symmetrise_rows(idx)
-        self._check_blocks(k, f"update of landmark {i}")
-        return UpdateResult(True, nis, nu, "", s)
+        if self.layout.b is not None and self.layout.altitude_bias_consider:  # a consider state: carried, never learned
+            gain[self.layout.b] = 0.0
+        return gain
 
     def joint_nis(self, observations) -> tuple[float, np.ndarray]:
         """Joint compatibility of several landmarks seen in the same frame.
@@ -681,35 +375,6 @@ class EkfSlam:
         share = (nu * w).reshape(-1, 2).sum(axis=1)
         return float(nu @ w), share
 
-    def _symmetrise_rows(self, idx: np.ndarray) -> None:
-        """Cheap O(N) symmetrisation of the rows/columns the next update reads."""
-        n = self._n
-        avg = 0.5 * (self._P[idx, :n] + self._P[:n, idx].T)
-        self._P[idx, :n] = avg
-        self._P[:n, idx] = avg.T
-
-    def _check_blocks(self, k: int, where: str) -> None:
-        """Cheap health check: every variance >= 0, the vehicle's and landmark row k's 2x2 blocks PSD."""
-        n = self._n
-        diag = np.diagonal(self._P)[:n]
-        dmax = float(np.max(diag))
-        tol = _PSD_RTOL * max(dmax, 1e-30)
-        dmin = float(np.min(diag))
-        if not (np.isfinite(dmin) and np.isfinite(dmax)) or dmin < -tol:
-            j = int(np.argmin(diag)) if np.isfinite(dmin) else int(np.flatnonzero(~np.isfinite(diag))[0])
-            raise FilterInconsistencyError(
-                f"FILTER INCONSISTENT after {where}: variance of state entry {j} is {diag[j]:.3e} "
-                f"(negative or not finite); the covariance is no longer positive semi-definite. "
-                "Check the noise figures (Q, pixel sigma) and the inputs fed to the filter."
-            )
-        for r in (0, k):  # the vehicle's and the landmark's 2x2 blocks
-            b = self._P[r : r + 2, r : r + 2]
-            if b[0, 0] * b[1, 1] - b[0, 1] * b[1, 0] < -tol * tol:
-                raise FilterInconsistencyError(
-                    f"FILTER INCONSISTENT after {where}: the 2x2 covariance block at state {r} "
-                    f"is not positive semi-definite: {b.tolist()}"
-                )
-
     # ------------------------------------------------------------------ (4)
     def augment(
         self,
@@ -732,49 +397,20 @@ class EkfSlam:
         Raises:
             InvalidMeasurementError: NaN/inf or invalid input; the state is unchanged.
         """
-        mn = _vector2("mn_px", mn_px)
-        psi = _finite("heading_rad", heading_rad)
-        z = _finite("altitude_m", altitude_m, positive=True)
-        f = _finite("focal_px", focal_px, positive=True)
+        mn = checked_vector2("mn_px", mn_px)
+        psi = checked_scalar("heading_rad", heading_rad)
+        z = checked_scalar("altitude_m", altitude_m, positive=True)
+        f = checked_scalar("focal_px", focal_px, positive=True)
         sp, sz, sh = self._noise_args(pixel_sigma_px, altitude_sigma_m, heading_sigma_rad)
-
-        lm = self._lm
-        self._reserve(lm)
-        n = self._n
+        lay = self.layout
         theta = self.map_heading_rad(psi)
         depth = z + self.altitude_bias_m  # the new landmark's height starts at 0
         g, j_psi = landmark_jacobians(mn, theta, depth, f)  # d X / d [m, n], d X / d psi
         r_m = observation_noise_px2(mn, sp, depth, sz, sh)
-        p = self._P
-        self._x[n : n + 2] = landmark_from_mn(mn, self._x[:2], theta, depth, f)[0]  # (4)
-        # cov(X, .) = J cov(vehicle, .), J = [I (, d X / d eps = -d X / d psi) (, d X / d b = R [m, n] / f)].
-        v = self._v
-        jv = np.zeros((2, v))
-        jv[:, :2] = np.eye(2)
-        if self._eps is not None:
-            jv[:, self._eps] = -j_psi[0]
-        if self._b is not None:
-            jv[:, self._b] = (g @ mn) / depth
-        cross = jv @ p[:v, :n]
-        block = cross[:, :v] @ jv.T + g @ r_m @ g.T
-        if self.config.augmentation == "full":
-            p[n : n + 2, :n] = cross
-            p[:n, n : n + 2] = cross.T
-        else:
-            p[n : n + 2, :n] = 0.0
-            p[:n, n : n + 2] = 0.0
-        if lm == 3:  # the height: a prior of zero, independent of the rest; X moves with it by -R [m, n] / f
-            var_h = self.config.landmark_height_sigma_m**2
-            jh = -(g @ mn) / depth  # d X / d h
-            block = block + var_h * np.outer(jh, jh)
-            self._x[n + 2] = 0.0
-            p[n + 2, : n + 2] = 0.0
-            p[: n + 2, n + 2] = 0.0
-            p[n : n + 2, n + 2] = p[n + 2, n : n + 2] = var_h * jh
-            p[n + 2, n + 2] = var_h
-        p[n : n + 2, n : n + 2] = 0.5 * (block + block.T)
-        self._n = n + lm
-        return (n - self._v) // lm
+        xy = landmark_from_mn(mn, self._x[:2], theta, depth, f)[0]  # (4)
+        jh = -(g @ mn) / depth if lay.has_landmark_heights else None  # d X / d h
+        return self._append_landmark(xy, lay.new_landmark_jacobian(j_psi, g, mn, depth), g @ r_m @ g.T, jh,
+                                     full=self.config.augmentation == "full")
 
     # ------------------------------------------------------------------ (5), (6)
     def _gate_inputs(self):
@@ -783,11 +419,11 @@ class EkfSlam:
 
     def _footprint(self, heading_rad, altitude_m, focal_px, width_px, height_px) -> np.ndarray:
         """D of (5) at the map heading, the inputs checked."""
-        psi = _finite("heading_rad", heading_rad)
-        z = _finite("altitude_m", altitude_m, positive=True)
-        f = _finite("focal_px", focal_px, positive=True)
-        w = _finite("width_px", width_px, positive=True)
-        hgt = _finite("height_px", height_px, positive=True)
+        psi = checked_scalar("heading_rad", heading_rad)
+        z = checked_scalar("altitude_m", altitude_m, positive=True)
+        f = checked_scalar("focal_px", focal_px, positive=True)
+        w = checked_scalar("width_px", width_px, positive=True)
+        hgt = checked_scalar("height_px", height_px, positive=True)
         return gating.footprint_matrix_m2(self.map_heading_rad(psi), z, f, w, hgt)
 
     def visibility_statistics(
@@ -826,35 +462,10 @@ class EkfSlam:
 
     # ------------------------------------------------------------------ health
     def check_consistency(self, repair: bool = True) -> ConsistencyReport:
-        """Full O(N^3) covariance check: symmetry and positive semi-definiteness.
+        """Full O(N^3) covariance check: symmetry and positive semi-definiteness (:func:`rovslam.slam.health.check_consistency`).
 
         Symmetrises the whole covariance when ``repair`` (the per-update symmetrisation only
         touches the updated rows). Raises :class:`FilterInconsistencyError` with a loud message
         when an eigenvalue is negative beyond rounding or an entry is not finite.
         """
-        n = self._n
-        p = self._P[:n, :n]
-        if not np.all(np.isfinite(p)):
-            raise FilterInconsistencyError(
-                "FILTER INCONSISTENT: the covariance holds NaN or infinite entries; "
-                "a bad input reached the filter"
-            )
-        asym = float(np.max(np.abs(p - p.T))) if n else 0.0
-        sym = 0.5 * (p + p.T)
-        if repair:
-            p[...] = sym
-        eig = np.linalg.eigvalsh(sym)
-        emin, emax = float(eig[0]), float(eig[-1])
-        report = ConsistencyReport(n, asym, emin, emax, float(np.min(np.diagonal(sym))))
-        tol = _PSD_RTOL * max(emax, 1e-30) * max(n, 1)
-        if emin < -tol or asym > tol:
-            raise FilterInconsistencyError(
-                f"FILTER INCONSISTENT: covariance of dimension {n} has min eigenvalue {emin:.3e} "
-                f"(max {emax:.3e}) and asymmetry {asym:.3e}; it is no longer a valid covariance. "
-                f"Check the noise figures and the inputs fed to the filter. {report}"
-            )
-        return report
-
-    def __repr__(self) -> str:
-        x, y = self._x[:2]
-        return f"EkfSlam(vehicle=({x:.3f}, {y:.3f}) m, landmarks={self.n_landmarks}, capacity={(self._cap - self._v) // self._lm})"
+        return check_consistency(self._P, self._n, repair)
