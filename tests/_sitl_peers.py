@@ -38,8 +38,11 @@ class VideoReader(threading.Thread):
                  options: dict | None = None):
         super().__init__(daemon=True)
         # A small probe: the stream's first key frame tells its size (FFmpeg's default probe waits for 5 s of
-        # stream; "fflags": "nobuffer" would drop the packets read while probing, the first frames).
-        self.options = {"probesize": "32768", "analyzeduration": "0"} if options is None else options
+        # stream; "fflags": "nobuffer" would drop the packets read while probing, the first frames). No parser:
+        # sitl sends a frame as one PES of known length, which the demuxer hands on whole when it is complete
+        # (FFmpeg's H.264 parser would hold each frame until the next one starts).
+        self.options = ({"probesize": "4096", "analyzeduration": "0", "fflags": "+noparse+nofillin"}
+                        if options is None else options)
         self.url, self.n_frames, self.fmt = url, n_frames, fmt
         self.deadline = time.monotonic() + deadline_s
         self.frames: list[tuple[float | None, np.ndarray]] = []

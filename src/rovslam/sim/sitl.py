@@ -116,6 +116,7 @@ class SitlVehicle:
         self._queue: queue.Queue = queue.Queue(maxsize=_QUEUE_FRAMES)
         self._threads: list[threading.Thread] = []
         self.frames_sent = 0
+        self.sent_monotonic_s: list[float] = []  # when each frame went out (time.monotonic)
         self.late_frames = 0  # sent more than half a frame period after their time (a renderer too slow)
         self.link = self.video = None
         self._gt_fh = None
@@ -242,6 +243,7 @@ class SitlVehicle:
         self.link.send_attitude(frame.t_s, frame.roll_rad, frame.pitch_rad, frame.heading_rad, self._rates(prev, frame))
         if frame.sonar_altitude_m is not None:
             self.link.send_sonar(frame.t_s, frame.sonar_altitude_m, self.source.sonar_sigma_m)
+        self.sent_monotonic_s.append(time.monotonic())
         self.video.send(frame.image, frame.t_s)
         if frame.truth is not None:
             self._gt.writerow([repr(float(frame.t_s))] + [repr(float(v)) for v in frame.truth])

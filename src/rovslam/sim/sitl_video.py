@@ -24,6 +24,9 @@ __all__ = ["VideoOut", "parse_video_url", "sdp_text"]
 TIME_BASE = Fraction(1, 90000)  # MPEG-TS and RTP video clocks
 MPEGTS_PACKET_BYTES = 1316  # 7 transport packets: one UDP datagram under a 1500-byte MTU
 RTP_PACKET_BYTES = 1200
+# Each frame out at once: packets flushed as written, and the PES length written (a demuxer then
+# hands a frame on when its last byte arrives, not when the next frame's first one does).
+_MPEGTS_OPTIONS = {"flush_packets": "1", "omit_video_pes_length": "0"}
 
 
 def parse_video_url(url: str, rtp: bool = False) -> tuple[str, str, int]:
@@ -80,9 +83,11 @@ class VideoOut:
         target = f"[{host}]" if ":" in host else host
         try:
             if form == "rtp":
-                self._out = av.open(f"rtp://{target}:{port}?pkt_size={RTP_PACKET_BYTES}", "w", format="rtp")
+                self._out = av.open(f"rtp://{target}:{port}?pkt_size={RTP_PACKET_BYTES}", "w", format="rtp",
+                                    options={"flush_packets": "1"})
             else:
-                self._out = av.open(f"udp://{target}:{port}?pkt_size={MPEGTS_PACKET_BYTES}", "w", format="mpegts")
+                self._out = av.open(f"udp://{target}:{port}?pkt_size={MPEGTS_PACKET_BYTES}", "w", format="mpegts",
+                                    options=_MPEGTS_OPTIONS)
         except av.error.FFmpegError as exc:
             raise SimulationError(f"--video {url}: cannot open the stream ({exc}); check the host and port") from None
         rate = Fraction(frame_rate_hz).limit_denominator(1000)
