@@ -33,10 +33,14 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, TYPE_CHECKING, Any
 
 from rovslam.errors import SimulationError
 from rovslam.sim.sitl_frames import FrameSource, SitlFrame
+
+if TYPE_CHECKING:
+    from rovslam.sim.sitl_mavlink import MavlinkLink
+    from rovslam.sim.sitl_video import VideoOut
 
 __all__ = ["SitlConfig", "SitlVehicle", "write_camera_file"]
 
@@ -118,8 +122,9 @@ class SitlVehicle:
         self.frames_sent = 0
         self.sent_monotonic_s: list[float] = []  # when each frame went out (time.monotonic)
         self.late_frames = 0  # sent more than half a frame period after their time (a renderer too slow)
-        self.link = self.video = None
-        self._gt_fh = None
+        self.link: MavlinkLink | None = None
+        self.video: VideoOut | None = None
+        self._gt_fh: IO[str] | None = None
         self.started_unix_s: float | None = None
 
     # ------------------------------------------------------------------ clock
@@ -144,19 +149,19 @@ class SitlVehicle:
         self.out.mkdir(parents=True, exist_ok=True)
         write_camera_file(self.out / "camera.toml", src.info)
         cam = src.info.camera
-        self.video = VideoOut(c.video, cam.width_px, cam.height_px, src.frame_rate_hz, rtp=c.rtp,
-                              sdp_path=self.out / "stream.sdp", crf=c.crf)
+        video = self.video = VideoOut(c.video, cam.width_px, cam.height_px, src.frame_rate_hz, rtp=c.rtp,
+                                      sdp_path=self.out / "stream.sdp", crf=c.crf)
         try:
-            self.link = MavlinkLink(c.mavlink, self.out / "received.csv", self.stream_time_s, mode=c.mode)
+            link = self.link = MavlinkLink(c.mavlink, self.out / "received.csv", self.stream_time_s, mode=c.mode)
         except BaseException:
-            self.video.close()
+            video.close()
             raise
-        self._gt_fh = (self.out / "groundtruth.csv").open("w", newline="", encoding="utf-8")
-        self._gt = csv.writer(self._gt_fh, lineterminator="\n")
+        fh = self._gt_fh = (self.out / "groundtruth.csv").open("w", newline="", encoding="utf-8")
+        self._gt = csv.writer(fh, lineterminator="\n")
         self._gt.writerow(GROUNDTRUTH_COLUMNS + ((RELIEF_COLUMN,) if src.with_relief else ()))
-        self._gt_fh.flush()
+        fh.flush()
         self.started_unix_s = time.time()
-        self.link.start()
+        link.start()
         for target, name in ((self._produce, "render"), (self._fly, "fly")):
             th = threading.Thread(target=self._guarded(target), name=f"rovslam-sitl-{name}", daemon=True)
             self._threads.append(th)
@@ -204,6 +209,8 @@ class SitlVehicle:
 
     def _fly(self) -> None:
         """Send each frame and its telemetry at its time; ATTITUDE between frames, interpolated."""
+        link = self.link
+        assert link is not None
         try:
             rate = self.source.frame_rate_hz
             sub = max(1, math.ceil(MIN_ATTITUDE_RATE_HZ / rate - 1e-9))
@@ -218,7 +225,7 @@ class SitlVehicle:
                         if not self._sleep_until(t):
                             return
                         roll, pitch, yaw = _interpolate(prev, frame, j / sub)
-                        self.link.send_attitude(t, roll, pitch, yaw, self._rates(prev, frame))
+                        link.send_attitude(t, roll, pitch, yaw, self._rates(prev, frame))
                 if not self._sleep_until(frame.t_s):
                     return
                 self._send_frame(frame, prev)
@@ -237,17 +244,19 @@ class SitlVehicle:
         return ((b.roll_rad - a.roll_rad) / dt, (b.pitch_rad - a.pitch_rad) / dt, dh / dt)
 
     def _send_frame(self, frame: SitlFrame, prev: SitlFrame | None) -> None:
+        link, video, fh = self.link, self.video, self._gt_fh
+        assert link is not None and video is not None and fh is not None
         late_s = (self.stream_time_s() or 0.0) - frame.t_s
         if late_s > 0.5 / self.source.frame_rate_hz:
             self.late_frames += 1
-        self.link.send_attitude(frame.t_s, frame.roll_rad, frame.pitch_rad, frame.heading_rad, self._rates(prev, frame))
+        link.send_attitude(frame.t_s, frame.roll_rad, frame.pitch_rad, frame.heading_rad, self._rates(prev, frame))
         if frame.sonar_altitude_m is not None:
-            self.link.send_sonar(frame.t_s, frame.sonar_altitude_m, self.source.sonar_sigma_m)
+            link.send_sonar(frame.t_s, frame.sonar_altitude_m, self.source.sonar_sigma_m)
         self.sent_monotonic_s.append(time.monotonic())
-        self.video.send(frame.image, frame.t_s)
+        video.send(frame.image, frame.t_s)
         if frame.truth is not None:
             self._gt.writerow([repr(float(frame.t_s))] + [repr(float(v)) for v in frame.truth])
-            self._gt_fh.flush()
+            fh.flush()
         self.frames_sent += 1
 
     def wait(self, timeout_s: float | None = None) -> bool:

@@ -67,7 +67,7 @@ def sitl(
     cam = src.info.camera
     with StopRequest() as stop:
         vehicle.start()
-        stream = f"{video} as RTP, SDP {out / 'stream.sdp'}" if vehicle.video.form == "rtp" else f"{video} (MPEG-TS)"
+        stream = f"{video} as RTP, SDP {out / 'stream.sdp'}" if rtp or video.startswith("rtp:") else f"{video} (MPEG-TS)"
         say(f"sitl: {src.info.name}: {src.n_frames} frames {cam.width_px}x{cam.height_px} at "
             f"{src.frame_rate_hz:g} Hz, pace {pace:g}")
         say(f"sitl: video {stream}; MAVLink {mavlink} as system 1 (ArduSub, {mode.upper()}); truth in {out}")
@@ -80,7 +80,7 @@ def sitl(
             if time.monotonic() - last_note >= 10.0:
                 last_note = time.monotonic()
                 say(f"sitl: t = {vehicle.stream_time_s() or 0.0:.1f} s, {vehicle.frames_sent}/{src.n_frames} frames, "
-                    f"{sum(vehicle.link.counts_in.values())} messages in")
+                    f"{sum(vehicle.link.counts_in.values()) if vehicle.link else 0} messages in")
         stop.ignore_after = stop.signum is not None
         summary = vehicle.stop()
     link = summary["mavlink"] or {}

@@ -5,6 +5,15 @@ SDP file that describes it (PyAV / FFmpeg: ``av.open("stream.sdp", options={"pro
 "file,udp,rtp"})``). MPEG-TS over UDP is the other common form (``udp://HOST:PORT``). Either way
 each frame's presentation time is its capture time on the stream's axis: seconds from the
 first frame, in the 90 kHz time base of both formats.
+
+Each frame leaves at once, whole: no B-frames or lookahead in the encoder, packets flushed as
+they are written, and (MPEG-TS) each frame one PES packet with its length written, so a demuxer
+can hand it on when its last byte arrives. A receiver that wants every frame as soon as it is
+complete opens the MPEG-TS stream with the options ``probesize=4096``, ``analyzeduration=0``
+(FFmpeg's default probe waits for seconds of stream) and ``fflags=+noparse+nofillin`` (FFmpeg's
+H.264 parser holds each frame until the next one starts: one frame period of latency, and the
+last frame until the stream ends); ``fflags=nobuffer`` drops the frames read while probing.
+Over RTP the first frame's presentation time is unknown (None); the others count from it.
 """
 
 from __future__ import annotations
@@ -13,6 +22,7 @@ import ipaddress
 import socket
 from fractions import Fraction
 from pathlib import Path
+from typing import Any
 from urllib.parse import urlsplit
 
 import numpy as np
@@ -81,6 +91,7 @@ class VideoOut:
         self.form, self.host, self.port = form, host, port
         self.shape = (int(height_px), int(width_px), 3)
         target = f"[{host}]" if ":" in host else host
+        self._out: Any = None
         try:
             if form == "rtp":
                 self._out = av.open(f"rtp://{target}:{port}?pkt_size={RTP_PACKET_BYTES}", "w", format="rtp",
