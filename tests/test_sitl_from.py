@@ -154,6 +154,47 @@ def test_each_frame_is_received_before_the_next_is_sent():
     assert [round(t * RATE_HZ) for t, _ in reader.frames] == list(range(N))
 
 
+def test_every_mpegts_frame_carries_its_length_even_a_busy_one():
+    """A frame of more than 64 KiB could carry no PES length (and would wait in the demuxer for the next): the
+    encoder's buffer keeps each below; here noise that would code to far more at this quality."""
+    import socket
+
+    from rovslam.sim.sitl_video import MAX_FRAME_BYTES, VideoOut
+
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.setblocking(False)
+    noise = np.random.default_rng(5).normal(100.0, 40.0, (480, 640, 3))
+    video = VideoOut(f"udp://127.0.0.1:{rx.getsockname()[1]}", 640, 480, RATE_HZ)
+    data = b""
+    try:
+        for k in range(4):
+            video.send(np.clip(np.roll(noise, 7 * k, axis=1), 0, 255).astype(np.uint8), k / RATE_HZ)
+            while True:  # on loopback a datagram is in the receiver's buffer when sendto returns
+                try:
+                    data += rx.recv(65536)
+                except BlockingIOError:
+                    break
+    finally:
+        video.close()
+        rx.close()
+    lengths = _pes_lengths(data)
+    assert len(lengths) == 4 and all(0 < n <= MAX_FRAME_BYTES + 100 for n in lengths), lengths
+    assert video.bytes > 4 * 40_000  # (busy frames: the cap is what kept them small)
+
+
+def _pes_lengths(ts: bytes) -> list[int]:
+    """PES_packet_length of each PES starting in an MPEG-TS byte string (video PID 0x100)."""
+    out = []
+    for i in range(0, len(ts) - 187, 188):
+        pk = ts[i:i + 188]
+        if pk[1] & 0x40 and ((pk[1] & 0x1F) << 8 | pk[2]) == 0x100:
+            off = 4 + (1 + pk[4] if (pk[3] >> 4) & 2 else 0)
+            if pk[off:off + 3] == b"\x00\x00\x01":
+                out.append(int.from_bytes(pk[off + 4:off + 6], "big"))
+    return out
+
+
 # --------------------------------------------------------------------------- the command
 
 def _rovslam(*args: str, **kw) -> subprocess.CompletedProcess:

@@ -37,6 +37,9 @@ RTP_PACKET_BYTES = 1200
 # Each frame out at once: packets flushed as written, and the PES length written (a demuxer then
 # hands a frame on when its last byte arrives, not when the next frame's first one does).
 _MPEGTS_OPTIONS = {"flush_packets": "1", "omit_video_pes_length": "0"}
+# A PES length has 16 bits: a frame of more than 64 KiB goes out with none, and waits in the demuxer
+# for the next frame. The encoder's buffer (VBV) keeps every MPEG-TS frame below this many bytes.
+MAX_FRAME_BYTES = 60_000
 
 
 def parse_video_url(url: str, rtp: bool = False) -> tuple[str, str, int]:
@@ -109,6 +112,10 @@ class VideoOut:
             "preset": "ultrafast", "tune": "zerolatency", "crf": str(int(crf)), "bf": "0", "threads": "1",
             "g": str(max(1, int(round(keyframe_s * frame_rate_hz)))),
         }
+        if form == "mpegts":  # at most MAX_FRAME_BYTES a frame (quality drops only where a frame would be larger)
+            bits = 8 * MAX_FRAME_BYTES
+            st.codec_context.options = dict(st.codec_context.options, bufsize=str(bits),
+                                            maxrate=str(int(bits * frame_rate_hz)))
         self.sdp_path = None
         if form == "rtp" and sdp_path is not None:
             self.sdp_path = Path(sdp_path)
