@@ -20,6 +20,19 @@ def free_udp_port() -> int:
         return int(s.getsockname()[1])
 
 
+def wait_udp_bound(port: int, deadline_s: float = 120.0) -> bool:
+    """Wait until something (a receiver) has bound UDP ``127.0.0.1:port``: then a datagram sent there is kept."""
+    end = time.monotonic() + deadline_s
+    while time.monotonic() < end:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                return True
+        time.sleep(0.02)
+    return False
+
+
 def mavutil():
     os.environ.setdefault("MAVLINK20", "1")
     from pymavlink import mavutil as mu

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _sitl_peers import MavlinkPeer, VideoReader, free_udp_port
+from _sitl_peers import MavlinkPeer, VideoReader, free_udp_port, wait_udp_bound
 
 from rovslam.sim.scenarios import SCENARIOS
 from rovslam.sim.vehicle import read_sensors, simulate_trajectory
@@ -63,6 +63,7 @@ def dive(tmp_path_factory):
     reader = VideoReader(f"udp://127.0.0.1:{video_port}", N_FRAMES, DEADLINE_S)
     peer.start()
     reader.start()
+    assert wait_udp_bound(video_port, DEADLINE_S)
     vehicle = SitlVehicle(SitlConfig(SCENARIO, out, video=f"udp://127.0.0.1:{video_port}",
                                      mavlink=f"udpout:127.0.0.1:{mav_port}", seed=SEED, duration_s=DURATION_S))
     vehicle.start()

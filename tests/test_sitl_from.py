@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _sitl_peers import MavlinkPeer, VideoReader, free_udp_port
+from _sitl_peers import MavlinkPeer, VideoReader, free_udp_port, wait_udp_bound
 
 from rovslam.camera import Camera
 from rovslam.io.sequence import SequenceInfo, SequenceWriter, read_groundtruth
@@ -64,6 +64,7 @@ def test_from_streams_the_folders_frames_at_their_times(seq, tmp_path):
     reader = VideoReader(f"udp://127.0.0.1:{video_port}", N, DEADLINE_S)
     peer.start()
     reader.start()
+    assert wait_udp_bound(video_port, DEADLINE_S)  # (a frame sent before the receiver binds is lost, as on any UDP)
     vehicle = _vehicle(seq, tmp_path / "truth", f"udp://127.0.0.1:{video_port}", mav_port, pace=1.5)
     try:
         vehicle.start()
@@ -105,31 +106,72 @@ def test_pace_slows_the_dive_but_not_its_clock(seq, tmp_path):
     np.testing.assert_allclose(gt.t_s, np.arange(4) / RATE_HZ, atol=1e-9)
 
 
+def test_the_dive_can_wait_for_the_companions_heartbeat(seq, tmp_path):
+    """wait_for_peer_s: no frame goes out before a HEARTBEAT from another component has arrived."""
+    mav_port = free_udp_port()
+    peer = MavlinkPeer(mav_port, DEADLINE_S)
+    peer.start()
+    vehicle = _vehicle(seq, tmp_path / "truth", f"udp://127.0.0.1:{free_udp_port()}", mav_port,
+                       wait_for_peer_s=DEADLINE_S)
+    try:
+        vehicle.start()
+        assert _wait_for(lambda: bool(peer.of("HEARTBEAT")) and bool(peer.conn.clients))
+        time.sleep(0.5)
+        assert vehicle.frames_sent == 0  # holding
+        t_sent = time.monotonic()
+        peer.conn.mav.heartbeat_send(18, 8, 0, 0, 4)  # an onboard controller, no autopilot, active
+        assert vehicle.wait(DEADLINE_S)
+    finally:
+        summary = vehicle.stop()
+        peer.close()
+    assert summary["peer_heartbeat_before_first_frame"] and summary["frames_sent"] == N
+    assert vehicle.sent_monotonic_s[0] >= t_sent
+
+
+def _wait_for(predicate, deadline_s: float = DEADLINE_S) -> bool:
+    end = time.monotonic() + deadline_s
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.05)
+    return bool(predicate())
+
+
 def test_rtp_stream_opens_through_its_sdp(seq, tmp_path):
-    """--rtp: H.264 over RTP with OUT/stream.sdp, opened as BlueOS's stream is (protocol_whitelist=file,udp,rtp)."""
-    long_seq = _write_sequence(tmp_path / "long", n=30)
-    video_port = free_udp_port()
+    """--rtp: H.264 over RTP with OUT/stream.sdp, opened as BlueOS's stream is (protocol_whitelist=file,udp,rtp).
+
+    The dive waits for the receiver: it opens the SDP that sitl wrote, binds the port, then a companion's
+    HEARTBEAT starts the dive (wait_for_peer_s).
+    """
+    video_port, mav_port = free_udp_port(), free_udp_port()
     out = tmp_path / "truth"
-    vehicle = _vehicle(long_seq, out, f"udp://127.0.0.1:{video_port}", free_udp_port(), rtp=True, pace=2.0)
+    peer = MavlinkPeer(mav_port, DEADLINE_S)
+    peer.start()
+    vehicle = _vehicle(seq, out, f"udp://127.0.0.1:{video_port}", mav_port, rtp=True, wait_for_peer_s=DEADLINE_S)
     reader = None
     try:
         vehicle.start()
         sdp = (out / "stream.sdp").read_text()
         assert f"m=video {video_port} RTP/AVP 96" in sdp and "a=rtpmap:96 H264/90000" in sdp
-        reader = VideoReader(str(out / "stream.sdp"), 5, DEADLINE_S, fmt="sdp",
+        reader = VideoReader(str(out / "stream.sdp"), N, DEADLINE_S, fmt="sdp",
                              options={"protocol_whitelist": "file,udp,rtp", "probesize": "4096",
                                       "analyzeduration": "0"})
         reader.start()
-        reader.join(DEADLINE_S)
+        assert wait_udp_bound(video_port, DEADLINE_S)
+        assert _wait_for(lambda: bool(peer.of("HEARTBEAT")) and bool(peer.conn.clients))
+        peer.conn.mav.heartbeat_send(18, 8, 0, 0, 4)
         assert vehicle.wait(DEADLINE_S)
+        reader.join(DEADLINE_S)
     finally:
         vehicle.stop()
-    assert reader is not None and len(reader.frames) >= 5, reader.error if reader else None
-    times = [t for t, _ in reader.frames if t is not None]
-    steps = np.diff(times)
-    assert len(times) >= 4 and np.all(steps > 0)
-    assert np.allclose(steps * RATE_HZ, np.round(steps * RATE_HZ), atol=1e-3)  # capture times, 10 Hz grid
-    assert all(img.shape == (H, W, 3) for _, img in reader.frames)
+        peer.close()
+    frames = reader.frames
+    assert len(frames) >= N - 1, reader.error  # (FFmpeg's H.264 parser holds the last until the stream goes on)
+    assert frames[0][0] is None  # RTP: the first frame's time is unknown; the others count from it
+    times = [t for t, _ in frames[1:]]
+    np.testing.assert_allclose(times, np.arange(1, len(frames)) / RATE_HZ, atol=1e-4)
+    for k, (_, img) in enumerate(frames):
+        assert img.shape == (H, W, 3) and abs(float(img.mean()) - _level(k)) < 2.0
 
 
 def test_each_frame_is_received_before_the_next_is_sent():
@@ -139,7 +181,7 @@ def test_each_frame_is_received_before_the_next_is_sent():
     port = free_udp_port()
     reader = VideoReader(f"udp://127.0.0.1:{port}", N, DEADLINE_S)
     reader.start()
-    time.sleep(0.2)  # (a frame sent before the receiver binds is lost, as on any UDP stream; then the test fails)
+    assert wait_udp_bound(port, DEADLINE_S)
     video = VideoOut(f"udp://127.0.0.1:{port}", W, H, RATE_HZ)
     try:
         for k in range(N):
@@ -233,7 +275,7 @@ def test_bad_input_is_refused_before_anything_is_written(tmp_path, args, says):
     from rovslam.sim.sitl_command import sitl
 
     opts = dict(scenario=None, seed=0, video="udp://127.0.0.1:5600", mavlink="udpout:127.0.0.1:14550",
-                duration_s=None, from_seq=None, rtp=False, pace=1.0, mode="ALT_HOLD", quiet=True)
+                duration_s=None, from_seq=None, rtp=False, pace=1.0, mode="ALT_HOLD", wait_for_peer_s=0.0, quiet=True)
     names = {"--scenario": "scenario", "--video": "video", "--mavlink": "mavlink", "--pace": "pace", "--mode": "mode"}
     for flag, value in zip(args[::2], args[1::2], strict=True):
         opts[names[flag]] = float(value) if flag == "--pace" else value

@@ -63,10 +63,13 @@ class SitlConfig:
     pace: float = 1.0  # wall seconds per stream second (> 1: slower than real time)
     mode: str = "ALT_HOLD"  # the ArduSub mode the heartbeat reports
     crf: int = 20  # H.264 quality of the stream
+    wait_for_peer_s: float = 0.0  # > 0: hold the first frame until another component's HEARTBEAT (at most this long)
 
     def __post_init__(self) -> None:
         if not (isinstance(self.pace, (int, float)) and math.isfinite(self.pace) and self.pace > 0):
             raise SimulationError(f"--pace must be a positive factor (1 real time, 2 half speed), got {self.pace}")
+        if not (isinstance(self.wait_for_peer_s, (int, float)) and 0 <= self.wait_for_peer_s < math.inf):
+            raise SimulationError(f"--wait-for-peer-s must be a number of seconds >= 0, got {self.wait_for_peer_s}")
         if self.scenario is None and self.from_seq is None:
             raise SimulationError("give --scenario NAME (a preset, rovslam simulate --list) or --from SEQUENCE")
 
@@ -121,6 +124,7 @@ class SitlVehicle:
         self._threads: list[threading.Thread] = []
         self.frames_sent = 0
         self.sent_monotonic_s: list[float] = []  # when each frame went out (time.monotonic)
+        self.peer_seen = False  # a HEARTBEAT of another component had arrived when the dive began
         self.late_frames = 0  # sent more than half a frame period after their time (a renderer too slow)
         self.link: MavlinkLink | None = None
         self.video: VideoOut | None = None
@@ -217,6 +221,7 @@ class SitlVehicle:
             prev: SitlFrame | None = None
             while (frame := self._next()) is not None:
                 if prev is None:
+                    self._wait_for_peer(link)
                     self._t0 = time.monotonic() - frame.t_s * self.config.pace
                 else:
                     gap = frame.t_s - prev.t_s
@@ -234,6 +239,13 @@ class SitlVehicle:
         finally:
             self._done.set()
             self._stop.set()
+
+    def _wait_for_peer(self, link: MavlinkLink) -> None:
+        """Hold the dive until another component's HEARTBEAT arrives, or ``wait_for_peer_s`` has passed."""
+        end = time.monotonic() + self.config.wait_for_peer_s
+        while not link.counts_in["HEARTBEAT"] and time.monotonic() < end and not self._stop.wait(0.02):
+            pass
+        self.peer_seen = bool(link.counts_in["HEARTBEAT"])
 
     @staticmethod
     def _rates(a: SitlFrame | None, b: SitlFrame) -> tuple[float, float, float]:
@@ -306,7 +318,7 @@ class SitlVehicle:
             "scenario": c.scenario if c.from_seq is None else self.source.info.metadata.get("scenario"),
             "from": None if c.from_seq is None else str(c.from_seq), "seed": c.seed, "pace": c.pace,
             "video": c.video, "rtp": c.rtp, "frame_rate_hz": self.source.frame_rate_hz,
-            "frames_planned": self.source.n_frames, "frames_sent": self.frames_sent, "late_frames": self.late_frames,
+            "peer_heartbeat_before_first_frame": self.peer_seen, "frames_planned": self.source.n_frames, "frames_sent": self.frames_sent, "late_frames": self.late_frames,
             "complete": self.frames_sent == self.source.n_frames,
             "video_bytes": 0 if self.video is None else self.video.bytes,
             "mavlink": None if self.link is None else self.link.stats(),

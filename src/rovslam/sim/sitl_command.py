@@ -33,6 +33,8 @@ def sitl(
                                "stream's presentation times stay the capture times)."),
     mode: str = typer.Option("ALT_HOLD", "--mode", help="ArduSub mode the heartbeat reports (MANUAL, STABILIZE, "
                              "ALT_HOLD, POSHOLD, GUIDED, ...)."),
+    wait_for_peer_s: float = typer.Option(0.0, "--wait-for-peer-s", help="Hold the first frame until a companion's "
+                                          "HEARTBEAT arrives (at most this long; 0: start at once)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress lines."),
 ) -> None:
     """Fly a preset as an ArduSub vehicle: camera stream, MAVLink telemetry, truth on disk, for `rovslam live`.
@@ -61,7 +63,7 @@ def sitl(
             typer.echo(text)
 
     config = SitlConfig(scenario, out, video=video, mavlink=mavlink, seed=seed, duration_s=duration_s,
-                        from_seq=from_seq, rtp=rtp, pace=pace, mode=mode.upper())
+                        from_seq=from_seq, rtp=rtp, pace=pace, mode=mode.upper(), wait_for_peer_s=wait_for_peer_s)
     vehicle = SitlVehicle(config)
     src = vehicle.source
     cam = src.info.camera
@@ -72,6 +74,8 @@ def sitl(
             f"{src.frame_rate_hz:g} Hz, pace {pace:g}")
         say(f"sitl: video {stream}; MAVLink {mavlink} as system 1 (ArduSub, {mode.upper()}); truth in {out}")
         say("sitl: rendering the first frame..." if from_seq is None else "sitl: reading the first frame...")
+        if wait_for_peer_s > 0:
+            say(f"sitl: the dive starts when a companion's HEARTBEAT arrives (at most {wait_for_peer_s:g} s)")
         announced, last_note = False, time.monotonic()
         while stop.signum is None and not vehicle.wait(0.2):
             if not announced and vehicle.frames_sent > 0:
