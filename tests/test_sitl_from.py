@@ -253,6 +253,7 @@ BAD = [
     (["--scenario", "portofino-short", "--pace", "0"], "--pace must be a positive factor"),
     (["--scenario", "portofino-short", "--mode", "HOVER"], "--mode 'HOVER'"),
     ([], "give --scenario NAME"),
+    (["--scenario", "portofino-short", "--crf", "60"], "--crf must be a whole number"),
 ]
 
 
@@ -275,10 +276,12 @@ def test_bad_input_is_refused_before_anything_is_written(tmp_path, args, says):
     from rovslam.sim.sitl_command import sitl
 
     opts = dict(scenario=None, seed=0, video="udp://127.0.0.1:5600", mavlink="udpout:127.0.0.1:14550",
-                duration_s=None, from_seq=None, rtp=False, pace=1.0, mode="ALT_HOLD", wait_for_peer_s=0.0, quiet=True)
-    names = {"--scenario": "scenario", "--video": "video", "--mavlink": "mavlink", "--pace": "pace", "--mode": "mode"}
+                duration_s=None, from_seq=None, rtp=False, pace=1.0, mode="ALT_HOLD", crf=20, wait_for_peer_s=0.0,
+                quiet=True)
+    names = {"--scenario": "scenario", "--video": "video", "--mavlink": "mavlink", "--pace": "pace", "--mode": "mode",
+             "--crf": "crf"}
     for flag, value in zip(args[::2], args[1::2], strict=True):
-        opts[names[flag]] = float(value) if flag == "--pace" else value
+        opts[names[flag]] = float(value) if flag == "--pace" else int(value) if flag == "--crf" else value
     with pytest.raises((SimulationError, typer.Exit)) as err:
         sitl(out=tmp_path / "truth", **opts)
     assert says in str(err.value)

@@ -68,6 +68,8 @@ class SitlConfig:
     def __post_init__(self) -> None:
         if not (isinstance(self.pace, (int, float)) and math.isfinite(self.pace) and self.pace > 0):
             raise SimulationError(f"--pace must be a positive factor (1 real time, 2 half speed), got {self.pace}")
+        if isinstance(self.crf, bool) or not isinstance(self.crf, int) or not 0 <= self.crf <= 51:
+            raise SimulationError(f"--crf must be a whole number from 0 (lossless) to 51, got {self.crf}")
         if not (isinstance(self.wait_for_peer_s, (int, float)) and 0 <= self.wait_for_peer_s < math.inf):
             raise SimulationError(f"--wait-for-peer-s must be a number of seconds >= 0, got {self.wait_for_peer_s}")
         if self.scenario is None and self.from_seq is None:
