@@ -31,6 +31,8 @@ NEVER = {
     "association": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.vision"],
     "slam": ["rovslam.vision", "rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.sim"],
     "pipeline": ["rovslam.cli", "rovslam.viz", "rovslam.sim", "rovslam.eval", "rovslam.batch"],
+    "data": ["rovslam.config", "rovslam.camera", "rovslam.vision", "rovslam.slam", "rovslam.io", "rovslam.viz",
+             "rovslam.cli", "rovslam.pipeline", "rovslam.sim", "rovslam.eval", "rovslam.nav"],
     "core": ["rovslam.config", "rovslam.vision", "rovslam.slam", "rovslam.io", "rovslam.viz", "rovslam.cli",
              "rovslam.pipeline", "rovslam.sim", "rovslam.eval", "rovslam.nav", "rovslam.odometry", "rovslam.heading"],
     "io": ["rovslam.slam.ekf", "rovslam.slam.gating", "rovslam.cli", "rovslam.viz", "rovslam.pipeline", "rovslam.nav"],
