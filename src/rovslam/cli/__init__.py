@@ -37,7 +37,8 @@ A new command ``NAME`` is a module ``rovslam/cli/NAME.py``::
         from rovslam.runner import run_sequence  # heavy imports here, so --help stays fast
 
 plus one line at the end of this module, ``from rovslam.cli import NAME``: ``rovslam --help``
-lists the commands in the order of those lines.
+lists the commands in the order of those lines. A command that reads a video, an image folder or
+a bag takes their options with ``@with_inputs`` (``rovslam.cli.inputs``) below ``@guard``.
 """
 
 from __future__ import annotations
@@ -57,6 +58,7 @@ app = typer.Typer(
 
 
 def _version(value: bool) -> None:
+    """``--version``: print it and exit before anything else is parsed."""
     if value:
         from rovslam import __version__
 

@@ -75,6 +75,7 @@ def mosaic_cmd(
 
 
 def _landmark_ids(text: Optional[str]) -> Optional[list[int]]:
+    """The ids of ``--landmarks 0,3,7``, each once in the order given; None when not given."""
     if text is None:
         return None
     from rovslam.errors import InvalidArgumentError

@@ -57,6 +57,7 @@ def simulate(
 
 
 def _describe(summary) -> str:
+    """What the simulation wrote, for its last line: frames and wall time."""
     frames = getattr(summary, "frames", None)
     wall = getattr(summary, "wall_s", None)
     parts = []
