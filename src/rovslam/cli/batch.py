@@ -1,7 +1,5 @@
 """``rovslam batch``: a robustness matrix on Dask, one cell per scenario and seed, resumable."""
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Optional
 

@@ -1,7 +1,5 @@
 """``rovslam config``: the default configuration (the paper's values) as a TOML file to edit."""
 
-from __future__ import annotations
-
 from pathlib import Path
 
 import typer

@@ -1,7 +1,5 @@
 """``rovslam demo``: simulate the paper's trial, run SLAM, evaluate and write the report, in one go."""
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Optional
 

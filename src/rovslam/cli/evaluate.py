@@ -1,7 +1,5 @@
 """``rovslam eval``: a run against the ground truth, the figures as JSON and as tables."""
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Optional
 

@@ -1,7 +1,5 @@
 """``rovslam navigate``: the closed loop in the simulator, steered to points of interest by the online estimate."""
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Optional
 

@@ -1,7 +1,5 @@
 """``rovslam report`` (the HTML report of a run) and ``rovslam mosaic`` (its frames laid on the seabed)."""
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Optional
 

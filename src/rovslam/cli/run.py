@@ -1,8 +1,6 @@
 """``rovslam run`` (SLAM on a sequence, video, image folder or bag), ``rovslam import`` (any of those as a
 sequence folder) and ``rovslam topics`` (what a bag holds)."""
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Optional
 

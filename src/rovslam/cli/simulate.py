@@ -1,7 +1,5 @@
 """``rovslam simulate``: a simulated dive written as a sequence folder with exact ground truth."""
 
-from __future__ import annotations
-
 import math
 from pathlib import Path
 from typing import Optional

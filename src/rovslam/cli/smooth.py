@@ -1,7 +1,5 @@
 """``rovslam smooth``: a finished run smoothed in a factor graph (GTSAM iSAM2), the whole path given all of it."""
 
-from __future__ import annotations
-
 from pathlib import Path
 
 import typer
