@@ -60,9 +60,9 @@ PROFILE_CASES = ("360-sim-mem", "hd-sim-mem")
 
 def _bar_factory():
     """The progress bar of ``rovslam run`` (drawn on this process's stderr)."""
-    from rovslam.cli import _progress, _slam_callbacks
+    from rovslam.cli.display import ProgressBar, slam_callbacks
 
-    return _progress, _slam_callbacks
+    return ProgressBar, slam_callbacks
 
 
 def _run_once(source_path: Path, memory, out: Path, wrap_callbacks=None, max_frames: int | None = None) -> int:

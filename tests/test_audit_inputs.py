@@ -572,7 +572,7 @@ def test_mosaic_and_report_of_a_damaged_map_or_summary_still_draw(dive, tmp_path
 
 
 def test_a_landmark_id_given_many_times_is_one_figure():
-    from rovslam.cli import _landmark_ids
+    from rovslam.cli.report import _landmark_ids
 
     assert _landmark_ids(",".join(["3", "0"] * 1000)) == [3, 0]
 

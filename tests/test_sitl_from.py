@@ -273,7 +273,7 @@ def test_bad_input_is_refused_before_anything_is_written(tmp_path, args, says):
     import typer
 
     from rovslam.errors import SimulationError
-    from rovslam.sim.sitl_command import sitl
+    from rovslam.cli.sitl import sitl
 
     opts = dict(scenario=None, seed=0, video="udp://127.0.0.1:5600", mavlink="udpout:127.0.0.1:14550",
                 duration_s=None, from_seq=None, rtp=False, pace=1.0, mode="ALT_HOLD", crf=20, wait_for_peer_s=0.0,

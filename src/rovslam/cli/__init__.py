@@ -1,0 +1,106 @@
+"""The ``rovslam`` command. Parses, calls the library, prints. Heavy imports stay inside commands.
+
+Exit codes: 0 success; 2 bad input, an unusable run or an unusable output place (one line on
+stderr naming the problem, never a traceback); 128 + the signal number when a run is stopped
+by SIGINT (130), SIGTERM (143) or SIGHUP (129), its files complete; 1 an internal error (a
+bug: one line, the traceback with ``ROVSLAM_TRACEBACK=1``). Messages are printed as plain
+text, never interpreted as rich markup (``[camera]`` stays as it is).
+
+This module holds the typer ``app``, the global options (``--version``) and :func:`main`. Each
+command lives in a module of its own and registers itself on ``app`` when imported:
+
+- ``simulate``: ``simulate``
+- ``run``: ``run``, ``import``, ``topics`` (their input options: ``inputs``)
+- ``evaluate``: ``eval``
+- ``batch``: ``batch``
+- ``demo``: ``demo``
+- ``report``: ``report``, ``mosaic``
+- ``config``: ``config``
+- ``smooth``: ``smooth``
+- ``navigate``: ``navigate``
+- ``sitl``: ``sitl`` (the simulator as a vehicle on the network)
+
+What they share: ``errors`` (``guard``: every error one line on stderr and an exit code;
+``fail``; ``error_line``), ``display`` (progress bars, tables) and ``checks`` (output files,
+``-c`` configuration files, ``--seq`` folders).
+
+A new command ``NAME`` is a module ``rovslam/cli/NAME.py``::
+
+    import typer
+
+    from rovslam.cli import app
+    from rovslam.cli.errors import guard
+
+    @app.command()
+    @guard
+    def NAME(quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display.")) -> None:
+        "What it does, in one line: rovslam --help shows it."
+        from rovslam.runner import run_sequence  # heavy imports here, so --help stays fast
+
+plus one line at the end of this module, ``from rovslam.cli import NAME``: ``rovslam --help``
+lists the commands in the order of those lines. A command that reads a video, an image folder or
+a bag takes their options with ``@with_inputs`` (``rovslam.cli.inputs``) below ``@guard``.
+
+The modules with commands do not use ``from __future__ import annotations``: typer reads every
+parameter's annotation at each start-up, and a string annotation is compiled again each time
+(``rovslam --help`` and every command spent about 4 ms of CPU on it).
+"""
+
+import sys
+
+import typer
+
+from rovslam.cli.errors import error_line
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="Vision-based SLAM for ROVs: laser altimeter, optical-correlation speed, EKF landmark map.",
+    pretty_exceptions_enable=False,
+)
+
+
+def _version(value: bool) -> None:
+    """``--version``: print it and exit before anything else is parsed."""
+    if value:
+        from rovslam import __version__
+
+        typer.echo(f"rovslam {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main_options(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version and exit."),
+) -> None:
+    """Vision-based SLAM for ROVs: laser altimeter, optical-correlation speed, EKF landmark map."""
+
+
+def main() -> None:
+    """The console script: like ``app()``, but a command-line usage error is one line too."""
+    from typer.main import get_command
+
+    try:
+        code = get_command(app).main(prog_name="rovslam", standalone_mode=False)
+    except typer.TyperException as exc:
+        fmt = getattr(exc, "format_message", None)
+        ctx = getattr(exc, "ctx", None)
+        hint = f" (see {ctx.command_path} --help)" if ctx is not None else ""
+        error_line(f"{fmt() if fmt else exc}{hint}")
+        code = getattr(exc, "exit_code", 2)
+    except typer.Abort:
+        code = 130
+    sys.exit(code if isinstance(code, int) else 0)
+
+
+# The commands: importing a module registers its commands on `app`, listed by --help in this order.
+from rovslam.cli import simulate  # noqa: E402, F401
+from rovslam.cli import run  # noqa: E402, F401  (run, import, topics)
+from rovslam.cli import evaluate  # noqa: E402, F401  (eval)
+from rovslam.cli import batch  # noqa: E402, F401
+from rovslam.cli import demo  # noqa: E402, F401
+from rovslam.cli import report  # noqa: E402, F401  (report, mosaic)
+from rovslam.cli import config  # noqa: E402, F401
+from rovslam.cli import smooth  # noqa: E402, F401
+from rovslam.cli import navigate  # noqa: E402, F401
+from rovslam.cli import sitl  # noqa: E402, F401
