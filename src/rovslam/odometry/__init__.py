@@ -21,7 +21,8 @@ scale error: ``speed * sigma_Z / Z``) and a floor ``min_speed_sigma_mps``.
 
 :func:`speed_from_tokens` is the pure operation; :class:`SpeedEstimator` is the thin
 stateful wrapper that holds the last good speed when a frame gives no usable tokens and grows
-its covariance with the gap.
+its covariance with the gap. The hypothesis search and the rigid (similarity) fit are in
+:mod:`rovslam.odometry.rigid`.
 """
 
 from __future__ import annotations
