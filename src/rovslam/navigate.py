@@ -21,7 +21,7 @@ import math
 import signal
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -136,16 +136,11 @@ def navigate(
     ``on_start(expected_s)`` is called once with a rough duration (survey plus points);
     ``on_step(step, arrivals_done)`` after every frame.
     """
-    check_estimator(estimator)
-    if not pois:
-        raise InvalidArgumentError("no point of interest to visit")
-    if not (isinstance(hold_s, (int, float)) and math.isfinite(hold_s) and hold_s >= 0):
-        raise InvalidArgumentError(f"--hold-s must be a number of seconds >= 0, got {hold_s!r}")
+    _check_mission(estimator, pois, hold_s)
     gcfg = guidance if guidance is not None else GuidanceConfig(hold_s=float(hold_s))
     with StopRequest() as stop:
         out = prepare_output_folder(out_dir, overwrite)
         loop = ClosedLoop(scenario, pois, estimator, seed, survey_s, gcfg, config=config, max_s=max_s)
-        pipe = loop.navigator.pipeline
         writer = ResultWriter(out)
         files = _NavFiles(out)
         book = ArrivalBook(pois)
@@ -154,70 +149,111 @@ def navigate(
                 "guidance": {k: getattr(gcfg, k) for k in gcfg.__dataclass_fields__}, "config": to_dict(config)}
         writer.write_config(config)
         writer.write_summary({**base, "status": "running"})
-        true_xy, est_xy, nav_start, n, landmarks = [], [], None, 0, 0
-        status, error, steps = "running", None, None
         t0 = time.perf_counter()
         if on_start is not None:
             on_start(survey_s + sum(60.0 + (hold_s if p.hold_s is None else p.hold_s) for p in pois))
-        try:
-            steps = iter(loop)
-            for step in steps:
-                res = step.nav.result
-                writer.write_frame(res)
-                files.write_step(step)
-                if res.new_landmark_id is not None:
-                    writer.write_landmark_template(res.new_landmark_id, pipe.landmarks[res.new_landmark_id].patch)
-                if book.feed(step):
-                    files.write_arrivals(book.table())
-                true_xy.append((step.truth.x_m, step.truth.y_m))
-                est_xy.append(tuple(step.nav.estimate.xy_m))
-                if nav_start is None and not step.surveying:
-                    nav_start = n
-                n += 1
-                landmarks = res.n_landmarks
-                if on_step is not None:
-                    on_step(step, len(book.table()))
-                if stop.signum is not None:
-                    break
-        except KeyboardInterrupt:
-            stop.request(signal.SIGINT)
-        except BaseException as exc:  # an output error, or a bug: the files still get finished
-            error = exc
-        finally:
-            if steps is not None:
-                steps.close()
+        flight = _fly(loop, writer, files, book, stop, on_step)
         wall = time.perf_counter() - t0
-        if error is not None:
-            status = "failed"
-        elif stop.signum is not None:
-            status = "interrupted"
-        else:
-            status = "complete" if len(book.table()) == len(pois) else "timeout"
+        error = flight.error
+        status = _status(error, stop, book, pois)
         try:
-            writer.close(quiet=error is not None)
-            files.close()
-            files.write_arrivals(book.table())
-            writer.write_landmarks(pipe.landmark_rows())
-            if plot and n:
-                from rovslam.viz.navigation import plot_navigation
-
-                pts = np.array([p.xy_m if p.xy_m is not None else _row_xy(book, p.name) for p in pois])
-                plot_navigation(out / "navigation.png", np.array(true_xy), np.array(est_xy), pts,
-                                [p.name for p in pois], nav_start or 0, book.table(), estimator)
+            _finish_files(out, writer, files, book, loop, flight, pois, estimator, plot)
         except OutputError as exc:
             error = error or exc
             status = "failed"
-        summary = {**base, "status": status, "complete": status == "complete", "interrupted": status == "interrupted",
-                   "signal": stop.name if status == "interrupted" else None,
+        interrupted = status == "interrupted"
+        summary = {**base, "status": status, "complete": status == "complete", "interrupted": interrupted,
+                   "signal": stop.name if interrupted else None,
                    "reason": None if error is None else str(error) or type(error).__name__,
-                   "frames_processed": n, "landmarks": landmarks, "wall_time_s": wall, "arrivals": book.table(),
-                   "navigation_start_frame": nav_start}
+                   "frames_processed": flight.n, "landmarks": flight.landmarks, "wall_time_s": wall,
+                   "arrivals": book.table(), "navigation_start_frame": flight.nav_start}
         writer.write_summary(summary)
         if error is not None:
             raise error
-        return NavigateSummary(n, book.table(), status, wall, out, landmarks,
-                               signal=stop.name if status == "interrupted" else None,
-                               signum=stop.signum if status == "interrupted" else None)
+        return NavigateSummary(flight.n, book.table(), status, wall, out, flight.landmarks,
+                               signal=stop.name if interrupted else None,
+                               signum=stop.signum if interrupted else None)
+
+
+def _check_mission(estimator: str, pois: list[Goal], hold_s: float) -> None:
+    """InvalidArgumentError for an unknown estimator, no point to visit or a bad hold time."""
+    check_estimator(estimator)
+    if not pois:
+        raise InvalidArgumentError("no point of interest to visit")
+    if not (isinstance(hold_s, (int, float)) and math.isfinite(hold_s) and hold_s >= 0):
+        raise InvalidArgumentError(f"--hold-s must be a number of seconds >= 0, got {hold_s!r}")
+
+
+@dataclass
+class _Flight:
+    """What the closed loop flew: the paths (true and estimated), the frame counts, the error that stopped it."""
+
+    true_xy: list = field(default_factory=list)
+    est_xy: list = field(default_factory=list)
+    nav_start: int | None = None  # the first frame flown towards a point
+    n: int = 0  # frames flown
+    landmarks: int = 0
+    error: BaseException | None = None  # an output error, or a bug (the files still get finished)
+
+
+def _fly(loop: ClosedLoop, writer: ResultWriter, files: _NavFiles, book: ArrivalBook, stop: StopRequest,
+         on_step: Callable[[LoopStep, int], None] | None) -> _Flight:
+    """Run the loop to its end (or a stop request, or an error), writing every frame's rows as it goes."""
+    pipe = loop.navigator.pipeline
+    flight = _Flight()
+    steps = None
+    try:
+        steps = iter(loop)
+        for step in steps:
+            res = step.nav.result
+            writer.write_frame(res)
+            files.write_step(step)
+            if res.new_landmark_id is not None:
+                writer.write_landmark_template(res.new_landmark_id, pipe.landmarks[res.new_landmark_id].patch)
+            if book.feed(step):
+                files.write_arrivals(book.table())
+            flight.true_xy.append((step.truth.x_m, step.truth.y_m))
+            flight.est_xy.append(tuple(step.nav.estimate.xy_m))
+            if flight.nav_start is None and not step.surveying:
+                flight.nav_start = flight.n
+            flight.n += 1
+            flight.landmarks = res.n_landmarks
+            if on_step is not None:
+                on_step(step, len(book.table()))
+            if stop.signum is not None:
+                break
+    except KeyboardInterrupt:
+        stop.request(signal.SIGINT)
+    except BaseException as exc:  # an output error, or a bug: the files still get finished
+        flight.error = exc
+    finally:
+        if steps is not None:
+            steps.close()
+    return flight
+
+
+def _status(error: BaseException | None, stop: StopRequest, book: ArrivalBook, pois: list[Goal]) -> str:
+    """The run's status: "failed", "interrupted", "complete" (every point reached) or "timeout"."""
+    if error is not None:
+        return "failed"
+    if stop.signum is not None:
+        return "interrupted"
+    return "complete" if len(book.table()) == len(pois) else "timeout"
+
+
+def _finish_files(out: Path, writer: ResultWriter, files: _NavFiles, book: ArrivalBook, loop: ClosedLoop,
+                  flight: _Flight, pois: list[Goal], estimator: str, plot: bool) -> None:
+    """Close the streamed files, write the arrivals, the landmarks and the plot (OutputError when one fails)."""
+    writer.close(quiet=flight.error is not None)
+    files.close()
+    files.write_arrivals(book.table())
+    writer.write_landmarks(loop.navigator.pipeline.landmark_rows())
+    if plot and flight.n:
+        from rovslam.viz.navigation import plot_navigation
+
+        pts = np.array([p.xy_m if p.xy_m is not None else _row_xy(book, p.name) for p in pois])
+        plot_navigation(out / "navigation.png", np.array(flight.true_xy), np.array(flight.est_xy), pts,
+                        [p.name for p in pois], flight.nav_start or 0, book.table(), estimator)
 
 
 def _row_xy(book: ArrivalBook, name: str) -> np.ndarray:

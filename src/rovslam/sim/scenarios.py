@@ -55,6 +55,7 @@ from rovslam.sim.render import LaserSpotParams, Pose, SensorParams, renderer_for
 from rovslam.sim.texture import TextureParams
 from rovslam.sim.vehicle import (
     GridPattern,
+    NavReadings,
     NavSensorParams,
     Trajectory,
     VehicleParams,
@@ -437,14 +438,10 @@ def simulate(
     """
     from rovslam.io.sequence import SequenceInfo, SequenceWriter
     from rovslam.sim.codec import H264RoundTrip
-    from rovslam.sim.relief import heights_at, sonar_first_return_m
 
     t_start = time.perf_counter()
     sc, n, fmt = _check_args(scenario, frames, seed, image_format, texture_path, texture_mm_per_px)
-    if calibration is not None and not isinstance(calibration, (CalibrationErrors, DrawnCalibration)):
-        raise SimulationError(f"calibration must be a CalibrationErrors, a DrawnCalibration or None, "
-                              f"got {type(calibration).__name__}")
-    drawn = draw_calibration(calibration, int(seed)) if isinstance(calibration, CalibrationErrors) else calibration
+    drawn = _drawn_calibration(calibration, int(seed))
     out = Path(out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise SimulationError(f"output folder {out} already exists and is not empty; give a new folder")
@@ -453,65 +450,20 @@ def simulate(
     grow_m = min(1.0, float(np.max(np.hypot(traj.x_m, traj.y_m)))) + 0.05
     world, texture_note = build_world(sc, int(seed), grow_m, texture_path, texture_mm_per_px)
     world.area_m = survey_area_m(sc, traj)
-    relief_m = sonar_m = None
-    if world.relief is not None:
-        relief_m = heights_at(world.relief, traj.x_m, traj.y_m)
-        sonar_m = sonar_first_return_m(world.relief, traj.x_m, traj.y_m, traj.altitude_m,
-                                       sc.nav.sonar_beam_half_angle_rad)
-        if float(np.min(traj.altitude_m - world.relief.height_range_m[1])) < 0.05:
-            raise SimulationError(f"scenario {sc.name}: the vehicle would touch the relief; fly higher")
+    relief_m, sonar_m = _relief_under_vehicle(sc, world, traj)
     nav_params, lasers_recorded = sc.nav, sc.lasers
     if drawn is not None:
         nav_params = replace(sc.nav, compass_bias_rad=sc.nav.compass_bias_rad + drawn.compass_deviation_rad,
                              sonar_offset_m=sc.nav.sonar_offset_m + drawn.sonar_offset_m)
         lasers_recorded = recorded_lasers(sc.lasers, drawn)
     nav = read_sensors(traj, nav_params, int(seed), sonar_range_m=sonar_m)
-    renderer = renderer_for(sc.camera, sc.water, sc.sensor, sc.spots, sc.lighting)
-    yaw_rate = _yaw_rate_radps(traj) if sc.sensor.readout_s > 0 else np.zeros(n)
-    metadata = {
-        "generator": "rovslam.sim",
-        "scenario": sc.name,
-        "seed": int(seed),
-        "frames": n,
-        "frame_rate_hz": float(sc.frame_rate_hz),
-        "texture": texture_note,
-        "nominal_altitude_m": float(sc.vehicle.altitude_m),
-    }
-    if world.relief is not None:  # (only then: the original presets' files stay as they were)
-        lo, hi = world.relief.height_range_m
-        metadata["relief"] = f"{type(world.relief).__name__}, heights within [{lo:.3f}, {hi:.3f}] m"
-    if drawn is not None:
-        metadata.update(drawn.metadata())
-    if sc.h264 is not None:
-        metadata["compression"] = f"H.264 round trip, CRF {sc.h264.crf}"
     info = SequenceInfo(name=f"rovslam simulate {sc.name} (seed {int(seed)})", camera=sc.recorded_camera,
-                        lasers=lasers_recorded, metadata=metadata)
-    tilted = sc.tilted
+                        lasers=lasers_recorded, metadata=_metadata(sc, int(seed), n, texture_note, world, drawn))
     codec = None if sc.h264 is None else H264RoundTrip(sc.camera.width_px, sc.camera.height_px,
                                                        sc.frame_rate_hz, sc.h264)
-    with SequenceWriter(out, info, image_format=fmt, with_attitude=tilted, with_groundtruth=True,
+    with SequenceWriter(out, info, image_format=fmt, with_attitude=sc.tilted, with_groundtruth=True,
                         with_relief=relief_m is not None) as writer:
-        for k in range(n):
-            pose = frame_pose(traj, k)
-            image = renderer.render(
-                world, pose, sc.lasers, frame_rng(int(seed), k),
-                velocity_mps=(float(traj.surge_mps[k]), float(traj.sway_mps[k])), t_s=float(traj.t_s[k]),
-                yaw_rate_radps=float(yaw_rate[k]),
-            )
-            if codec is not None:
-                image = codec.push(image)
-            truth = (pose.x_m, pose.y_m, pose.altitude_m, pose.heading_rad)
-            writer.write_frame(
-                float(traj.t_s[k]),
-                image,
-                heading_rad=float(nav.heading_rad[k]),
-                sonar_altitude_m=None if nav.sonar_altitude_m is None else float(nav.sonar_altitude_m[k]),
-                roll_rad=float(nav.roll_rad[k]) if tilted else None,
-                pitch_rad=float(nav.pitch_rad[k]) if tilted else None,
-                truth=truth if relief_m is None else truth + (float(relief_m[k]),),
-            )
-            if progress is not None:
-                progress(k + 1, n)
+        _write_frames(writer, sc, world, traj, nav, relief_m, int(seed), codec, progress)
     if codec is not None:
         codec.close()
     return SimulationSummary(
@@ -528,3 +480,80 @@ def simulate(
         wall_time_s=time.perf_counter() - t_start,
         calibration=drawn,
     )
+
+
+def _drawn_calibration(calibration: CalibrationErrors | DrawnCalibration | None, seed: int) -> DrawnCalibration | None:
+    """The lasting sensor errors of the dive: drawn for ``seed`` from a :class:`CalibrationErrors`, or as given."""
+    if calibration is not None and not isinstance(calibration, (CalibrationErrors, DrawnCalibration)):
+        raise SimulationError(f"calibration must be a CalibrationErrors, a DrawnCalibration or None, "
+                              f"got {type(calibration).__name__}")
+    return draw_calibration(calibration, seed) if isinstance(calibration, CalibrationErrors) else calibration
+
+
+def _relief_under_vehicle(sc: Scenario, world: World, traj: Trajectory) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``(relief height under the camera, sonar range)``, ``(N,)`` each, or (None, None) on a flat seabed.
+
+    Raises SimulationError when the vehicle would touch the relief.
+    """
+    from rovslam.sim.relief import heights_at, sonar_first_return_m
+
+    if world.relief is None:
+        return None, None
+    relief_m = heights_at(world.relief, traj.x_m, traj.y_m)
+    sonar_m = sonar_first_return_m(world.relief, traj.x_m, traj.y_m, traj.altitude_m, sc.nav.sonar_beam_half_angle_rad)
+    if float(np.min(traj.altitude_m - world.relief.height_range_m[1])) < 0.05:
+        raise SimulationError(f"scenario {sc.name}: the vehicle would touch the relief; fly higher")
+    return relief_m, sonar_m
+
+
+def _metadata(sc: Scenario, seed: int, n: int, texture_note: str, world: World,
+              drawn: DrawnCalibration | None) -> dict:
+    """The ``[metadata]`` of the sequence: what was simulated, and how."""
+    metadata = {
+        "generator": "rovslam.sim",
+        "scenario": sc.name,
+        "seed": seed,
+        "frames": n,
+        "frame_rate_hz": float(sc.frame_rate_hz),
+        "texture": texture_note,
+        "nominal_altitude_m": float(sc.vehicle.altitude_m),
+    }
+    if world.relief is not None:  # (only then: the original presets' files stay as they were)
+        lo, hi = world.relief.height_range_m
+        metadata["relief"] = f"{type(world.relief).__name__}, heights within [{lo:.3f}, {hi:.3f}] m"
+    if drawn is not None:
+        metadata.update(drawn.metadata())
+    if sc.h264 is not None:
+        metadata["compression"] = f"H.264 round trip, CRF {sc.h264.crf}"
+    return metadata
+
+
+def _write_frames(writer, sc: Scenario, world: World, traj: Trajectory, nav: NavReadings, relief_m: np.ndarray | None, seed: int,
+                  codec, progress: Callable[[int, int], None] | None) -> None:
+    """Render every frame of ``traj`` (through ``codec``, an H.264 round trip, when not None) and write it with
+    its readings and truth to ``writer`` (a :class:`~rovslam.io.sequence.SequenceWriter`)."""
+    n = len(traj)
+    renderer = renderer_for(sc.camera, sc.water, sc.sensor, sc.spots, sc.lighting)
+    yaw_rate = _yaw_rate_radps(traj) if sc.sensor.readout_s > 0 else np.zeros(n)
+    tilted = sc.tilted
+    for k in range(n):
+        pose = frame_pose(traj, k)
+        image = renderer.render(
+            world, pose, sc.lasers, frame_rng(seed, k),
+            velocity_mps=(float(traj.surge_mps[k]), float(traj.sway_mps[k])), t_s=float(traj.t_s[k]),
+            yaw_rate_radps=float(yaw_rate[k]),
+        )
+        if codec is not None:
+            image = codec.push(image)
+        truth = (pose.x_m, pose.y_m, pose.altitude_m, pose.heading_rad)
+        writer.write_frame(
+            float(traj.t_s[k]),
+            image,
+            heading_rad=float(nav.heading_rad[k]),
+            sonar_altitude_m=None if nav.sonar_altitude_m is None else float(nav.sonar_altitude_m[k]),
+            roll_rad=float(nav.roll_rad[k]) if tilted else None,
+            pitch_rad=float(nav.pitch_rad[k]) if tilted else None,
+            truth=truth if relief_m is None else truth + (float(relief_m[k]),),
+        )
+        if progress is not None:
+            progress(k + 1, n)

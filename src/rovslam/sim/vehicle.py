@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 from scipy.signal import lfilter
@@ -251,21 +252,45 @@ def simulate_trajectory(
     if not frame_rate_hz > 0:
         raise SimulationError(f"frame_rate_hz must be > 0, got {frame_rate_hz}")
     v = vehicle
-
-    def rng(process: int) -> np.random.Generator:
-        # One generator per random process: a longer run starts with the same frames.
-        return np.random.default_rng([seed, _STREAM_TRAJECTORY, process])
-
     dt_frame = 1.0 / frame_rate_hz
-    sub = v.substeps
-    dt = dt_frame / sub
-    n_steps = (n_frames - 1) * sub + 1
+    dt = dt_frame / v.substeps
+    n_steps = (n_frames - 1) * v.substeps + 1
+    dist = _disturbances(v, seed, n_steps, dt)
+    out = _fly_grid(v, grid, n_frames, dt, dist)
+    t = np.arange(n_frames) * dt_frame
+    alt, roll, pitch = _altitude_and_attitude(v, seed, t, dt_frame)
+    return Trajectory(
+        t_s=t, x_m=out[:, 0], y_m=out[:, 1], altitude_m=alt, heading_rad=out[:, 2], roll_rad=roll,
+        pitch_rad=pitch, surge_mps=out[:, 3], sway_mps=out[:, 4],
+    )
+
+
+def _trajectory_rng(seed: int, process: int) -> np.random.Generator:
+    """The generator of one random process of the trajectory: a longer run starts with the same frames."""
+    return np.random.default_rng([seed, _STREAM_TRAJECTORY, process])
+
+
+@dataclass(frozen=True)
+class _Disturbances:
+    """What pushes the vehicle, per control step: ``(n_steps,)`` arrays (the waves None without them)."""
+
+    current_x_mps: np.ndarray  # the current over the ground, world north
+    current_y_mps: np.ndarray  # east
+    wander_rad: np.ndarray  # the heading's control wander (plus the swell's yaw)
+    wave_u_mps: np.ndarray | None  # swell and tether, body-frame surge
+    wave_v_mps: np.ndarray | None  # sway
+
+
+def _disturbances(v: VehicleParams, seed: int, n_steps: int, dt: float) -> _Disturbances:
+    """The current, the heading wander and (with ``v.has_waves``) the swell and the tether, per control step."""
+    rng = partial(_trajectory_rng, seed)
     cur_dir = rng(0).uniform(0.0, 2.0 * math.pi)
     cur_x = v.current_mean_mps * math.cos(cur_dir) + ou_process(rng(1), n_steps, dt, v.current_tau_s,
                                                                 v.current_wander_mps)
     cur_y = v.current_mean_mps * math.sin(cur_dir) + ou_process(rng(2), n_steps, dt, v.current_tau_s,
                                                                 v.current_wander_mps)
     wander = ou_process(rng(3), n_steps, dt, v.heading_wander_tau_s, v.heading_wander_rad)
+    wave_u = wave_v = None
     if v.has_waves:  # swell and tether, body-frame velocity (surge, sway) and yaw per control step
         t_steps = np.arange(n_steps) * dt
         wave_u = (v.wave_surge_mps * swell(rng(8), t_steps, v.wave_period_s)
@@ -273,7 +298,28 @@ def simulate_trajectory(
         wave_v = (v.wave_sway_mps * swell(rng(9), t_steps, v.wave_period_s)
                   + ou_process(rng(12), n_steps, dt, v.tether_tau_s, v.tether_jerk_mps))
         wander = wander + v.wave_yaw_rad * swell(rng(10), t_steps, v.wave_period_s)
+    return _Disturbances(cur_x, cur_y, wander, wave_u, wave_v)
 
+
+def _leg(ax: float, ay: float, bx: float, by: float, px: float, py: float) -> tuple[float, float, float, float]:
+    """``(ex, ey, length, remaining)``: the unit direction of the leg a -> b, its length, and how far
+    along it the way-point b still is from the position p (negative once passed)."""
+    ex, ey = bx - ax, by - ay
+    leg = math.hypot(ex, ey)
+    ex, ey = (ex / leg, ey / leg) if leg > 1e-9 else (0.0, 0.0)
+    return ex, ey, leg, (bx - px) * ex + (by - py) * ey
+
+
+def _fly_grid(v: VehicleParams, grid: GridPattern, n_frames: int, dt: float, dist: _Disturbances) -> np.ndarray:
+    """``(n_frames, 6)``: (x, y, heading, surge, sway, 0) at every frame, from the way-point follower.
+
+    Every control step: the next leg when the way-point is reached, the rate-limited heading,
+    the guidance (along-track speed profile and cross-track correction over the ground), the
+    accel-limited thrust against the estimated current, and the motion over the ground.
+    """
+    sub = v.substeps
+    cur_x, cur_y, wander = dist.current_x_mps, dist.current_y_mps, dist.wander_rad
+    wave_u, wave_v = dist.wave_u_mps, dist.wave_v_mps
     reps = 0
     waypoints = grid.repetition(0)
     wp_i = 0
@@ -287,12 +333,10 @@ def simulate_trajectory(
     psi = psi_cmd
     a_step = v.accel_limit_mps2 * dt
     out = np.empty((n_frames, 6))
+    n_steps = (n_frames - 1) * sub + 1
     for i in range(n_steps):
         # Advance to the next leg when the way-point is reached (or passed).
-        ex, ey = bx - ax, by - ay
-        leg = math.hypot(ex, ey)
-        ex, ey = (ex / leg, ey / leg) if leg > 1e-9 else (0.0, 0.0)
-        remaining = (bx - px) * ex + (by - py) * ey
+        ex, ey, leg, remaining = _leg(ax, ay, bx, by, px, py)
         if math.hypot(bx - px, by - py) < v.waypoint_tolerance_m or remaining < 0.0:
             ax, ay = bx, by
             wp_i += 1
@@ -300,10 +344,7 @@ def simulate_trajectory(
                 reps += 1
                 waypoints, wp_i = grid.repetition(reps, start_near=(ax, ay)), 0
             bx, by = float(waypoints[wp_i, 0]), float(waypoints[wp_i, 1])
-            ex, ey = bx - ax, by - ay
-            leg = math.hypot(ex, ey)
-            ex, ey = (ex / leg, ey / leg) if leg > 1e-9 else (0.0, 0.0)
-            remaining = (bx - px) * ex + (by - py) * ey
+            ex, ey, leg, remaining = _leg(ax, ay, bx, by, px, py)
             if v.heading_mode == "legs" and leg >= v.turn_min_leg_m:
                 psi_cmd = math.atan2(ey, ex) + v.heading_rad
         # Heading: rate-limited turn towards the command, plus the control wander.
@@ -339,8 +380,14 @@ def simulate_trajectory(
         px, py = px + vx * dt, py + vy * dt
         chx += (cx - chx) * dt / v.current_estimate_tau_s
         chy += (cy - chy) * dt / v.current_estimate_tau_s
+    return out
 
-    t = np.arange(n_frames) * dt_frame
+
+def _altitude_and_attitude(v: VehicleParams, seed: int, t: np.ndarray,
+                           dt_frame: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(altitude, roll, pitch)`` at the frame times ``t`` ``(N,)``: set point, slow swing, control noise, heave."""
+    n_frames = len(t)
+    rng = partial(_trajectory_rng, seed)
     alt = (v.altitude_m
            + v.altitude_swing_m * np.sin(2.0 * np.pi * t / v.altitude_swing_period_s + rng(4).uniform(0, 2 * np.pi))
            + ou_process(rng(5), n_frames, dt_frame, v.altitude_noise_tau_s, v.altitude_noise_m))
@@ -348,10 +395,7 @@ def simulate_trajectory(
         alt = alt + v.wave_heave_m * swell(rng(13), t, v.wave_period_s)
     roll = ou_process(rng(6), n_frames, dt_frame, v.attitude_tau_s, v.attitude_sigma_rad)
     pitch = ou_process(rng(7), n_frames, dt_frame, v.attitude_tau_s, v.attitude_sigma_rad)
-    return Trajectory(
-        t_s=t, x_m=out[:, 0], y_m=out[:, 1], altitude_m=alt, heading_rad=out[:, 2], roll_rad=roll,
-        pitch_rad=pitch, surge_mps=out[:, 3], sway_mps=out[:, 4],
-    )
+    return alt, roll, pitch
 
 
 def read_sensors(

@@ -239,6 +239,20 @@ def extract_templates(
     -------
     ``list[Template]``, strongest first, possibly empty (flat, black or saturated frame).
     """
+    img, lv = _check_extract_args(track_img, local_var, size_px, max_count, min_local_variance, border_px, inhibit)
+    size = int(size_px)
+    spacing = size if min_spacing_px is None else max(size, int(min_spacing_px))
+    score = None if max_count == 0 else _anchor_scores(lv, size, int(border_px), inhibit)
+    if score is None:
+        return []
+    threshold = max(float(min_local_variance), np.finfo(np.float32).tiny)
+    return _choose_greedily(img, score, size, max_count, threshold, spacing, max_self_similarity, similarity_radius_px)
+
+
+def _check_extract_args(track_img, local_var, size_px, max_count, min_local_variance, border_px,
+                        inhibit) -> tuple[np.ndarray, np.ndarray]:
+    """``(track_img, local_var)`` as arrays, or InvalidArgumentError naming the argument of
+    :func:`extract_templates` that is wrong."""
     img = np.asarray(track_img)
     lv = np.asarray(local_var)
     if img.ndim != 2 or lv.shape != img.shape:
@@ -260,17 +274,23 @@ def extract_templates(
             f"inhibit must be an (H, W) bool mask of shape {img.shape}, got "
             f"{inhibit.shape} {inhibit.dtype}"
         )
-    spacing = size if min_spacing_px is None else max(size, int(min_spacing_px))
-    h_img, w_img = img.shape
+    return img, lv
+
+
+def _anchor_scores(lv: np.ndarray, size: int, border: int, inhibit: np.ndarray | None) -> np.ndarray | None:
+    """``(H, W) float32`` local variance at every anchor whose window may be chosen, -1 elsewhere.
+
+    An anchor ``a`` has the window ``[a - size//2, a - size//2 + size)``; it must lie ``border``
+    pixels inside the image and touch no pixel of ``inhibit``. None when no window fits.
+    """
+    h_img, w_img = lv.shape
     half = size // 2
-    border = int(border_px)
     # Anchors whose window [a - half, a - half + size) lies inside [border, side - border).
     a_min = border + half
     a_max_u = w_img - border - size + half  # inclusive
     a_max_v = h_img - border - size + half
-    if max_count == 0 or a_max_u < a_min or a_max_v < a_min:
-        return []
-
+    if a_max_u < a_min or a_max_v < a_min:
+        return None
     score = np.full((h_img, w_img), -1.0, dtype=np.float32)
     inner = lv[a_min : a_max_v + 1, a_min : a_max_u + 1].astype(np.float32, copy=False)
     score[a_min : a_max_v + 1, a_min : a_max_u + 1] = inner
@@ -281,8 +301,14 @@ def extract_templates(
         touched = cv2.dilate(inhibit.view(np.uint8), kernel, anchor=(half, half),
                              borderType=cv2.BORDER_CONSTANT, borderValue=0)
         np.copyto(score, np.float32(-1.0), where=touched.view(bool))  # = score[touched] = -1, without the gather
-    threshold = max(float(min_local_variance), np.finfo(np.float32).tiny)
+    return score
 
+
+def _choose_greedily(img: np.ndarray, score: np.ndarray, size: int, max_count: int, threshold: float, spacing: int,
+                     max_self_similarity: float | None, similarity_radius_px: int) -> list[Template]:
+    """The strongest anchors of ``score`` (modified in place), each suppressing its neighbours (see
+    :func:`extract_templates`), cut from ``img`` as templates."""
+    half = size // 2
     templates: list[Template] = []
     refused = 0
     while len(templates) < max_count:

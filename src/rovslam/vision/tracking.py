@@ -503,14 +503,7 @@ class TokenTracker:
         -------
         :class:`TokenTracks` (possibly with zero tracks; never raises for a lost track).
         """
-        img = np.asarray(track_img)
-        if img.ndim != 2:
-            raise InvalidArgumentError(f"track_img must be (H, W), got shape {img.shape}")
-        img = img.astype(np.float32, copy=False)
-        if inhibit is not None and (inhibit.shape != img.shape or inhibit.dtype != np.bool_):
-            raise InvalidArgumentError(
-                f"inhibit must be an (H, W) bool mask of shape {img.shape}, got {inhibit.shape} {inhibit.dtype}"
-            )
+        img = _checked_image(track_img, inhibit)
         tokens = self._tokens
         n = len(tokens)
         if n == 0 or self._prev_img is None:
@@ -519,28 +512,34 @@ class TokenTracker:
             raise InvalidArgumentError(
                 f"frame size changed from {self._prev_img.shape} to {img.shape}; call reset() first"
             )
-        cfg = self.tracker_config
-        need = max(1, int(np.ceil(cfg.min_tracked_fraction * n)))
-        rot = np.zeros((n, 2))
-        if rotation_offsets_uv_px is not None:
-            rot = np.asarray(rotation_offsets_uv_px, dtype=np.float64)
-            if rot.shape != (n, 2) or not np.all(np.isfinite(rot)):
-                raise InvalidArgumentError(
-                    f"rotation_offsets_uv_px must be ({n}, 2) finite pixels (one row per token), got {rot.shape}"
-                )
-
-        pred = None
-        if predicted_shift_uv_px is not None:
-            pred = np.asarray(predicted_shift_uv_px, dtype=np.float64).reshape(-1)
-            if pred.shape != (2,) or not np.all(np.isfinite(pred)):
-                raise InvalidArgumentError(
-                    f"predicted_shift_uv_px must be 2 finite numbers (u, v) or None, got {predicted_shift_uv_px!r}"
-                )
+        rot = _checked_offsets(rotation_offsets_uv_px, n)
+        pred = _checked_prediction(predicted_shift_uv_px)
         # The whole-image shift, every frame (at reduced resolution: cheap): a second opinion on
         # the motion, which breaks the chain of a wrong speed predicting the next wrong match.
         g_shift, g_conf = self.motion_prior(track_img)
-        global_ok = g_shift is not None and g_conf >= cfg.min_global_confidence
+        matches, used_global = self._search(img, pred, rot, g_shift, g_conf, inhibit)
 
+        ok = np.array([m.ok for m in matches], dtype=bool)
+        uv_prev = np.array([t.centre_uv_px for t in tokens], dtype=np.float64).reshape(-1, 2)[ok]
+        uv_curr = np.array([m.uv_px for m in matches], dtype=np.float64).reshape(-1, 2)[ok]
+        self._last_shift = median0(uv_curr - uv_prev) if len(uv_curr) >= 2 else None
+        scores = np.array([m.score for m in matches], dtype=np.float64)[ok]
+        return TokenTracks(uv_prev, uv_curr, scores, n, used_global, tuple(m.reason for m in matches),
+                           g_shift, g_conf)
+
+    def _search(self, img: np.ndarray, pred: np.ndarray | None, rot: np.ndarray, g_shift: np.ndarray | None,
+                g_conf: float, inhibit: np.ndarray | None) -> tuple[list[Match], bool]:
+        """``(one match per token, whether they come from the global shift)``: the passes of :meth:`track`.
+
+        Around the prediction ``pred`` (2,) first; around the whole-image shift ``g_shift`` when it
+        is confident and disagrees with the prediction or the prediction found too few tokens
+        (the pass whose tokens move together more wins); around a weak ``g_shift`` when enough
+        tokens confirm it; else around zero motion. ``rot`` (N, 2) are the per-token offsets.
+        """
+        tokens, cfg = self._tokens, self.tracker_config
+        n = len(tokens)
+        need = max(1, int(np.ceil(cfg.min_tracked_fraction * n)))
+        global_ok = g_shift is not None and g_conf >= cfg.min_global_confidence
         matches: list[Match] | None = None
         n_ok, coherent = 0, 0
         if pred is not None:
@@ -566,14 +565,44 @@ class TokenTracker:
         if matches is None:
             # No prediction and no usable global shift: assume no motion.
             matches = _match_all(img, tokens, rot, self.speed_config.search_radius_px, cfg, inhibit)
+        return matches, used_global
 
-        ok = np.array([m.ok for m in matches], dtype=bool)
-        uv_prev = np.array([t.centre_uv_px for t in tokens], dtype=np.float64).reshape(-1, 2)[ok]
-        uv_curr = np.array([m.uv_px for m in matches], dtype=np.float64).reshape(-1, 2)[ok]
-        self._last_shift = median0(uv_curr - uv_prev) if len(uv_curr) >= 2 else None
-        scores = np.array([m.score for m in matches], dtype=np.float64)[ok]
-        return TokenTracks(uv_prev, uv_curr, scores, n, used_global, tuple(m.reason for m in matches),
-                           g_shift, g_conf)
+
+def _checked_image(track_img: np.ndarray, inhibit: np.ndarray | None) -> np.ndarray:
+    """The ``(H, W)`` tracking image as float32, or InvalidArgumentError (it or ``inhibit`` of the wrong shape)."""
+    img = np.asarray(track_img)
+    if img.ndim != 2:
+        raise InvalidArgumentError(f"track_img must be (H, W), got shape {img.shape}")
+    img = img.astype(np.float32, copy=False)
+    if inhibit is not None and (inhibit.shape != img.shape or inhibit.dtype != np.bool_):
+        raise InvalidArgumentError(
+            f"inhibit must be an (H, W) bool mask of shape {img.shape}, got {inhibit.shape} {inhibit.dtype}"
+        )
+    return img
+
+
+def _checked_offsets(rotation_offsets_uv_px: np.ndarray | None, n: int) -> np.ndarray:
+    """The ``(n, 2)`` per-token offsets (zeros for None), or InvalidArgumentError."""
+    rot = np.zeros((n, 2))
+    if rotation_offsets_uv_px is not None:
+        rot = np.asarray(rotation_offsets_uv_px, dtype=np.float64)
+        if rot.shape != (n, 2) or not np.all(np.isfinite(rot)):
+            raise InvalidArgumentError(
+                f"rotation_offsets_uv_px must be ({n}, 2) finite pixels (one row per token), got {rot.shape}"
+            )
+    return rot
+
+
+def _checked_prediction(predicted_shift_uv_px: np.ndarray | None) -> np.ndarray | None:
+    """The ``(2,)`` predicted shift (None stays None), or InvalidArgumentError."""
+    if predicted_shift_uv_px is None:
+        return None
+    pred = np.asarray(predicted_shift_uv_px, dtype=np.float64).reshape(-1)
+    if pred.shape != (2,) or not np.all(np.isfinite(pred)):
+        raise InvalidArgumentError(
+            f"predicted_shift_uv_px must be 2 finite numbers (u, v) or None, got {predicted_shift_uv_px!r}"
+        )
+    return pred
 
 
 # The motion predicted from the last speed and the whole-image shift disagree beyond this: both

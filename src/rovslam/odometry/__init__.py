@@ -21,21 +21,31 @@ scale error: ``speed * sigma_Z / Z``) and a floor ``min_speed_sigma_mps``.
 
 :func:`speed_from_tokens` is the pure operation; :class:`SpeedEstimator` is the thin
 stateful wrapper that holds the last good speed when a frame gives no usable tokens and grows
-its covariance with the gap.
+its covariance with the gap. The hypothesis search and the rigid (similarity) fit are in
+:mod:`rovslam.odometry.rigid`.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
-from rovslam.averages import DecayingMean, median0
-from rovslam.camera import Camera, drot2, pixels_to_ground, rot2, wrap_angle
+from rovslam.averages import DecayingMean
+from rovslam.camera import Camera, pixels_to_ground, rot2
 from rovslam.config import OdometryConfig
 from rovslam.errors import InvalidArgumentError, InvalidMeasurementError, finite_scalar
+from rovslam.odometry.rigid import (
+    _CHI2_2DOF_99,
+    _MAX_HYPOTHESES,  # noqa: F401 (imported from here by the tests)
+    _best_hypothesis,
+    _floor_eigenvalues,
+    _rigid_fit,
+    _RigidFit,
+    _rival_consensus,
+    relief_sample,
+)
 
 __all__ = ["SpeedMeasurement", "SpeedEstimator", "speed_from_tokens"]
 
@@ -45,10 +55,6 @@ ACCEL_TAU_S = 30.0
 """Seconds over which :class:`SpeedEstimator` averages the accelerations its speeds show."""
 TOKEN_NOISE_TAU_S = 10.0
 """Seconds over which :class:`SpeedEstimator` pools the tokens' residual scatter (``token_var_px2``)."""
-
-# At most this many single-token hypotheses are scored (plus the median); the pairwise
-# residual table is then at most 65 x N, whatever N.
-_MAX_HYPOTHESES = 64
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,22 +117,6 @@ def _token_array(name: str, uv) -> np.ndarray:
     if a.ndim != 2 or a.shape[1] != 2:
         raise InvalidArgumentError(f"{name} must be an (N, 2) array of pixels (u, v), got shape {a.shape}")
     return a
-
-
-def _floor_eigenvalues(cov: np.ndarray, floor_var: float) -> np.ndarray:
-    """(2, 2) symmetric matrix with its eigenvalues raised to at least ``floor_var`` (closed form)."""
-    a, c = float(cov[0, 0]), float(cov[1, 1])
-    b = 0.5 * float(cov[0, 1] + cov[1, 0])
-    mid = 0.5 * (a + c)
-    half = float(np.hypot(0.5 * (a - c), b))
-    lam1, lam2 = mid + half, mid - half
-    if lam2 >= floor_var:
-        return np.array([[a, b], [b, c]])
-    if lam1 <= floor_var:  # both eigenvalues below the floor
-        return np.eye(2) * floor_var
-    # Only lam2 is raised: C + (floor - lam2) v2 v2^T with v2 v2^T = (lam1 I - C) / (lam1 - lam2).
-    k = (floor_var - lam2) / (lam1 - lam2)
-    return np.array([[a + k * (lam1 - a), b - k * b], [b - k * b, c + k * (lam1 - c)]])
 
 
 def _failure(n_tokens: int, reason: str, config: OdometryConfig) -> SpeedMeasurement:
@@ -195,37 +185,118 @@ def speed_from_tokens(
         InvalidMeasurementError: NaN/infinite/non-positive altitude, time step or attitude.
         InvalidArgumentError: token arrays of the wrong shape.
     """
+    step = _checked_step(altitude_prev_m, altitude_curr_m, dt_s, dpsi_rad, altitude_sigma_m, attitude_prev_rad,
+                         attitude_curr_rad, uv_prev_px, uv_curr_px, token_var_px2, attitude_noise_rad)
+    n_tokens = step.uv_prev_px.shape[0]
+    if n_tokens == 0:
+        return _failure(0, "no tokens", config)
+    a_all, b_all = _ground_offsets(camera, step)
+    valid = np.all(np.isfinite(a_all), axis=1) & np.all(np.isfinite(b_all), axis=1)
+    n_valid = int(valid.sum())
+    if n_valid < config.min_inliers:
+        return _failure(n_tokens, "too few tokens" if n_valid else "no tokens", config)
+    a, b = a_all[valid], b_all[valid]
+    sc = _fit_scales(camera, step, n_valid, dpsi_sigma_rad, config)
+    theta, d, inl, fit = _consensus(a, b, step.dpsi_rad, sc, config)
+    n_inl = int(inl.sum())
+    if fit is None or n_inl < config.min_inliers:
+        return _failure(n_tokens, "no consensus", config)
+    # Two groups with equal support: refuse rather than pick one.
+    rival = _rival_consensus(a[~inl], b[~inl], theta, step.dpsi_rad, sc.prior_var_rad2, sc.threshold_m, sc.sigma0_m,
+                             sc.joint, sc.scale_var)
+    if rival is not None and rival[1] >= n_inl:
+        return _failure(n_tokens, "ambiguous consensus", config)
+
+    # d is in the previous frame's scale (its altitude); the fitted zoom splits the ratio's error between both
+    speed = d * (0.5 * (1.0 + fit.scale)) / step.dt_s
+    if float(np.hypot(speed[0], speed[1])) > config.max_speed_mps:
+        return _failure(n_tokens, "implausible speed", config)
+    cov = _speed_covariance(fit, speed, d, rival, n_inl, n_valid, step, sc, config, relief_var, altitude_samples)
+
+    mask = np.zeros(n_tokens, dtype=bool)
+    mask[np.flatnonzero(valid)[inl]] = True
+    mask.setflags(write=False)
+    theta_sigma = math.sqrt(fit.theta_var_rad2) if sc.joint else math.inf
+    return SpeedMeasurement(
+        True, float(speed[0]), float(speed[1]), cov, n_tokens, n_inl, mask, "",
+        float(theta if sc.joint else step.dpsi_rad), theta_sigma, relief_sample(a[inl], b[inl], theta, d, fit.scale),
+        fit.residual_var_m2 * sc.px_per_m**2, fit.residual_dof,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _Step:
+    """One step's checked inputs (see :func:`speed_from_tokens`); token arrays ``(N, 2)`` pixels."""
+
+    z_prev_m: float
+    z_curr_m: float
+    dt_s: float
+    dpsi_rad: float
+    sigma_z_m: float
+    attitude_prev_rad: tuple[float, float]
+    attitude_curr_rad: tuple[float, float]
+    uv_prev_px: np.ndarray
+    uv_curr_px: np.ndarray
+    token_var_px2: float
+    attitude_noise_rad: float
+
+
+def _checked_step(altitude_prev_m, altitude_curr_m, dt_s, dpsi_rad, altitude_sigma_m, attitude_prev_rad,
+                  attitude_curr_rad, uv_prev_px, uv_curr_px, token_var_px2, attitude_noise_rad) -> _Step:
+    """The inputs of :func:`speed_from_tokens` as numbers and arrays, or the error saying what is wrong."""
     z_prev = _scalar("altitude_prev_m", altitude_prev_m, positive=True)
     z_curr = _scalar("altitude_curr_m", altitude_curr_m, positive=True)
     dt = _scalar("dt_s", dt_s, positive=True)
     dpsi = _scalar("dpsi_rad", dpsi_rad)
     sigma_z = _scalar("altitude_sigma_m", altitude_sigma_m, nonnegative=True)
-    roll0, pitch0 = _attitude("attitude_prev_rad", attitude_prev_rad)
-    roll1, pitch1 = _attitude("attitude_curr_rad", attitude_curr_rad)
+    att0 = _attitude("attitude_prev_rad", attitude_prev_rad)
+    att1 = _attitude("attitude_curr_rad", attitude_curr_rad)
     uv0 = _token_array("uv_prev_px", uv_prev_px)
     uv1 = _token_array("uv_curr_px", uv_curr_px)
     if uv0.shape != uv1.shape:
         raise InvalidArgumentError(
             f"uv_prev_px and uv_curr_px must hold the same tokens, got shapes {uv0.shape} and {uv1.shape}"
         )
-    n_tokens = uv0.shape[0]
-    if n_tokens == 0:
-        return _failure(0, "no tokens", config)
+    token_var = _scalar("token_var_px2", token_var_px2, nonnegative=True)
+    att_noise = _scalar("attitude_noise_rad", attitude_noise_rad, nonnegative=True)
+    return _Step(z_prev, z_curr, dt, dpsi, sigma_z, att0, att1, uv0, uv1, token_var, att_noise)
 
-    # Each pixel onto the seabed through the (tilted) camera: a = g_prev, b = g_curr, and the
-    # mirrored motion a = R(dpsi) b + d, d the displacement in the level frame of the previous step (1).
-    a_all = pixels_to_ground(camera, uv0, z_prev, roll0, pitch0)
-    b_all = pixels_to_ground(camera, uv1, z_curr, roll1, pitch1)
-    valid = np.all(np.isfinite(a_all), axis=1) & np.all(np.isfinite(b_all), axis=1)
-    n_valid = int(valid.sum())
-    if n_valid < config.min_inliers:
-        return _failure(n_tokens, "too few tokens" if n_valid else "no tokens", config)
-    a, b = a_all[valid], b_all[valid]
-    px_per_m = camera.focal_px / (0.5 * (z_prev + z_curr))
+
+def _ground_offsets(camera: Camera, step: _Step) -> tuple[np.ndarray, np.ndarray]:
+    """``(a, b)``, ``(N, 2)`` each: every token's seabed offset (forward, starboard) in each frame, metres.
+
+    Each pixel onto the seabed through the (tilted) camera: a = g_prev, b = g_curr, and the
+    mirrored motion a = R(dpsi) b + d, d the displacement in the level frame of the previous step
+    (1). A lost track (NaN) gives a NaN row.
+    """
+    roll0, pitch0 = step.attitude_prev_rad
+    roll1, pitch1 = step.attitude_curr_rad
+    a_all = pixels_to_ground(camera, step.uv_prev_px, step.z_prev_m, roll0, pitch0)
+    b_all = pixels_to_ground(camera, step.uv_curr_px, step.z_curr_m, roll1, pitch1)
+    return a_all, b_all
+
+
+@dataclass(frozen=True)
+class _FitScales:
+    """The step's image scale and the fit's noises and thresholds, in metres on the seabed."""
+
+    px_per_m: float
+    joint: bool  # the turn is estimated with the translation (the compass a weak prior)
+    prior_var_rad2: float  # the compass turn's variance (0 when not joint)
+    sigma0_m: float  # one token's displacement noise (the floor)
+    pool_var_m2: float  # the dive's pooled token noise (0: each step alone)
+    threshold_m: float  # the outlier threshold
+    scale_var: float  # the zoom prior's variance (0: a rigid fit)
+
+
+def _fit_scales(camera: Camera, step: _Step, n_valid: int, dpsi_sigma_rad: float | None,
+                config: OdometryConfig) -> _FitScales:
+    """The pixel quantities of ``config`` at this step's altitude, and whether the turn is fitted."""
+    px_per_m = camera.focal_px / (0.5 * (step.z_prev_m + step.z_curr_m))
     joint = dpsi_sigma_rad is not None and n_valid >= 2
     prior_var = float(dpsi_sigma_rad) ** 2 if joint else 0.0
     sigma0 = config.token_sigma_px / px_per_m  # one token's displacement noise, metres (the floor)
-    pool_var = _scalar("token_var_px2", token_var_px2, nonnegative=True) / px_per_m**2
+    pool_var = step.token_var_px2 / px_per_m**2
     if config.token_noise_prior_dof <= 0:
         pool_var = 0.0
     thr = config.outlier_threshold_px / px_per_m
@@ -233,50 +304,56 @@ def speed_from_tokens(
     # other about the nadir, moving off-centre tokens (over relief the lasers' step-to-step noise is 2 to 3
     # times their sigma). The tokens see that zoom far better than the lasers: a similarity fit, the
     # measured ratio its prior.
-    scale_var = 2.0 * (sigma_z / (0.5 * (z_prev + z_curr))) ** 2 if config.token_scale else 0.0
+    scale_var = 2.0 * (step.sigma_z_m / (0.5 * (step.z_prev_m + step.z_curr_m))) ** 2 if config.token_scale else 0.0
+    return _FitScales(px_per_m, joint, prior_var, sigma0, pool_var, thr, scale_var)
 
-    # Consensus: rigid hypotheses (similarities with token_scale) scored by truncated residuals and the
-    # compass prior (MSAC, MAP).
-    theta, d, support = _best_hypothesis(a, b, dpsi, prior_var, thr, sigma0, joint, scale_var)
+
+def _consensus(a: np.ndarray, b: np.ndarray, dpsi_rad: float, sc: _FitScales,
+               config: OdometryConfig) -> tuple[float, np.ndarray, np.ndarray, _RigidFit | None]:
+    """``(theta, d (2,), inlier mask (M,), fit or None)``: the best hypothesis, refitted on its inliers.
+
+    Rigid hypotheses (similarities with ``token_scale``) are scored by truncated residuals and
+    the compass prior (MSAC, MAP); the winner's inliers are fitted by least squares and
+    re-selected, at most three times, the gate following the residuals they show. ``fit`` is
+    None when the inliers were too few to fit.
+    """
+    theta, d, support = _best_hypothesis(a, b, dpsi_rad, sc.prior_var_rad2, sc.threshold_m, sc.sigma0_m, sc.joint,
+                                         sc.scale_var)
     inl = support
     fit = None
     for _ in range(3):  # refit on the inliers; the threshold follows the residuals they show
         if int(inl.sum()) < config.min_inliers:
             break
-        fit = _rigid_fit(a[inl], b[inl], theta, dpsi, prior_var, joint, sigma0, pool_var, config.token_noise_prior_dof,
-                         scale_var)
+        fit = _rigid_fit(a[inl], b[inl], theta, dpsi_rad, sc.prior_var_rad2, sc.joint, sc.sigma0_m, sc.pool_var_m2,
+                         config.token_noise_prior_dof, sc.scale_var)
         theta, d = fit.theta_rad, fit.d_m
         res = a - fit.scale * (b @ rot2(theta).T) - d
         r2 = np.einsum("mj,mj->m", res, res)
         # the dive's pooled scatter keeps a step whose few tokens happen to agree from gating out its own inliers
-        sigma = math.sqrt(max(fit.residual_var_m2, pool_var, sigma0**2))
-        gate = min(thr, max(_CHI2_2DOF_99 ** 0.5 * sigma, 3.0 * sigma0))
+        sigma = math.sqrt(max(fit.residual_var_m2, sc.pool_var_m2, sc.sigma0_m**2))
+        gate = min(sc.threshold_m, max(_CHI2_2DOF_99 ** 0.5 * sigma, 3.0 * sc.sigma0_m))
         new = r2 <= gate**2
         if np.array_equal(new, inl):
             break
         inl = new
-    n_inl = int(inl.sum())
-    if fit is None or n_inl < config.min_inliers:
-        return _failure(n_tokens, "no consensus", config)
-    # Two groups with equal support: refuse rather than pick one.
-    rival = _rival_consensus(a[~inl], b[~inl], theta, dpsi, prior_var, thr, sigma0, joint, scale_var)
-    if rival is not None and rival[1] >= n_inl:
-        return _failure(n_tokens, "ambiguous consensus", config)
+    return theta, d, inl, fit
 
-    # d is in the previous frame's scale (its altitude); the fitted zoom splits the ratio's error between both
-    speed = d * (0.5 * (1.0 + fit.scale)) / dt
-    if float(np.hypot(speed[0], speed[1])) > config.max_speed_mps:
-        return _failure(n_tokens, "implausible speed", config)
+
+def _speed_covariance(fit: _RigidFit, speed: np.ndarray, d: np.ndarray, rival: tuple[np.ndarray, int] | None,
+                      n_inl: int, n_valid: int, step: _Step, sc: _FitScales, config: OdometryConfig,
+                      relief_var: float, altitude_samples: int) -> np.ndarray:
+    """The ``(2, 2)`` covariance Q of the speed (read-only): the fit's, plus the errors its tokens cannot show."""
+    z_prev, z_curr, dt = step.z_prev_m, step.z_curr_m, step.dt_s
     # The tokens' scatter shows their independent errors; an error they all share (block artefacts of
     # a compressed video, a lighting change, interpolation bias) it cannot show: a floor per step.
-    cov = fit.cov_d_m2 / dt**2 + np.eye(2) * (config.common_sigma_px / px_per_m / dt) ** 2
+    cov = fit.cov_d_m2 / dt**2 + np.eye(2) * (config.common_sigma_px / sc.px_per_m / dt) ** 2
     # Relief parallax: the tokens and the altitude see the seabed at different heights.
     n_altitude = max(int(altitude_samples), 1)
     cov = cov + config.relief_scale_gain**2 * max(relief_var, 0.0) * (1.0 / n_inl + 1.0 / n_altitude) * np.outer(
         speed, speed
     )
-    cov = cov + (sigma_z / (0.5 * (z_prev + z_curr))) ** 2 * np.outer(speed, speed)  # altitude: a scale error
-    att = _scalar("attitude_noise_rad", attitude_noise_rad, nonnegative=True)
+    cov = cov + (step.sigma_z_m / (0.5 * (z_prev + z_curr))) ** 2 * np.outer(speed, speed)  # altitude: a scale error
+    att = step.attitude_noise_rad
     cov = cov + np.eye(2) * (att**2 * (z_prev**2 + z_curr**2) / dt**2)  # each frame's tilt error shifts it all
     if 2 * n_inl < n_valid:  # a minority consensus is not trusted like a majority
         cov = cov * (n_valid / n_inl) ** 2
@@ -285,225 +362,7 @@ def speed_from_tokens(
         cov = cov + rival[1] / (n_inl + rival[1]) * np.outer(gap, gap)
     cov = _floor_eigenvalues(cov, config.min_speed_sigma_mps**2)
     cov.setflags(write=False)
-
-    mask = np.zeros(n_tokens, dtype=bool)
-    mask[np.flatnonzero(valid)[inl]] = True
-    mask.setflags(write=False)
-    theta_sigma = math.sqrt(fit.theta_var_rad2) if joint else math.inf
-    return SpeedMeasurement(
-        True, float(speed[0]), float(speed[1]), cov, n_tokens, n_inl, mask, "",
-        float(theta if joint else dpsi), theta_sigma, relief_sample(a[inl], b[inl], theta, d, fit.scale),
-        fit.residual_var_m2 * px_per_m**2, fit.residual_dof,
-    )
-
-
-# chi-square quantile (2 dof, 99 %): the inlier gate is sqrt(9.21) = 3.03 residual sigmas.
-_CHI2_2DOF_99 = 9.21
-
-
-@dataclass(frozen=True)
-class _RigidFit:
-    """Least-squares ``a ~ R(theta) b + d`` (a Gauss-Newton solution with the compass prior)."""
-
-    theta_rad: float
-    d_m: np.ndarray  # (2,)
-    theta_var_rad2: float  # variance of the turn (0 when it was fixed)
-    cov_d_m2: np.ndarray  # (2, 2) covariance of d
-    residual_var_m2: float  # per-axis residual variance of this step's tokens (floored later)
-    residual_dof: float  # its degrees of freedom, both axes: 2 (m - p)
-    scale: float = 1.0  # the zoom ``s`` of ``a ~ s R(theta) b + d`` (1: rigid)
-
-
-def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, prior_var: float,
-               joint: bool, sigma0_m: float, noise_prior_var_m2: float = 0.0, noise_prior_dof: float = 0.0,
-               scale_var: float = 0.0) -> _RigidFit:
-    """Rotation and translation from (M, 2) matched points, the rotation fixed when not ``joint``.
-
-    The turn is the least-squares rotation of the centred points (Gauss-Newton from
-    ``theta0``), then fused with the compass prior by precision (MAP). The translation's
-    covariance comes from the residuals: their 2x2 scatter (anisotropic: relief parallax lies
-    along the motion) over the degrees of freedom left, each eigenvalue floored at one token's
-    noise ``sigma0_m^2``, divided by the number of points; plus what the turn's uncertainty
-    moves ``d = mean(a) - R mean(b)`` by.
-
-    A few tokens show their noise poorly (two tokens leave one degree of freedom): with
-    ``noise_prior_dof > 0`` the per-axis noise variance is the pooled estimate
-    ``(dof s^2 + dof0 s0^2) / (dof + dof0)`` of this step's ``s^2`` and the dive's recent
-    ``noise_prior_var_m2`` (:attr:`SpeedEstimator.token_var_px2`), when that is larger than
-    ``s^2`` alone (it never makes a step's tokens look better than they are).
-
-    With ``scale_var > 0`` the fit is a similarity ``a ~ s R b + d``: the least-squares zoom of the
-    centred points (the rotation is the same as the rigid one's), fused with the prior ``s = 1``
-    of variance ``scale_var`` by precision. Its variance moves ``d`` along ``R mean(b)``, and the
-    share of it the tokens decided costs half a degree of freedom per axis.
-    """
-    m = len(a)
-    theta = float(theta0)
-    a_bar = a.mean(axis=0)
-    b_bar = b.mean(axis=0)
-    ac, bc = a - a_bar, b - b_bar
-    if joint:
-        for _ in range(3):
-            c = bc @ rot2(theta).T  # R b (centred)
-            jb = np.column_stack([-c[:, 1], c[:, 0]])  # d(R b)/d theta = J R b
-            den = float(np.sum(jb * jb))
-            if den <= 0.0:
-                break
-            step = float(np.sum(jb * (ac - c))) / den
-            theta += step
-            if abs(step) < 1e-12:
-                break
-    p = 1.5 if joint else 1.0  # parameters per axis: (d, theta) or d
-
-    dof_axis = max(m - p, 0.5)
-
-    def residuals(th: float, zoom: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]:
-        dd = a_bar - zoom * (rot2(th) @ b_bar)
-        res = a - zoom * (b @ rot2(th).T) - dd
-        sc = res.T @ res / dof_axis  # (2, 2)
-        return dd, sc, float(np.trace(sc)) / 2.0
-
-    def pooled(sc: np.ndarray, var: float) -> tuple[np.ndarray, float]:
-        """The scatter and per-axis variance raised towards the dive's recent token noise, if larger."""
-        if noise_prior_dof <= 0.0 or noise_prior_var_m2 <= var:
-            return sc, var
-        dof = 2.0 * dof_axis
-        raised = (dof * var + noise_prior_dof * noise_prior_var_m2) / (dof + noise_prior_dof)
-        return sc + (raised - var) * np.eye(2), raised
-
-    spread = float(np.sum(bc * bc))
-    zoom, zoom_var = 1.0, 0.0
-    if scale_var > 0.0 and spread > 0.0:
-        zoom_ls = float(np.sum((bc @ rot2(theta).T) * ac)) / spread
-        info_zoom = spread / max(pooled(*residuals(theta, zoom_ls)[1:])[1], sigma0_m**2)
-        zoom_var = 1.0 / (info_zoom + 1.0 / scale_var)
-        w_zoom = info_zoom * zoom_var  # the tokens' share of the zoom (the prior's: 1 - w)
-        zoom = 1.0 + w_zoom * (zoom_ls - 1.0)
-        dof_axis = max(m - p - 0.5 * w_zoom, 0.5)
-    d, scatter, resid_var = residuals(theta, zoom)
-    theta_var = 0.0
-    if joint:
-        info_theta = spread / max(pooled(scatter, resid_var)[1], sigma0_m**2)
-        if prior_var > 0.0:
-            w = info_theta / (info_theta + 1.0 / prior_var)
-            theta = prior_rad + wrap_angle(theta - prior_rad) * w
-            d, scatter, resid_var = residuals(theta, zoom)
-            theta_var = 1.0 / (info_theta + 1.0 / prior_var)
-        else:
-            theta_var = 1.0 / info_theta if info_theta > 0 else math.inf
-    cov_d = _floor_eigenvalues(pooled(scatter, resid_var)[0], sigma0_m**2) / m
-    if joint and math.isfinite(theta_var):
-        jrb = zoom * (drot2(theta) @ b_bar)  # d d / d theta = -s dR/dtheta mean(b)
-        cov_d = cov_d + theta_var * np.outer(jrb, jrb)
-    if zoom_var > 0.0:
-        rb = rot2(theta) @ b_bar  # d d / d s = -R mean(b)
-        cov_d = cov_d + zoom_var * np.outer(rb, rb)
-    return _RigidFit(theta, d, theta_var, cov_d, resid_var, 2.0 * dof_axis, zoom)
-
-
-@lru_cache(maxsize=64)
-def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """``np.triu_indices(n, 1)``, computed once per token count (read-only)."""
-    i, j = np.triu_indices(n, 1)
-    i.setflags(write=False)
-    j.setflags(write=False)
-    return i, j
-
-
-def _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint, scale_var=0.0):
-    """(theta, d, inlier mask) of the best rigid hypothesis: MSAC residuals plus the compass prior.
-
-    Hypotheses: the prior turn with the median and with every single-token translation; in
-    ``joint`` mode also the rigid motion of every token pair whose baseline is long enough to
-    fix the turn (at least a quarter of the tokens' extent, and 8 thresholds). Each is scored
-    by ``sum(min(r^2, thr^2)) / sigma0^2 + (theta - prior)^2 / prior_var``. With ``scale_var > 0``
-    a pair's hypothesis is the similarity it fixes (its zoom ``s = |da| / |db|``; at the prior's
-    turn when not ``joint``), scored by ``(s - 1)^2 / scale_var`` more: a zoom between the frames
-    does not split the consensus.
-    """
-    if len(a) > _MAX_HYPOTHESES:
-        pick = np.linspace(0, len(a) - 1, _MAX_HYPOTHESES).astype(np.intp)
-    else:
-        pick = np.arange(len(a))
-    rb_prior = b @ rot2(prior_rad).T
-    singles = a[pick] - rb_prior[pick]
-    thetas = [np.full(1 + len(singles), prior_rad)]
-    ds = [median0(a - rb_prior)[None], singles]
-    zooms = [np.ones(1 + len(singles))]
-    if (joint or scale_var > 0.0) and len(a) >= 2:
-        i, j = _pairs(len(a))
-        da, db = a[i] - a[j], b[i] - b[j]
-        base2 = np.einsum("kj,kj->k", db, db)
-        extent2 = float(np.max(base2))
-        keep = base2 >= max((8.0 * thr) ** 2, extent2 / 16.0)
-        if np.any(keep) and len(keep) > _MAX_HYPOTHESES:
-            keep &= base2 >= np.sort(base2)[-_MAX_HYPOTHESES]
-        if joint:
-            th = np.arctan2(da[keep, 1], da[keep, 0]) - np.arctan2(db[keep, 1], db[keep, 0])
-            th = prior_rad + wrap_angle(th - prior_rad)
-        else:  # the turn is the prior's: a pair fixes only the zoom
-            th = np.full(int(np.count_nonzero(keep)), float(prior_rad))
-        ii, jj = i[keep], j[keep]
-        # Each pair's translation mid(a) - R(t) mid(b); a stacked matmul gives R(t) @ v bit for bit.
-        c, s = np.cos(th), np.sin(th)
-        rots = np.empty((len(th), 2, 2))
-        rots[:, 0, 0], rots[:, 0, 1], rots[:, 1, 0], rots[:, 1, 1] = c, -s, s, c
-        mid_b = 0.5 * (b[ii] + b[jj])
-        thetas.append(th)
-        moved = np.matmul(rots, mid_b[:, :, None])[:, :, 0]
-        if scale_var > 0.0:
-            if joint:  # the similarity through the pair
-                zoom = np.sqrt(np.einsum("kj,kj->k", da[keep], da[keep]) / base2[keep])
-            else:  # the least-squares zoom at the prior's turn
-                zoom = np.einsum("kj,kj->k", da[keep], db[keep] @ rot2(prior_rad).T) / base2[keep]
-            zooms.append(zoom)
-            moved = moved * zoom[:, None]
-        ds.append(0.5 * (a[ii] + a[jj]) - moved)
-    thetas_a = np.concatenate(thetas)
-    ds_a = np.concatenate(ds)
-    c, s = np.cos(thetas_a)[:, None], np.sin(thetas_a)[:, None]
-    rb = np.stack([c * b[None, :, 0] - s * b[None, :, 1], s * b[None, :, 0] + c * b[None, :, 1]], axis=-1)
-    if scale_var > 0.0:
-        zooms_a = np.concatenate(zooms)
-        rb = rb * zooms_a[:, None, None]
-    r = a[None] - rb - ds_a[:, None, :]  # (K, M, 2)
-    r2 = np.einsum("kmj,kmj->km", r, r)
-    score = np.minimum(r2, thr**2).sum(axis=1) / sigma0**2
-    if joint and prior_var > 0:
-        score = score + wrap_angle(thetas_a - prior_rad) ** 2 / prior_var
-    if scale_var > 0.0:
-        score = score + (zooms_a - 1.0) ** 2 / scale_var
-    k = int(np.argmin(score))
-    return float(thetas_a[k]), ds_a[k], r2[k] <= thr**2
-
-
-def _rival_consensus(a, b, theta, prior_rad, prior_var, thr, sigma0, joint, scale_var=0.0):
-    """The best consensus among the outliers: ``(d (2,), support)`` when at least two agree, else None."""
-    if len(a) < 2:
-        return None
-    _, d, support = _best_hypothesis(a, b, prior_rad, prior_var, thr, sigma0, joint, scale_var)
-    n = int(support.sum())
-    return (d, n) if n >= 2 else None
-
-
-def relief_sample(a_m: np.ndarray, b_m: np.ndarray, theta_rad: float, d_m: np.ndarray, scale: float = 1.0) -> float:
-    """One frame's sample of the relative variance of the seabed heights under the tokens (NaN: none).
-
-    Over relief each token moves as its own depth says, ``d_i = d Z / Z_i``: the relief spreads
-    the tokens' displacements along the motion only, while matching noise spreads them in every
-    direction. So the along-motion residual variance less the across-motion one, over ``|d|^2``,
-    estimates ``sigma_s^2`` without bias (it may be negative for one frame; averages are not).
-    The mean depth of n tokens and the depth the altitude was measured at (m points) then
-    differ by ``sigma_s^2 (1/n + 1/m)`` in relative variance: a scale error of the speed.
-    """
-    n = len(a_m)
-    dd = float(d_m @ d_m)
-    if n < 3 or dd <= 0.0:
-        return math.nan
-    res = a_m - scale * (b_m @ rot2(theta_rad).T) - d_m  # (n, 2) residuals of the fit (``scale``: its zoom)
-    along = res @ d_m
-    across = res @ np.array([-d_m[1], d_m[0]])
-    return float(np.mean(along**2) - np.mean(across**2)) / (dd * dd) * n / (n - 1.5)
+    return cov
 
 
 class SpeedEstimator:
