@@ -425,7 +425,7 @@ def batch(
         raise typer.Exit(130)
     if report.failed:
         typer.echo(f"{len(report.failed)} of {len(report.rows)} cells failed (see {out / 'cells'}/<cell>/error.log)", err=True)
-        raise typer.Exit(1)
+        raise typer.Exit(report.exit_code)  # 2: every failed cell had bad input; 1: a bug
 
 
 @app.command()
@@ -472,10 +472,10 @@ def _live_viewer(spawn: bool, save_rrd: Optional[Path], out: Path):
     """The rerun live viewer of `run --viewer / --save-rrd` (rerun is imported only here)."""
     from rovslam.viz.viewer import RerunViewer, display_available
 
-    if save_rrd is not None and save_rrd.is_dir():
-        from rovslam.errors import OutputError
+    if save_rrd is not None:
+        from rovslam.io.output import check_output_file
 
-        raise OutputError(f"{save_rrd}: is a folder; --save-rrd needs a file name (e.g. {save_rrd / 'run.rrd'}).")
+        check_output_file(save_rrd, "--save-rrd", parent_must_exist=False, example="run.rrd")
     if spawn and not display_available():
         typer.echo("no display found for the viewer: saving the live view instead", err=True)
         spawn = False
@@ -579,15 +579,10 @@ def config_cmd(
 
 
 def _check_output_file(path: Path, what: str) -> None:
-    """Refuse an output file path that is a folder or whose folder does not exist (one clear line)."""
-    from rovslam.errors import OutputError
+    """Refuse an output file path that is a folder, a device, a FIFO, a socket or whose folder does not exist."""
+    from rovslam.io.output import check_output_file
 
-    if path.is_dir():
-        raise OutputError(f"{path}: is a folder; {what} needs a file name (e.g. {path / 'eval.json'}).")
-    parent = path.parent
-    if not parent.is_dir():
-        state = "is not a folder" if parent.exists() else "does not exist"
-        raise OutputError(f"{path}: the folder {parent} {state}; create it or choose another place for {what}.")
+    check_output_file(path, what, example="eval.json")
 
 
 def _load_config(path: Path):

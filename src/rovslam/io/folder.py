@@ -18,7 +18,7 @@ from pathlib import Path
 
 from rovslam.errors import ImageReadError, SequenceFormatError
 from rovslam.io.camera_file import CameraFile
-from rovslam.io.sequence import MAX_TIME_S, Frame, _inside, read_csv_table, read_image, time_cell
+from rovslam.io.sequence import MAX_TIME_S, Frame, _inside, not_a_file, read_csv_table, read_image, time_cell
 from rovslam.io.source import SourceDescription
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
@@ -108,7 +108,8 @@ class ImageFolderSource:
             seen.add(name)
             resolved = _inside(root, name, f"{where}: column 'image'")
             if not resolved.is_file():
-                raise SequenceFormatError(f"{where}: image file '{name}' not found in {self.folder}.")
+                why = "not found" if not resolved.exists() else not_a_file(resolved)
+                raise SequenceFormatError(f"{where}: image file '{name}' {why} in {self.folder}.")
             listed.append((time_cell(row, where), name, where))
         listed.sort()
         for (t0, _, _), (t1, _, where) in zip(listed, listed[1:]):

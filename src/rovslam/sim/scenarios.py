@@ -454,7 +454,10 @@ def simulate(
                               f"got {type(calibration).__name__}")
     drawn = draw_calibration(calibration, int(seed)) if isinstance(calibration, CalibrationErrors) else calibration
     out = Path(out_dir)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    from rovslam.io.output import check_output_folder
+
+    check_output_folder(out, "--out")  # a file, a device, a FIFO: "not a folder" (OutputError)
+    if out.exists() and any(out.iterdir()):
         raise SimulationError(f"output folder {out} already exists and is not empty; give a new folder")
     traj = simulate_trajectory(sc.vehicle, sc.grid, n, sc.frame_rate_hz, int(seed))
     # Size the first canvas to the whole survey, so it is built once (the path is known).
