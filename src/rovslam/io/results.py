@@ -315,9 +315,18 @@ class ResultWriter:
         (``frames_written``). ``compact``: :func:`compact_summary` of it (a few kilobytes, to fit
         in the space a full disk has left).
         """
+        if summary.get("status") != "running":  # the last summary: the space held back is for it
+            self.release_reserve()
         if summary.get("status") == "failed":
             summary = {**summary, "frames_written": self.frames_written}
-        atomic_write_text(self.out / "summary.json", json_text(compact_summary(summary) if compact else summary) + "\n")
+        path = self.out / "summary.json"
+        if not compact:
+            atomic_write_text(path, json_text(summary) + "\n")
+            return
+        try:
+            atomic_write_text(path, json_text(compact_summary(summary)) + "\n")
+        except OutputError:  # not even that: the few keys that say what happened (a few hundred bytes)
+            atomic_write_text(path, json_text(compact_summary(summary, minimal=True)) + "\n")
 
     def write_config(self, config: Any) -> None:
         """Write config.toml atomically (every key, so the file documents the run)."""
@@ -373,12 +382,17 @@ class ResultWriter:
 _COMPACT_LIST_ITEMS = 20
 
 
-def compact_summary(summary: dict[str, Any]) -> dict[str, Any]:
+_MINIMAL_KEYS = ("software", "sequence", "sequence_name", "frames_in_sequence", "status", "complete", "interrupted",
+                 "signal", "reason", "frames_processed", "frames_usable", "frames_written", "landmarks")
+
+
+def compact_summary(summary: dict[str, Any], minimal: bool = False) -> dict[str, Any]:
     """``summary`` made small: its per-frame lists cut to their first ``_COMPACT_LIST_ITEMS`` items (with the full
-    count beside them) and the configuration left out (config.toml holds it); everything else as it is."""
+    count beside them) and the configuration left out (config.toml holds it); everything else as it is.
+    ``minimal``: only the keys that say what happened (``_MINIMAL_KEYS``)."""
     out: dict[str, Any] = {}
     for key, value in summary.items():
-        if key == "config":
+        if key == "config" or (minimal and key not in _MINIMAL_KEYS):
             continue
         if isinstance(value, list) and len(value) > _COMPACT_LIST_ITEMS:
             out[key] = value[:_COMPACT_LIST_ITEMS]
@@ -414,7 +428,8 @@ class GalleryWriter:
         t = _f(r.t_s)
         uv = np.asarray(getattr(r, "token_uv_px", np.zeros((0, 2)))).reshape(-1, 2).tolist()  # Python floats: faster to format
         if uv:
-            self._w.writerows([t, r.index, _f(u), _f(v)] for u, v in uv)
+            with output_errors(self._path):
+                self._w.writerows([t, r.index, _f(u), _f(v)] for u, v in uv)
         for ob in r.observations:
             if not ob.accepted:
                 continue
@@ -424,7 +439,8 @@ class GalleryWriter:
                 self._save_crop(image, ob.landmark_id, r.index, ob.uv_px)
         self._n += 1
         if self._n % self.flush_every == 0:
-            self._fh.flush()
+            with output_errors(self._path):
+                self._fh.flush()
 
     def _save_crop(self, image: np.ndarray, landmark_id: int, frame: int, uv_px: np.ndarray) -> None:
         import cv2
@@ -438,14 +454,21 @@ class GalleryWriter:
         ok, buf = cv2.imencode(".png", cv2.cvtColor(crop, cv2.COLOR_RGB2BGR))
         if not ok:
             raise OutputError(f"{path}: OpenCV could not encode the revisit crop.")
-        atomic_write_bytes(path, buf.tobytes())  # whole or not at all: a full disk leaves no half PNG
+        try:
+            atomic_write_bytes(path, buf.tobytes())  # whole or not at all: a full disk leaves no half PNG
+        except OutputError as exc:
+            why = str(exc).split(": ", 2)[-1].rstrip(".") if ": cannot write: " in str(exc) else str(exc)
+            raise OutputError(f"{path}: cannot write the revisit crop: {why}.") from None
 
     def close(self) -> None:
         """Flush and close tokens.csv; an error names it (the file is closed all the same, whole rows only)."""
         try:
-            self._fh.flush()
+            with output_errors(self._path):
+                self._fh.flush()
+                self._fh.close()
         finally:
-            self._fh.close(quiet=True)
+            with contextlib.suppress(OSError, ValueError, OutputError):
+                self._fh.close()  # a StreamFile closes (dropping what it could not write) even when its flush failed
 
 
 def _json_default(o: Any) -> Any:

@@ -270,8 +270,9 @@ def write_report(
         from rovslam.errors import OutputError
         from rovslam.io.output import file_kind
 
-        raise OutputError(f"{out}: is {file_kind(out.stat().st_mode)}, where the report's folder goes; move or delete "
-                          "it, then run the report again.")
+        kind = "a file" if out.is_file() else file_kind(out.stat().st_mode)
+        raise OutputError(f"{out}: is {kind}, where the report's folder goes; move or delete it, then run the report "
+                          "again.")
     check_output_folder(out, "the report")  # a link to nothing is refused too
     with output_errors(out, "cannot create the folder"):
         out.mkdir(exist_ok=True)
