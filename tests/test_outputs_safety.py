@@ -256,7 +256,7 @@ def test_batch_tables_that_are_fifos_are_refused(tmp_path, monkeypatch):
         def close(self):
             pass
 
-    import rovslam.batch as batch
+    from rovslam import batch
 
     monkeypatch.setattr(batch, "_connect", lambda scheduler, workers: (Closable(), None))
     with pytest.raises(OutputError, match="matrix.csv: is a FIFO"):
@@ -443,7 +443,7 @@ def test_a_cell_whose_sequence_has_no_ground_truth_is_its_one_line_not_a_traceba
 
 
 def test_a_cell_that_hits_a_bug_keeps_its_traceback(dive, tmp_path, monkeypatch):
-    import rovslam.batch.cell as cell
+    from rovslam.batch import cell
 
     def bug(*a):
         raise ZeroDivisionError("division by zero")
@@ -474,8 +474,8 @@ class _Client:
 def test_batch_exit_code_two_for_cells_with_bad_input_one_for_a_bug(dive, tmp_path, monkeypatch, bug):
     import dask.distributed
 
-    import rovslam.batch as batch
-    import rovslam.batch.cell as cell
+    from rovslam import batch
+    from rovslam.batch import cell
 
     seq = tmp_path / "no-truth"
     shutil.copytree(dive[0], seq)

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from rovslam.errors import OutputError, ResultsFormatError
-from rovslam.io.output import (  # noqa: F401  (atomic_write_*, describe_os_error, output_errors: imported from here too)
+from rovslam.io.output import (  # atomic_write_*, describe_os_error, output_errors: imported from here too
     RESERVE_NAME,
     SpaceReserve,
     StreamFile,

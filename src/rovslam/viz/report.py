@@ -21,7 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from rovslam.errors import RovslamError
-from rovslam.io.output import atomic_write_bytes, atomic_write_text, check_output_folder, output_errors
+from rovslam.io.output import (
+    atomic_write_bytes,
+    atomic_write_text,
+    check_output_folder,
+    output_errors,
+)
 from rovslam.io.results import RunResults, read_results
 from rovslam.viz import gallery, plots, runinfo
 
