@@ -30,6 +30,7 @@ import contextlib
 import csv
 import json
 import math
+import os  # noqa: F401  (results.os: where callers and tests reach os.fsync, os.write)
 import re
 from dataclasses import dataclass
 from pathlib import Path
