@@ -349,7 +349,7 @@ class _FakeDisk:
 
     def __init__(self, root: Path, capacity: int):
         self.root, self.capacity = str(root), capacity
-        self.real_write, self.real_fallocate = os.write, os.posix_fallocate
+        self.real_write, self.real_fallocate, self.real_statvfs = os.write, os.posix_fallocate, os.statvfs
         self.full_writes = 0
 
     def _under(self, fd: int) -> bool:
@@ -370,6 +370,13 @@ class _FakeDisk:
             raise OSError(errno.ENOSPC, "No space left on device")
         return self.real_write(fd, bytes(data[:room]))  # a short write, as a disk that fills mid-way does
 
+    def statvfs(self, path):
+        st = self.real_statvfs(path)
+        if not str(path).startswith(self.root):
+            return st
+        return type("statvfs", (), {"f_bavail": max(0, self.capacity - self._used()), "f_frsize": 1,
+                                    "f_bsize": st.f_bsize})()
+
     def fallocate(self, fd: int, offset: int, length: int) -> None:
         if self._under(fd) and self._used() + length > self.capacity:
             raise OSError(errno.ENOSPC, "No space left on device")
@@ -383,6 +390,7 @@ def test_a_run_on_a_fake_full_disk_leaves_a_consistent_folder(dive, tmp_path, mo
     (tmp_path / "disk").mkdir()
     monkeypatch.setattr(os, "write", disk.write)
     monkeypatch.setattr(os, "posix_fallocate", disk.fallocate)
+    monkeypatch.setattr(os, "statvfs", disk.statvfs)
     out = tmp_path / "disk" / "out"
     res = runner.invoke(app, ["run", str(seq), "--out", str(out), "-q"])
     monkeypatch.undo()

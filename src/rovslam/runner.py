@@ -637,7 +637,8 @@ class _Run:
         for step in (lambda: writer.close(quiet=error is not None), self.measurements.close, self.gallery.close,
                      writer.release_reserve,  # the disk space held back, for what follows
                      lambda: self.status == "failed" and writer.write_summary(self._summary(wall), compact=True),
-                     lambda: writer.write_landmarks(self.pipe.landmark_rows())):
+                     lambda: writer.write_landmarks(self.pipe.landmark_rows()),
+                     lambda: writer.salvage(self._summary(wall))):  # rows a full disk kept out, if room is left
             try:
                 step()
             except OutputError as exc:

@@ -218,9 +218,27 @@ class StreamFile:
             self.flush()
         return len(text)
 
-    def flush(self) -> None:
-        """Write the pending rows; on an error, cut the file back to its last complete row and raise OutputError."""
+    def flush(self, max_bytes: int | None = None) -> None:
+        """Write the pending rows; on an error, cut the file back to its last complete row and raise OutputError.
+
+        ``max_bytes``: write only the first rows that fit in that many bytes (the others stay pending).
+        """
         if not self._pending or self._fd is None:
+            return
+        if max_bytes is not None:
+            rows = size = 0
+            for row in self._pending:
+                if size + len(row) > max_bytes:
+                    break
+                size += len(row)
+                rows += 1
+            head, tail = self._pending[:rows], self._pending[rows:]
+            self._pending = head
+            try:
+                self.flush()
+            finally:
+                self._pending = self._pending + tail
+                self._pending_bytes = sum(len(r) for r in self._pending)
             return
         data = b"".join(self._pending)
         done = 0

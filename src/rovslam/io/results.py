@@ -30,7 +30,7 @@ import contextlib
 import csv
 import json
 import math
-import os  # noqa: F401  (results.os: where callers and tests reach os.fsync, os.write)
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -226,6 +226,7 @@ class ResultWriter:
         self.reserve = SpaceReserve(self.out) if self.out.is_dir() else None
         self._paths = {k: self.out / f"{k}" for k in ("trajectory.csv", "trajectory.tum", "observations.csv")}
         self._fhs: dict[str, StreamFile] = {}
+        self._unwritten: dict[str, StreamFile] = {}  # files whose last flush failed (a full disk): see salvage
         with output_errors(self.out / "landmarks", "cannot create the folder"):
             (self.out / "landmarks").mkdir(parents=True, exist_ok=True)
         try:
@@ -250,7 +251,7 @@ class ResultWriter:
     @property
     def frames_written(self) -> int:
         """Rows of trajectory.csv on disk, complete (the header not counted)."""
-        fh = self._fhs.get("trajectory.csv")
+        fh = self._fhs.get("trajectory.csv") or self._unwritten.get("trajectory.csv")
         return max(0, fh.rows - 1) if fh is not None else self._frames_written
 
     _frames_written = 0
@@ -352,6 +353,8 @@ class ResultWriter:
         """A run that failed before it started (a full disk): close what is open, free the reserve, and leave a
         small ``summary.json`` saying ``"failed"`` and why, if the disk takes it."""
         self.close(quiet=True)
+        for fh in self._unwritten.values():
+            fh.close(quiet=True)
         self.release_reserve()
         from rovslam import __version__
 
@@ -367,17 +370,35 @@ class ResultWriter:
         fhs, self._fhs = self._fhs, {}
         traj = fhs.get("trajectory.csv")
         first: OutputError | None = None
-        for fh in fhs.values():
+        self._unwritten = {}
+        for name, fh in fhs.items():
             try:
                 fh.flush()
             except OutputError as exc:
                 first = first or exc
-            finally:
-                fh.close(quiet=True)
+                self._unwritten[name] = fh  # its rows kept in memory: see salvage
+                continue
+            fh.close(quiet=True)
         if traj is not None:
             self._frames_written = max(0, traj.rows - 1)
         if first is not None and not quiet:
             raise first
+
+    def salvage(self, summary: dict[str, Any]) -> None:
+        """After a full disk: write what it now takes of the rows a failed flush kept in memory (whole rows only),
+        leaving room for twice ``summary`` (the summary.json to write next) and 16 KiB; then close those files."""
+        unwritten, self._unwritten = self._unwritten, {}
+        keep_free = 2 * len(json_text(summary)) + 16 * 1024
+        for name, fh in unwritten.items():
+            try:
+                st = os.statvfs(self.out)
+                fh.flush(max_bytes=max(0, st.f_bavail * st.f_frsize - keep_free))
+            except (OSError, OutputError):
+                pass  # the disk took no more: the rows on disk stay whole
+            finally:
+                fh.close(quiet=True)
+                if name == "trajectory.csv":
+                    self._frames_written = max(0, fh.rows - 1)
 
 
 _COMPACT_LIST_ITEMS = 20
