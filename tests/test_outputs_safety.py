@@ -237,7 +237,7 @@ def test_a_regular_file_as_simulate_out_is_not_a_folder(tmp_path):
     target = tmp_path / "f"
     target.write_text("mine")
     line = _one_error_line(runner.invoke(app, ["simulate", "--frames", "5", "--out", str(target), "-q"]),
-                           str(target), "is a regular file, not a folder")
+                           str(target), "is a file, not a folder")
     assert "not empty" not in line
     assert target.read_text() == "mine"
 

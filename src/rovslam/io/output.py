@@ -135,8 +135,8 @@ def check_output_folder(path: str | Path, what: str = "--out") -> Path:
         target = _resolve_link(p, what)
         st, shown = os.stat(target), f"{p} (a link to {target})"
     if st is not None and not stat.S_ISDIR(st.st_mode):
-        raise OutputError(f"{shown}: exists and is {file_kind(st.st_mode)}, not a folder; give {what} a new or "
-                          "empty folder.")
+        kind = "a file" if stat.S_ISREG(st.st_mode) else file_kind(st.st_mode)
+        raise OutputError(f"{shown}: exists and is {kind}, not a folder; give {what} a new or empty folder.")
     return p
 
 

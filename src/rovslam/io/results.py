@@ -552,7 +552,9 @@ class RunResults:
     def speed_cov_mps2(self) -> np.ndarray | None:
         """(N, 2, 2) covariances Q of the measured (surge, sway); None when trajectory.csv has no such columns."""
         names = ("var_surge_mps2", "cov_surge_sway_mps2", "var_sway_mps2")
-        return _cov_table(self.trajectory, names) if all(n in self.trajectory for n in names) else None
+        # numbers only: an optional column holding text (a damaged file) is read as absent
+        t = self.trajectory
+        return _cov_table(t, names) if all(n in t and t[n].dtype.kind == "f" for n in names) else None
 
     @property
     def dr_xy_m(self) -> np.ndarray:
