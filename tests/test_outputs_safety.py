@@ -150,7 +150,7 @@ def test_mosaic_world_file_that_is_a_fifo_is_refused(dive, tmp_path):
 
 @pytest.mark.parametrize("where", ["report", "report/index.html", "report/map.png"])
 def test_report_files_that_are_special_files_are_refused(dive, tmp_path, where):
-    seq, out = dive
+    _, out = dive
     res_dir = tmp_path / "res"
     shutil.copytree(out, res_dir)
     shutil.rmtree(res_dir / "report", ignore_errors=True)
@@ -314,7 +314,7 @@ def small_disk(tmp_path):
         where.mkdir()
         try:
             done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)],
-                                  capture_output=True, text=True, timeout=30)
+                                  check=False, capture_output=True, text=True, timeout=30)
         except (OSError, subprocess.TimeoutExpired) as exc:
             pytest.skip(f"cannot run mount: {exc}")
         if done.returncode != 0:
@@ -324,7 +324,7 @@ def small_disk(tmp_path):
 
     yield mount
     for where in mounts:
-        subprocess.run(["umount", str(where)], capture_output=True, timeout=30)
+        subprocess.run(["umount", str(where)], check=False, capture_output=True, timeout=30)
 
 
 # Sizes at which the 40-frame run's disk fills at different files: before the first frame (a file's
@@ -521,7 +521,7 @@ def test_batch_exit_code_two_for_cells_with_bad_input_one_for_a_bug(dive, tmp_pa
 def test_a_fifo_in_images_is_not_a_regular_file_not_missing(dive, tmp_path):
     seq = tmp_path / "seq"
     shutil.copytree(dive[0], seq)
-    first = sorted((seq / "images").iterdir())[0]
+    first = min((seq / "images").iterdir())
     first.unlink()
     os.mkfifo(first)
     line = _one_error_line(runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]),
