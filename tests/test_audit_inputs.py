@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import errno
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -98,9 +99,16 @@ def test_a_full_disk_while_writing_tokens_names_the_file_and_finishes_the_others
 
 
 def test_a_revisit_crop_opencv_cannot_write_names_the_file(dive, tmp_path, monkeypatch):
-    import cv2
+    import rovslam.io.output as output
 
-    monkeypatch.setattr(cv2, "imwrite", lambda path, img, *a: False)  # what imwrite does on a full disk
+    real = output._write_all
+
+    def full_for_crops(fd, data):  # the disk is full when a revisit crop is written (crops are written whole)
+        if "/revisits/" in os.readlink(f"/proc/self/fd/{fd}"):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(fd, data)
+
+    monkeypatch.setattr(output, "_write_all", full_for_crops)
     out = tmp_path / "o"
     res = runner.invoke(app, ["run", str(dive[0]), "--out", str(out), "-q"])
     line = _one_error_line(res, str(out / "revisits"), ".png: cannot write the revisit crop", "free space")

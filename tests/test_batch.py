@@ -176,7 +176,9 @@ path = "no/such/sequence"
     done = [out / "cells" / f"portofino-short_s{s}" / "result.json" for s in (0, 1)]
     mtimes = [d.stat().st_mtime_ns for d in done]
     res = CliRunner().invoke(app, ["batch", str(p), "--out", str(out), "--workers", "1", "--quiet"])
-    assert res.exit_code == 1, res.output  # a failed cell: exit 1, the tables are written all the same
+    # A cell failed on bad input (its sequence is missing): exit 2, the tables are written all the same
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in (out / "cells" / "missing" / "error.log").read_text()
     assert "kept 2 finished cells; ran 1 on a local cluster of 1 workers" in res.output
     assert "1 of 3 cells failed" in res.output
     assert [d.stat().st_mtime_ns for d in done] == mtimes  # not recomputed

@@ -14,7 +14,8 @@ How a run ends (``summary.json`` ``status``, and what :func:`run_sequence` does)
   before it. Raises :class:`~rovslam.errors.UnusableRunError` once the files are written.
 * ``"failed"``: an output error (full disk, read-only folder) or an input error found
   mid-run. Raises it (an :class:`~rovslam.errors.OutputError` for output problems) once
-  whatever can still be written is; ``summary.json`` says why if the disk allowed it.
+  whatever can still be written is: the streamed files cut back to their last complete row,
+  then (in the space held back from the start) ``summary.json`` saying why, ``landmarks.csv``.
 
 While a run goes, ``summary.json`` says ``"status": "running"``: a folder left in that state
 was cut off by something no program can catch (SIGKILL, power loss).
@@ -22,6 +23,7 @@ was cut off by something no program can catch (SIGKILL, power loss).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import signal
@@ -337,7 +339,11 @@ def run_sequence(
         check_source_against_config(seq.info, config, pipe.altimeter_fallback, where)
         out = prepare_output_folder(out_dir, overwrite)
         writer = ResultWriter(out)
-        run = _Run(seq, pipe, writer, GalleryWriter(out), out, config, stop, min_usable_fraction, max_distance_m)
+        try:
+            run = _Run(seq, pipe, writer, GalleryWriter(out), out, config, stop, min_usable_fraction, max_distance_m)
+        except OutputError as exc:  # a disk full from the start: the folder still says why
+            writer.abandon(str(exc))
+            raise
         run.summary_base["sequence"] = str(Path(sequence_dir).resolve())
         run.summary_base["camera_file"] = str(Path(cam).resolve()) if cam is not None else None
         run.summary_base["inputs"] = opts.to_dict()
@@ -629,7 +635,10 @@ class _Run:
         writer = self.writer
         # Each in its own try, the trajectory first: one file that cannot be closed or written loses no other.
         for step in (lambda: writer.close(quiet=error is not None), self.measurements.close, self.gallery.close,
-                     lambda: writer.write_landmarks(self.pipe.landmark_rows())):
+                     writer.release_reserve,  # the disk space held back, for what follows
+                     lambda: self.status == "failed" and writer.write_summary(self._summary(wall), compact=True),
+                     lambda: writer.write_landmarks(self.pipe.landmark_rows()),
+                     lambda: writer.salvage(self._summary(wall))):  # rows a full disk kept out, if room is left
             try:
                 step()
             except OutputError as exc:
@@ -646,6 +655,10 @@ class _Run:
             writer.write_summary(self._summary(wall))
         except OutputError as exc:
             error = error or exc
+            if self.status != "failed":
+                self.status, self.reason = "failed", str(exc)
+            with contextlib.suppress(OutputError):  # the small summary fits where the whole one did not
+                writer.write_summary(self._summary(wall), compact=True)
         return error
 
     def _summary(self, wall: float) -> dict[str, Any]:

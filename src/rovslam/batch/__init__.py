@@ -54,6 +54,14 @@ class BatchReport:
     def failed(self) -> list[dict[str, Any]]:
         return [r for r in self.rows if r.get("status") == "failed"]
 
+    @property
+    def exit_code(self) -> int:
+        """0: no cell failed; 2: cells failed, every one for bad input (its one line in the table); 1: a cell hit a bug."""
+        failed = self.failed
+        if not failed:
+            return 0
+        return 2 if all(r.get("failure") == "input" for r in failed) else 1
+
 
 def default_workers() -> int:
     """One worker per core this process may use."""
@@ -96,7 +104,9 @@ def run_matrix(
     tables are rewritten after every cell, so an interrupted batch (Ctrl-C) leaves tables of
     what is done; ``BatchReport.interrupted`` then says so.
     """
-    out = Path(out_dir)
+    from rovslam.io.output import check_output_folder
+
+    out = check_output_folder(out_dir, "--out")  # a file, a device, a FIFO: refused before anything runs
     cells_dir = out / "cells"
     rows: dict[str, dict[str, Any]] = {}
     report = BatchReport(rows=[])
@@ -172,6 +182,8 @@ def _run_cells(client, todo, cells_dir, keep_sequences, rows, report, on_cell, s
     from dask.distributed import as_completed
 
     from rovslam.batch.cell import ERROR_FILE, failed_row
+    from rovslam.errors import RovslamError
+    from rovslam.io.output import atomic_write_text
 
     futures = {}
     batch_id = uuid.uuid4().hex[:8]  # two batches on one scheduler never share a task
@@ -187,8 +199,11 @@ def _run_cells(client, todo, cells_dir, keep_sequences, rows, report, on_cell, s
         except Exception as exc:  # the worker died (out of memory, killed): a failed cell, not a failed batch
             row = failed_row(spec, exc)
             log = cells_dir / spec.cell_id / ERROR_FILE
-            log.parent.mkdir(parents=True, exist_ok=True)
-            log.write_text(f"the Dask task of this cell failed: {exc!r}\n", encoding="utf-8")
+            try:
+                log.parent.mkdir(parents=True, exist_ok=True)
+                atomic_write_text(log, f"the Dask task of this cell failed: {exc!r}\n", "the cell's error.log")
+            except (OSError, RovslamError):
+                pass
         rows[spec.cell_id] = row
         report.computed.append(spec.cell_id)
         save()

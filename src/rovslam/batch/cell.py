@@ -2,14 +2,16 @@
 
 A cell is done when ``result.json`` exists; it is written last and atomically, so a cell
 interrupted half-way is started again from scratch on the next ``rovslam batch``. A failing
-cell returns a row with ``status = "failed"`` and leaves its traceback in ``error.log``.
+cell returns a row with ``status = "failed"`` and leaves its error in ``error.log``: for bad input (a
+:class:`~rovslam.errors.RovslamError`: a sequence with no ground truth, a full disk) the one line
+the table shows; for anything else (a bug) the traceback.
 
 Folder of a cell::
 
     cells/<cell>/sequence/     the simulated dive (deleted after the cell unless --keep-sequences)
     cells/<cell>/run/          the `rovslam run` outputs, with eval.json
     cells/<cell>/result.json   {"row": the matrix.csv row, "evaluation": eval.json's figures}
-    cells/<cell>/error.log     the traceback of a failed cell
+    cells/<cell>/error.log     the error of a failed cell (one line; a traceback only for a bug)
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from rovslam.batch.matrix import CellSpec
-from rovslam.errors import SequenceFormatError
+from rovslam.errors import RovslamError, SequenceFormatError
+from rovslam.io.output import atomic_write_text
 
 RESULT_FILE = "result.json"
 ERROR_FILE = "error.log"
@@ -58,16 +61,23 @@ def run_cell(spec: CellSpec, cells_dir: str, keep_sequence: bool = False, opencv
         cell_dir.mkdir(parents=True)
         row = _run(spec, cell_dir, keep_sequence)
     except Exception as exc:  # a cell never takes the others down: its error goes to the table
-        cell_dir.mkdir(parents=True, exist_ok=True)
-        (cell_dir / ERROR_FILE).write_text(traceback.format_exc(), encoding="utf-8")
-        return failed_row(spec, exc, time.perf_counter() - t0)
+        row = failed_row(spec, exc, time.perf_counter() - t0)
+        # Bad input is its one line, as the table and `rovslam run` say it; only a bug gets a traceback.
+        log = f"{row['error']}\n" if isinstance(exc, RovslamError) else traceback.format_exc()
+        try:
+            cell_dir.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(cell_dir / ERROR_FILE, log, "the cell's error.log")
+        except (OSError, RovslamError):  # the disk that failed the cell may not take its log either
+            pass
+        return row
     return row
 
 
 def failed_row(spec: CellSpec, exc: BaseException, wall_s: float = float("nan")) -> dict[str, Any]:
     """The matrix row of a cell that raised ``exc`` (its message on one line)."""
     message = " ".join(str(exc).split()) or type(exc).__name__
-    return {**_spec_columns(spec), "status": "failed", "error": f"{type(exc).__name__}: {message}", "wall_s": wall_s}
+    return {**_spec_columns(spec), "status": "failed", "error": f"{type(exc).__name__}: {message}", "wall_s": wall_s,
+            "failure": "input" if isinstance(exc, RovslamError) else "internal"}
 
 
 def pending_row(spec: CellSpec) -> dict[str, Any]:
@@ -112,7 +122,7 @@ def _run(spec: CellSpec, cell_dir: Path, keep_sequence: bool) -> dict[str, Any]:
     t2s, c2s = time.perf_counter(), time.process_time()
     ev = evaluate_run(run_dir, groundtruth, seq)
     figures = ev.to_dict()
-    (run_dir / "eval.json").write_text(json.dumps(figures, indent=2), encoding="utf-8")
+    atomic_write_text(run_dir / "eval.json", json.dumps(figures, indent=2), "the cell's eval.json")
     t3, c3 = time.perf_counter(), time.process_time()
     row = {
         **_spec_columns(spec),
@@ -179,8 +189,6 @@ def cell_figures(ev) -> dict[str, Any]:
 
 
 def _write_atomic(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_name(path.name + ".tmp")
     from rovslam.eval.metrics import finite_or_none
 
-    tmp.write_text(json.dumps(finite_or_none(data), indent=2, allow_nan=False), encoding="utf-8")
-    tmp.replace(path)
+    atomic_write_text(path, json.dumps(finite_or_none(data), indent=2, allow_nan=False), "the cell's result.json")

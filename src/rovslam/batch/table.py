@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -157,13 +156,14 @@ def _cell(value: Any) -> str:
 
 def write_tables(out_dir: Path, title: str, rows: Sequence[dict[str, Any]], groups: Sequence[str] | None = None) -> None:
     """Write ``matrix.csv`` and ``matrix.md`` in ``out_dir`` (each atomically: a reader never sees half a table)."""
-    tmp = out_dir / "matrix.csv.tmp"
-    with tmp.open("w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh, lineterminator="\n")
-        w.writerow(MATRIX_COLUMNS)
-        for r in rows:
-            w.writerow([_cell(r.get(c)) for c in MATRIX_COLUMNS])
-    os.replace(tmp, out_dir / "matrix.csv")
-    tmp = out_dir / "matrix.md.tmp"
-    tmp.write_text(matrix_markdown(title, rows, groups), encoding="utf-8")
-    os.replace(tmp, out_dir / "matrix.md")
+    import io
+
+    from rovslam.io.output import atomic_write_text
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(MATRIX_COLUMNS)
+    for r in rows:
+        w.writerow([_cell(r.get(c)) for c in MATRIX_COLUMNS])
+    atomic_write_text(out_dir / "matrix.csv", buf.getvalue(), "matrix.csv")  # never into a device or a FIFO
+    atomic_write_text(out_dir / "matrix.md", matrix_markdown(title, rows, groups), "matrix.md")

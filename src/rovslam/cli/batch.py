@@ -45,4 +45,4 @@ def batch(
         raise typer.Exit(130)
     if report.failed:
         typer.echo(f"{len(report.failed)} of {len(report.rows)} cells failed (see {out / 'cells'}/<cell>/error.log)", err=True)
-        raise typer.Exit(1)
+        raise typer.Exit(report.exit_code)  # 2: every failed cell had bad input; 1: a bug

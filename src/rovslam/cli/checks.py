@@ -7,15 +7,10 @@ from typing import Optional
 
 
 def check_output_file(path: Path, what: str) -> None:
-    """Refuse an output file path that is a folder or whose folder does not exist (one clear line)."""
-    from rovslam.errors import OutputError
+    """Refuse an output file path that is a folder, a device, a FIFO, a socket or whose folder does not exist."""
+    from rovslam.io.output import check_output_file as check
 
-    if path.is_dir():
-        raise OutputError(f"{path}: is a folder; {what} needs a file name (e.g. {path / 'eval.json'}).")
-    parent = path.parent
-    if not parent.is_dir():
-        state = "is not a folder" if parent.exists() else "does not exist"
-        raise OutputError(f"{path}: the folder {parent} {state}; create it or choose another place for {what}.")
+    check(path, what, example="eval.json")
 
 
 def load_config(path: Path):

@@ -156,10 +156,10 @@ def _live_viewer(spawn: bool, save_rrd: Optional[Path], out: Path):
     """The rerun live viewer of `run --viewer / --save-rrd` (rerun is imported only here)."""
     from rovslam.viz.viewer import RerunViewer, display_available
 
-    if save_rrd is not None and save_rrd.is_dir():
-        from rovslam.errors import OutputError
+    if save_rrd is not None:
+        from rovslam.io.output import check_output_file
 
-        raise OutputError(f"{save_rrd}: is a folder; --save-rrd needs a file name (e.g. {save_rrd / 'run.rrd'}).")
+        check_output_file(save_rrd, "--save-rrd", parent_must_exist=False, example="run.rrd")
     if spawn and not display_available():
         typer.echo("no display found for the viewer: saving the live view instead", err=True)
         spawn = False

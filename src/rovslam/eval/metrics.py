@@ -22,7 +22,7 @@ from rovslam.camera import rot2, step_mean_heading_rad
 from rovslam.core import GroundTruth
 from rovslam.errors import InvalidArgumentError, ResultsFormatError, SequenceFormatError
 from rovslam.eval.align import align_by_time
-from rovslam.io.results import RunResults
+from rovslam.io.results import RunResults, failure_of_run
 
 _COV_FLOOR_M2 = 1e-12  # the start is known exactly; keep P invertible there
 
@@ -383,7 +383,8 @@ def partial_run(summary: dict[str, Any], frames: int) -> str | None:
     """What a run that did not complete covers (from its summary.json), or None for a complete run."""
     status = summary.get("status")
     how = {"interrupted": f"interrupted by {summary.get('signal') or 'a signal'}", "unusable": "judged unusable",
-           "failed": "stopped by an error", "running": "cut off (summary.json still says running: killed or a power loss)"}
+           "failed": f"stopped by an error ({failure_of_run(summary)})",
+           "running": "cut off (summary.json still says running: killed or a power loss)"}
     if status not in how:
         return None
     total = summary.get("frames_in_sequence")

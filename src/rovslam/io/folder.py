@@ -21,7 +21,7 @@ from rovslam.errors import ImageReadError, SequenceFormatError
 from rovslam.io.camera_file import CameraFile
 from rovslam.io.sequence import read_image
 from rovslam.io.source import SourceDescription
-from rovslam.io.text import MAX_TIME_S, inside_folder, read_csv_table, time_cell
+from rovslam.io.text import MAX_TIME_S, inside_folder, not_a_file, read_csv_table, time_cell
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 TIMES_COLUMNS = ("image", "t_s")
@@ -110,7 +110,8 @@ class ImageFolderSource:
             seen.add(name)
             resolved = inside_folder(root, name, f"{where}: column 'image'")
             if not resolved.is_file():
-                raise SequenceFormatError(f"{where}: image file '{name}' not found in {self.folder}.")
+                why = "not found" if not resolved.exists() else not_a_file(resolved)
+                raise SequenceFormatError(f"{where}: image file '{name}' {why} in {self.folder}.")
             listed.append((time_cell(row, where), name, where))
         listed.sort()
         for (t0, _, _), (t1, _, where) in zip(listed, listed[1:]):

@@ -37,8 +37,9 @@ class ImportSummary:
 
 def check_import_folder(out: Path) -> None:
     """Refuse an output that is a file, or a folder that already holds something."""
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"{out}: is a file, not a folder; give a new folder for the sequence.")
+    from rovslam.io.output import check_output_folder
+
+    check_output_folder(out, "--out")  # a file, a device, a FIFO, a link to nothing: not a folder
     if out.is_dir() and any(os.scandir(out)):
         raise OutputError(f"{out}: exists and is not empty; give a new or empty folder for the sequence.")
     if out.parent.exists() and not out.parent.is_dir():

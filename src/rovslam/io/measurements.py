@@ -27,11 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rovslam.errors import (
-    InvalidMeasurementError,
-    ResultsFormatError,
-    SequenceFormatError,
-)
+from rovslam.errors import InvalidMeasurementError, ResultsFormatError, SequenceFormatError
+from rovslam.io.output import StreamFile
 from rovslam.io.text import read_text
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 
@@ -108,10 +105,10 @@ class MeasurementWriter:
         if self.out.exists() and not self.out.is_dir():
             raise SequenceFormatError(f"{self.out}: exists and is not a folder; choose another --out.")
         self.out.mkdir(parents=True, exist_ok=True)
-        self._obs_fh = (self.out / LANDMARK_MEASUREMENTS_FILE).open("w", newline="", encoding="utf-8")
+        self._obs_fh = StreamFile(self.out / LANDMARK_MEASUREMENTS_FILE, exclusive=False)  # whole rows only
         self._obs = csv.writer(self._obs_fh, lineterminator="\n")
         self._obs.writerow(LANDMARK_MEASUREMENT_COLUMNS)
-        self._frames_fh = (self.out / MEASUREMENTS_FILE).open("w", newline="", encoding="utf-8")
+        self._frames_fh = StreamFile(self.out / MEASUREMENTS_FILE, exclusive=False)
         self._frames = csv.writer(self._frames_fh, lineterminator="\n")
         self._frames.writerow(MEASUREMENT_COLUMNS)
         self.flush_every = max(1, int(flush_every))
@@ -157,7 +154,7 @@ class MeasurementWriter:
             finally:
                 for fh in (self._obs_fh, self._frames_fh):
                     with contextlib.suppress(OSError, ValueError):
-                        fh.close()
+                        fh.close(quiet=True)
 
     def __enter__(self) -> MeasurementWriter:
         return self

@@ -357,6 +357,11 @@ class Navigation:
         return [t for t in (self.heading, self.roll, self.pitch, self.altitude) if t is not None]
 
     @property
+    def times_s(self) -> tuple[float, float]:
+        """The first and last times of the log (of every track), as the file holds them: what messages print."""
+        return (max(t.span_s[0] for t in self.tracks), min(t.span_s[1] for t in self.tracks))
+
+    @property
     def span_s(self) -> tuple[float, float]:
         """The times every track covers (frames outside are left out), end values held for max_gap_s / 2."""
         half = self.max_gap_s / 2
@@ -387,8 +392,9 @@ class Navigation:
         lo, hi = self.span_s
         f0, f1 = frames_span_s
         if hi < f0 or lo > f1:
+            t0, t1 = self.times_s
             raise NavigationError(
-                f"{self.path}: its times run from {lo:.3f} to {hi:.3f} s on the frames' clock, the {what}'s frames from "
+                f"{self.path}: its times run from {t0:.3f} to {t1:.3f} s on the frames' clock, the {what}'s frames from "
                 f"{f0:.3f} to {f1:.3f} s: they do not overlap. {offset_hint}"
             )
 
@@ -596,7 +602,7 @@ class NavigatedSource:
     @property
     def warnings(self) -> list[str]:
         out = list(getattr(self.source, "warnings", []))
-        lo, hi = self.nav.span_s
+        lo, hi = self.nav.times_s  # the file's own first and last times (frames within max_gap_s / 2 still take them)
         if self._before_n:
             out.append(f"{self._before_n} frame(s) from t = {self._before[0]:.6g} to {self._before[-1]:.6g} s come before the "
                        f"navigation starts ({self.nav.path}, t = {lo:.6g} s on the frames' clock): left out.")
@@ -637,6 +643,7 @@ class NavigatedSource:
         finally:
             stream.close()
         if given == 0 and (self._before_n or self._after_n):
+            lo, hi = self.nav.times_s
             raise NavigationError(
                 f"{self.nav.path}: no frame of the {self.what} lies in the navigation's time span ({lo:.3f} to {hi:.3f} s on "
                 f"the frames' clock). {self.offset_hint}"

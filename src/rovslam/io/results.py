@@ -28,13 +28,10 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import errno
 import json
 import math
 import os
 import re
-import secrets
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,6 +39,16 @@ from typing import Any
 import numpy as np
 
 from rovslam.errors import OutputError, ResultsFormatError
+from rovslam.io.output import (  # atomic_write_*, describe_os_error, output_errors: imported from here too
+    RESERVE_NAME,
+    SpaceReserve,
+    StreamFile,
+    atomic_write_bytes,
+    atomic_write_text,
+    check_output_folder,
+    describe_os_error,
+    output_errors,
+)
 from rovslam.io.sequence import float_cell, not_a_file, read_csv_table, read_text
 from rovslam.io.source import TOKENS_ONLY
 
@@ -100,59 +107,6 @@ def _f(v: float) -> str:
 # --------------------------------------------------------------------------- writing safely
 
 
-def describe_os_error(exc: OSError) -> str:
-    """A short human reason for an OSError, with a hint for the common output problems."""
-    hints = {
-        errno.ENOSPC: "the disk is full; free space or choose another --out",
-        errno.EDQUOT: "the disk quota is exceeded; free space or choose another --out",
-        errno.EROFS: "the file system is read-only; choose another --out",
-        errno.EACCES: "permission denied; choose a folder you can write to",
-        errno.EPERM: "operation not permitted; choose a folder you can write to",
-        errno.ENOTDIR: "a parent of this path is a file, not a folder",
-        errno.EISDIR: "this is a folder; give a file name",
-        errno.ENOENT: "the folder does not exist",
-    }
-    reason = exc.strerror or str(exc) or type(exc).__name__
-    hint = hints.get(exc.errno or -1)
-    return f"{reason} ({hint})" if hint else reason
-
-
-@contextlib.contextmanager
-def output_errors(path: Path, action: str = "cannot write") -> Iterator[None]:
-    """Turn an OSError raised inside the block into an :class:`OutputError` naming ``path``."""
-    try:
-        yield
-    except OSError as exc:
-        raise OutputError(f"{path}: {action}: {describe_os_error(exc)}.") from None
-
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically: a temporary file beside it, fsync, then rename.
-
-    Readers see the old file or the new one, never a part. On any error the temporary file is
-    removed and :class:`OutputError` names ``path``.
-    """
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
-    with output_errors(path):
-        try:
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(data)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-            raise
-
-
-def atomic_write_text(path: str | Path, text: str) -> None:
-    """:func:`atomic_write_bytes` of UTF-8 text."""
-    atomic_write_bytes(path, text.encode("utf-8"))
-
-
 def json_text(data: Any) -> str:
     """Strict JSON (no NaN / Infinity, which JSON does not allow): non-finite numbers become null."""
     return json.dumps(_finite_or_null(data), indent=2, default=_json_default, allow_nan=False)
@@ -178,7 +132,8 @@ RESULT_FILES = frozenset(
      "measurements.csv", "landmark_measurements.csv", "trajectory_smoothed.tum", "trajectory_smoothed.csv",
      "landmarks_smoothed.csv",
      # rovslam navigate
-     "groundtruth.csv", "navigation.csv", "arrivals.csv", "navigation.png"}
+     "groundtruth.csv", "navigation.csv", "arrivals.csv", "navigation.png",
+     RESERVE_NAME}
 )
 # Folders rovslam writes, with the pattern of their files' paths relative to the folder.
 RESULT_DIRS = {
@@ -233,9 +188,7 @@ def prepare_output_folder(out: str | Path, overwrite: bool = False) -> Path:
     ``RESULT_FILES`` and ``RESULT_DIRS``). A folder holding anything else is always refused: rovslam
     never deletes or mixes in files it did not write.
     """
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"{out}: exists and is not a folder; choose another --out.")
+    out = check_output_folder(out, "--out")
     if not out.exists():
         with output_errors(out, "cannot create the folder"):
             out.mkdir(parents=True)
@@ -268,31 +221,40 @@ class ResultWriter:
     """
 
     def __init__(self, out_dir: str | Path, flush_every: int = 50):
-        self.out = Path(out_dir)
-        if self.out.exists() and not self.out.is_dir():
-            raise OutputError(f"{self.out}: exists and is not a folder; choose another --out.")
+        self.out = check_output_folder(out_dir, "--out")
+        # Disk space held for the last writes: a disk that fills mid-run still takes the "failed" summary.
+        self.reserve = SpaceReserve(self.out) if self.out.is_dir() else None
         self._paths = {k: self.out / f"{k}" for k in ("trajectory.csv", "trajectory.tum", "observations.csv")}
-        self._fhs: dict[str, Any] = {}
+        self._fhs: dict[str, StreamFile] = {}
+        self._unwritten: dict[str, StreamFile] = {}  # files whose last flush failed (a full disk): see salvage
         with output_errors(self.out / "landmarks", "cannot create the folder"):
             (self.out / "landmarks").mkdir(parents=True, exist_ok=True)
         try:
             for name, path in self._paths.items():
-                with output_errors(path, "cannot create"):
-                    # "x": never write through a file (or link) that appeared since the folder was prepared.
-                    self._fhs[name] = path.open("x", newline="", encoding="utf-8")
+                # O_EXCL: never write through a file (or link) that appeared since the folder was prepared.
+                self._fhs[name] = StreamFile(path)
             self._traj = csv.writer(self._fhs["trajectory.csv"], lineterminator="\n")
             self._obs = csv.writer(self._fhs["observations.csv"], lineterminator="\n")
-            with output_errors(self._paths["trajectory.csv"]):
-                self._traj.writerow(TRAJECTORY_COLUMNS + TRAJECTORY_EXTRA_COLUMNS)
-            with output_errors(self._paths["trajectory.tum"]):
-                self._fhs["trajectory.tum"].write("# t x y z qx qy qz qw  (rovslam: z = altitude, heading about z)\n")
-            with output_errors(self._paths["observations.csv"]):
-                self._obs.writerow(OBSERVATION_COLUMNS + OBSERVATION_EXTRA_COLUMNS)
+            self._traj.writerow(TRAJECTORY_COLUMNS + TRAJECTORY_EXTRA_COLUMNS)
+            self._fhs["trajectory.tum"].write("# t x y z qx qy qz qw  (rovslam: z = altitude, heading about z)\n")
+            self._obs.writerow(OBSERVATION_COLUMNS + OBSERVATION_EXTRA_COLUMNS)
+            self.flush()  # the headers on disk at once: a run that fails at its first frame leaves readable files
+        except OutputError as exc:
+            self.abandon(str(exc))
+            raise
         except BaseException:
             self.close(quiet=True)
             raise
         self.flush_every = max(1, flush_every)
         self._n = 0
+
+    @property
+    def frames_written(self) -> int:
+        """Rows of trajectory.csv on disk, complete (the header not counted)."""
+        fh = self._fhs.get("trajectory.csv") or self._unwritten.get("trajectory.csv")
+        return max(0, fh.rows - 1) if fh is not None else self._frames_written
+
+    _frames_written = 0
 
     def write_frame(self, r: Any) -> None:
         """Append one :class:`rovslam.pipeline.FrameResult`."""
@@ -320,7 +282,7 @@ class ResultWriter:
                      int(getattr(ob, "tentative", False))]
                     for ob in r.observations
                 )
-        except OSError as exc:
+        except OSError as exc:  # a row too long for the memory buffer, written at once
             raise OutputError(f"{self._paths[name]}: cannot write: {describe_os_error(exc)}.") from None
         self._n += 1
         if self._n % self.flush_every == 0:
@@ -348,9 +310,25 @@ class ResultWriter:
             lines.append(",".join(str(row[c]) if isinstance(row[c], (int, str)) else _f(row[c]) for c in cols))
         atomic_write_text(self.out / "landmarks.csv", "\n".join(lines) + "\n")
 
-    def write_summary(self, summary: dict[str, Any]) -> None:
-        """(Re)write summary.json atomically (strict JSON: a non-finite number becomes null)."""
-        atomic_write_text(self.out / "summary.json", json_text(summary) + "\n")
+    def write_summary(self, summary: dict[str, Any], compact: bool = False) -> None:
+        """(Re)write summary.json atomically (strict JSON: a non-finite number becomes null).
+
+        A failed run's summary also says how many trajectory rows reached the disk
+        (``frames_written``). ``compact``: :func:`compact_summary` of it (a few kilobytes, to fit
+        in the space a full disk has left).
+        """
+        if summary.get("status") != "running":  # the last summary: the space held back is for it
+            self.release_reserve()
+        if summary.get("status") == "failed":
+            summary = {**summary, "frames_written": self.frames_written}
+        path = self.out / "summary.json"
+        if not compact:
+            atomic_write_text(path, json_text(summary) + "\n")
+            return
+        try:
+            atomic_write_text(path, json_text(compact_summary(summary)) + "\n")
+        except OutputError:  # not even that: the few keys that say what happened (a few hundred bytes)
+            atomic_write_text(path, json_text(compact_summary(summary, minimal=True)) + "\n")
 
     def write_config(self, config: Any) -> None:
         """Write config.toml atomically (every key, so the file documents the run)."""
@@ -361,24 +339,90 @@ class ResultWriter:
         atomic_write_text(self.out / "config.toml", tomli_w.dumps(to_dict(config)))
 
     def flush(self) -> None:
-        for name, fh in self._fhs.items():
-            with output_errors(self._paths[name]):
-                fh.flush()
+        """Write the rows kept in memory (each file keeps whole rows only: see :class:`StreamFile`)."""
+        for fh in self._fhs.values():
+            fh.flush()
+
+    def release_reserve(self) -> None:
+        """Free the disk space held for the last writes (:class:`SpaceReserve`)."""
+        reserve = getattr(self, "reserve", None)
+        if reserve is not None:
+            reserve.release()
+
+    def abandon(self, reason: str) -> None:
+        """A run that failed before it started (a full disk): close what is open, free the reserve, and leave a
+        small ``summary.json`` saying ``"failed"`` and why, if the disk takes it."""
+        self.close(quiet=True)
+        for fh in self._unwritten.values():
+            fh.close(quiet=True)
+        self.release_reserve()
+        from rovslam import __version__
+
+        with contextlib.suppress(OutputError):
+            self.write_summary({"software": {"name": "rovslam", "version": __version__}, "status": "failed",
+                                "complete": False, "interrupted": False, "reason": reason, "frames_processed": 0})
 
     def close(self, quiet: bool = False) -> None:
-        """Flush and close the streamed files; ``quiet``: after an error, close without raising."""
+        """Flush and close the streamed files; ``quiet``: after an error, close without raising.
+
+        A file that cannot be written whole is cut back to its last complete row.
+        """
         fhs, self._fhs = self._fhs, {}
+        traj = fhs.get("trajectory.csv")
         first: OutputError | None = None
+        self._unwritten = {}
         for name, fh in fhs.items():
             try:
-                with output_errors(self._paths[name]):
-                    fh.close()
+                fh.flush()
             except OutputError as exc:
                 first = first or exc
-                with contextlib.suppress(OSError, ValueError):
-                    fh.close()  # the buffer is dropped on the second try
+                self._unwritten[name] = fh  # its rows kept in memory: see salvage
+                continue
+            fh.close(quiet=True)
+        if traj is not None:
+            self._frames_written = max(0, traj.rows - 1)
         if first is not None and not quiet:
             raise first
+
+    def salvage(self, summary: dict[str, Any]) -> None:
+        """After a full disk: write what it now takes of the rows a failed flush kept in memory (whole rows only),
+        leaving room for twice ``summary`` (the summary.json to write next) and 16 KiB; then close those files."""
+        unwritten, self._unwritten = self._unwritten, {}
+        keep_free = 2 * len(json_text(summary)) + 16 * 1024
+        for name, fh in unwritten.items():
+            try:
+                st = os.statvfs(self.out)
+                fh.flush(max_bytes=max(0, st.f_bavail * st.f_frsize - keep_free))
+            except (OSError, OutputError):
+                pass  # the disk took no more: the rows on disk stay whole
+            finally:
+                fh.close(quiet=True)
+                if name == "trajectory.csv":
+                    self._frames_written = max(0, fh.rows - 1)
+
+
+_COMPACT_LIST_ITEMS = 20
+
+
+_MINIMAL_KEYS = ("software", "sequence", "sequence_name", "frames_in_sequence", "status", "complete", "interrupted",
+                 "signal", "reason", "frames_processed", "frames_usable", "frames_written", "landmarks")
+
+
+def compact_summary(summary: dict[str, Any], minimal: bool = False) -> dict[str, Any]:
+    """``summary`` made small: its per-frame lists cut to their first ``_COMPACT_LIST_ITEMS`` items (with the full
+    count beside them) and the configuration left out (config.toml holds it); everything else as it is.
+    ``minimal``: only the keys that say what happened (``_MINIMAL_KEYS``)."""
+    out: dict[str, Any] = {}
+    for key, value in summary.items():
+        if key == "config" or (minimal and key not in _MINIMAL_KEYS):
+            continue
+        if isinstance(value, list) and len(value) > _COMPACT_LIST_ITEMS:
+            out[key] = value[:_COMPACT_LIST_ITEMS]
+            out[f"{key}_count"] = len(value)
+        else:
+            out[key] = value
+    out["compact"] = True  # written small, on a full disk
+    return out
 
 
 class GalleryWriter:
@@ -394,11 +438,9 @@ class GalleryWriter:
     def __init__(self, out_dir: str | Path, flush_every: int = 50):
         self.out = Path(out_dir)
         self._path = self.out / "tokens.csv"
-        with output_errors(self._path, "cannot create"):
-            self._fh = self._path.open("w", newline="", encoding="utf-8")
+        self._fh = StreamFile(self._path)
         self._w = csv.writer(self._fh, lineterminator="\n")
-        with output_errors(self._path):
-            self._w.writerow(TOKEN_COLUMNS)
+        self._w.writerow(TOKEN_COLUMNS)
         self._last_seen: dict[int, float] = {}
         self.flush_every = max(1, flush_every)
         self._n = 0
@@ -431,18 +473,24 @@ class GalleryWriter:
         with output_errors(folder, "cannot create the folder"):
             folder.mkdir(parents=True, exist_ok=True)
         path = folder / f"{int(frame)}.png"
-        if not cv2.imwrite(str(path), cv2.cvtColor(crop, cv2.COLOR_RGB2BGR)):
-            raise OutputError(f"{path}: cannot write the revisit crop (the disk may be full or the folder read-only); "
-                              "free space or choose another --out.")
+        ok, buf = cv2.imencode(".png", cv2.cvtColor(crop, cv2.COLOR_RGB2BGR))
+        if not ok:
+            raise OutputError(f"{path}: OpenCV could not encode the revisit crop.")
+        try:
+            atomic_write_bytes(path, buf.tobytes())  # whole or not at all: a full disk leaves no half PNG
+        except OutputError as exc:
+            why = str(exc).split(": ", 2)[-1].rstrip(".") if ": cannot write: " in str(exc) else str(exc)
+            raise OutputError(f"{path}: cannot write the revisit crop: {why}.") from None
 
     def close(self) -> None:
-        """Flush and close tokens.csv; an error names it (the file is closed all the same)."""
+        """Flush and close tokens.csv; an error names it (the file is closed all the same, whole rows only)."""
         try:
             with output_errors(self._path):
+                self._fh.flush()
                 self._fh.close()
         finally:
-            with contextlib.suppress(OSError, ValueError):
-                self._fh.close()  # the buffer is dropped on the second try
+            with contextlib.suppress(OSError, ValueError, OutputError):
+                self._fh.close()  # a StreamFile closes (dropping what it could not write) even when its flush failed
 
 
 def _json_default(o: Any) -> Any:
@@ -504,7 +552,9 @@ class RunResults:
     def speed_cov_mps2(self) -> np.ndarray | None:
         """(N, 2, 2) covariances Q of the measured (surge, sway); None when trajectory.csv has no such columns."""
         names = ("var_surge_mps2", "cov_surge_sway_mps2", "var_sway_mps2")
-        return _cov_table(self.trajectory, names) if all(n in self.trajectory for n in names) else None
+        # numbers only: an optional column holding text (a damaged file) is read as absent
+        t = self.trajectory
+        return _cov_table(t, names) if all(n in t and t[n].dtype.kind == "f" for n in names) else None
 
     @property
     def dr_xy_m(self) -> np.ndarray:
@@ -647,7 +697,9 @@ def read_results(out_dir: str | Path) -> RunResults:
     traj_path = out / "trajectory.csv"
     traj, lines = _read_table(traj_path, TRAJECTORY_COLUMNS, ("altitude_source",))
     if len(traj["t_s"]) == 0:
-        raise ResultsFormatError(f"{traj_path}: no rows (only a header): the run wrote no frame.")
+        failed = failure_of_run(read_summary(out / "summary.json"))
+        raise ResultsFormatError(f"{traj_path}: no rows (only a header): the run wrote no frame"
+                                 + (f"; it failed: {failed}" if failed else "."))
     _check_time(traj_path, traj, lines, strict=True)
     obs: dict[str, np.ndarray] = {}
     obs_path = out / "observations.csv"
@@ -664,6 +716,14 @@ def read_results(out_dir: str | Path) -> RunResults:
         smoothed, lines = _read_table(sm_path, SMOOTHED_TRAJECTORY_COLUMNS)
         _check_time(sm_path, smoothed, lines, strict=True)
     return RunResults(out, traj, obs, lms, summary, smoothed)
+
+
+def failure_of_run(summary: dict[str, Any]) -> str | None:
+    """Why a run failed, as its summary.json says (``"status": "failed"``), or None (not failed, or no reason given)."""
+    if summary.get("status") != "failed":
+        return None
+    reason = summary.get("reason")
+    return " ".join(reason.split()).rstrip(".") if isinstance(reason, str) and reason.strip() else "no reason recorded"
 
 
 # Statuses whose files were all closed complete: trajectory.csv holds a row for every frame processed.

@@ -278,7 +278,8 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
                 f"the folders of {folder}."
             ) from None
         if not present:
-            why = "is a folder, not an image file" if resolved.is_dir() else "not found"
+            why = ("is a folder, not an image file" if resolved.is_dir() else
+                   "is not a regular file (a pipe, socket or device)" if resolved.exists() else "not found")
             raise SequenceFormatError(f"{where}: image file '{image}' {why} in {folder}.")
         text = (row.get("heading_rad") or "").strip()
         if text == "":

@@ -443,7 +443,10 @@ def simulate(
     sc, n, fmt = _check_args(scenario, frames, seed, image_format, texture_path, texture_mm_per_px)
     drawn = _drawn_calibration(calibration, int(seed))
     out = Path(out_dir)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    from rovslam.io.output import check_output_folder
+
+    check_output_folder(out, "--out")  # a file, a device, a FIFO: "not a folder" (OutputError)
+    if out.exists() and any(out.iterdir()):
         raise SimulationError(f"output folder {out} already exists and is not empty; give a new folder")
     traj = simulate_trajectory(sc.vehicle, sc.grid, n, sc.frame_rate_hz, int(seed))
     # Size the first canvas to the whole survey, so it is built once (the path is known).

@@ -420,18 +420,28 @@ def write_mosaic(path: str | Path, rgb: np.ndarray, grid: MosaicGrid) -> tuple[P
     """Write the PNG and its world file (same name, ``.pgw``). Returns both paths."""
     import cv2
 
+    from rovslam.io.output import atomic_write_bytes, atomic_write_text, output_errors
+
     png = check_mosaic_path(path)
-    png.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(png), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
-        raise InvalidArgumentError(f"{png}: could not write the PNG (is the folder writable?)")
+    with output_errors(png.parent, "cannot create the folder"):
+        png.parent.mkdir(parents=True, exist_ok=True)
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise InvalidArgumentError(f"{png}: OpenCV could not encode the mosaic as PNG")
+    atomic_write_bytes(png, buf.tobytes(), "the mosaic")  # never into a device or a FIFO: refused
     pgw = png.with_suffix(".pgw")
-    pgw.write_text(grid.world_file(), encoding="utf-8")
+    atomic_write_text(pgw, grid.world_file(), "the mosaic's world file")
     return png, pgw
 
 
 def check_mosaic_path(path: str | Path) -> Path:
     """``path`` as the PNG file of a mosaic, or :class:`OutputError` (a folder, not a ``.png`` name)."""
+    from rovslam.io.output import check_output_file
+
     png = Path(path)
+    if not png.is_dir():  # a device, a FIFO, a socket, a dangling link: refused (a folder: told below)
+        check_output_file(png, "the mosaic", parent_must_exist=False)
+        check_output_file(png.with_suffix(".pgw"), "the mosaic's world file", parent_must_exist=False)
     if png.is_dir():
         raise OutputError(f"{png}: is a folder; the mosaic needs a PNG file name (e.g. {png / 'mosaic.png'}).")
     if png.suffix.lower() != ".png":

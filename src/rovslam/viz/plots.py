@@ -39,8 +39,17 @@ def pyplot():
 
 
 def save_figure(fig, path: Path) -> Path:
-    fig.savefig(path, dpi=DPI)
-    pyplot().close(fig)
+    """Save ``fig`` as ``path`` (its format from the suffix), whole or not at all (never into a device or FIFO)."""
+    import io
+
+    from rovslam.io.output import atomic_write_bytes
+
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, dpi=DPI, format=Path(path).suffix.lstrip(".").lower() or "png")
+    finally:
+        pyplot().close(fig)
+    atomic_write_bytes(path, buf.getvalue(), "the figure")
     return path
 
 

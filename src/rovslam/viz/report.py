@@ -21,6 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from rovslam.errors import RovslamError
+from rovslam.io.output import (
+    atomic_write_bytes,
+    atomic_write_text,
+    check_output_folder,
+    output_errors,
+)
 from rovslam.io.results import RunResults, read_results
 from rovslam.viz import gallery, plots, runinfo
 
@@ -223,7 +229,9 @@ def _jpeg(png: Path, quality: int = 88) -> Path:
 
     img = cv2.imread(str(png), cv2.IMREAD_COLOR)
     jpg = png.with_suffix(".jpg")
-    cv2.imwrite(str(jpg), img, [cv2.IMWRITE_JPEG_QUALITY, quality])  # type: ignore[arg-type]
+    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality])  # type: ignore[arg-type]
+    if ok:
+        atomic_write_bytes(jpg, buf.tobytes(), "the report's mosaic")
     return jpg
 
 
@@ -265,9 +273,14 @@ def write_report(
     out = folder / "report"
     if out.exists() and not out.is_dir():
         from rovslam.errors import OutputError
+        from rovslam.io.output import file_kind
 
-        raise OutputError(f"{out}: is a file, where the report's folder goes; move or delete it, then run the report again.")
-    out.mkdir(exist_ok=True)
+        kind = "a file" if out.is_file() else file_kind(out.stat().st_mode)
+        raise OutputError(f"{out}: is {kind}, where the report's folder goes; move or delete it, then run the report "
+                          "again.")
+    check_output_folder(out, "the report")  # a link to nothing is refused too
+    with output_errors(out, "cannot create the folder"):
+        out.mkdir(exist_ok=True)
     seq_path = Path(seq) if seq is not None else None
     cam_path = Path(camera_file) if camera_file is not None else None
     chosen = _choose_landmarks(res, landmarks)
@@ -321,7 +334,7 @@ def write_report(
                                             mosaic_every, progress, cam_path))
     rep.sections.append(_config_html(folder, res))
     path = out / "index.html"
-    path.write_text(render_html(rep), encoding="utf-8")
+    atomic_write_text(path, render_html(rep), "the report")
     return path
 
 
