@@ -1,7 +1,9 @@
 """The per-frame loop of the paper (section 3.4), one :class:`FrameResult` per frame.
 
-:meth:`SlamPipeline.process` reads as the paper's list (docs/architecture.md, "The loop");
-the order keeps the speed and the landmark measurements independent:
+:meth:`SlamPipeline.process` runs the loop's steps on a frame (:meth:`SlamPipeline._steps`,
+which reads as the paper's list, docs/architecture.md, "The loop"), feeds the back end with
+what the frame measured, and returns the frame's record (:mod:`rovslam.pipeline.records`).
+The order of the steps keeps the speed and the landmark measurements independent:
 
 * Step 1: laser spots -> image depth Z (fused with the sonar when given);
 * Step 2: inhibit pixels near the laser spots;
@@ -11,7 +13,7 @@ the order keeps the speed and the landmark measurements independent:
 * Step 4: inhibit pixels near the tracked / new landmark templates;
 * Step 5: track the previous frame's speed templates -> surge, sway and the turn;
 * Step 6: EKF prediction (1), (2) with that speed and the heading, then update (3) with the
-  landmark observations;
+  landmark observations, each match accepted or refused by :func:`rovslam.association.associate`;
 * Step 7: augment the state with the new landmark (4);
 * Step 8: extract fresh speed templates for the next frame.
 
@@ -25,24 +27,36 @@ import dataclasses
 import math
 from array import array
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from rovslam.altitude import AltitudeFilter
-from rovslam.association import REASON_GATE, REASON_JOINT, REASON_LASER, RecoveryEvent, RecoveryMonitor, jointly_compatible
+from rovslam.association import (
+    REASON_JOINT,
+    REASON_LASER,
+    MatchCandidate,
+    MatchDecision,
+    RecoveryEvent,
+    RecoveryMonitor,
+    associate,
+    jointly_compatible,
+    strong_refusals,
+)
 from rovslam.camera import ground_to_pixels, mn_to_ground, pixels_to_ground, rot2
 from rovslam.config import RunConfig
 from rovslam.heading import HeadingEstimate, HeadingPrior, HeadingTracker
 from rovslam.io.sequence import Frame, SequenceInfo
 from rovslam.landmarks import LandmarkRecord, most_distinctive, oriented_patch
 from rovslam.odometry import SpeedEstimator, SpeedMeasurement
+from rovslam.pipeline import records
+from rovslam.pipeline.records import Estimate, FrameRecords, FrameResult, FrameStep, Observation, TrackedLandmark
 from rovslam.shutter import mn_at_frame_time, mn_rate_px_s, tokens_at_frame_time
 from rovslam.slam import EkfSlam
-from rovslam.slam.apparent import apparent_frame_cov_m2, apparent_sigmas
-from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
+from rovslam.slam.apparent import apparent_sigmas
+from rovslam.slam.ekf import UpdateResult
+from rovslam.slam.measurements import FrameMeasurements
 from rovslam.slam.motion import altitude_offset_sigma_m, motion_step_m, ou_sum_as_one
-from rovslam.slam.observation import observation_noise_px2, pixels_to_mn
+from rovslam.slam.observation import pixels_to_mn
 from rovslam.sunlight import BrightHistory, SunlightEvent, SunlightMonitor, moving_light_share
 from rovslam.vision.filters import (
     bandpass,
@@ -57,76 +71,11 @@ from rovslam.vision.scale import processing_scale
 from rovslam.vision.templates import Template, extract_templates, inhibit_boxes, inhibition_mask
 from rovslam.vision.tracking import TokenTracker, TokenTracks, match_template
 
-__all__ = ["FrameResult", "LandmarkRecord", "Observation", "SlamPipeline", "TrackedLandmark"]
+__all__ = ["MIN_TEXTURE_STD", "SlamPipeline"]
 
 # A frame whose template channel has less contrast than this (8-bit units, std of the
 # band-passed image) carries no texture to track: black, saturated or flat.
 MIN_TEXTURE_STD = 0.5
-
-_NO_POINTS = np.zeros((0, 2))
-_NO_COV = np.zeros((2, 2))
-
-
-@dataclass(frozen=True)
-class Observation:
-    """One landmark template seen in a frame ("init" when it created the landmark)."""
-
-    landmark_id: int
-    kind: str  # "track" | "init"
-    uv_px: np.ndarray  # (2,) template centre in the image
-    mn_px: np.ndarray  # (2,) level-equivalent (m, n) of (3)
-    score: float
-    nis: float
-    accepted: bool
-    reason: str = ""  # why it was refused ("" when accepted)
-    tentative: bool = False  # a landmark not yet confirmed: it corrected only itself
-
-
-@dataclass(frozen=True)
-class TrackedLandmark:
-    """A landmark template found again in this frame (step 3), before the filter judges it (step 6)."""
-
-    record: LandmarkRecord
-    uv_px: np.ndarray  # (2,) template centre in the image
-    mn_px: np.ndarray  # (2,) level-equivalent (m, n) of (3)
-    score: float
-    refused: str = ""  # refused before the filter saw it (a laser spot inside the template)
-
-
-@dataclass(frozen=True)
-class FrameResult:
-    """What the pipeline knows after one frame (a record for writers, plots and viewers)."""
-
-    index: int
-    t_s: float
-    dt_s: float
-    x_m: float
-    y_m: float
-    cov_xy_m2: np.ndarray  # (2, 2)
-    heading_rad: float
-    altitude_m: float
-    altitude_sigma_m: float
-    altitude_source: str
-    laser_spots_uv_px: np.ndarray  # (K, 2)
-    surge_mps: float
-    sway_mps: float
-    speed_ok: bool
-    speed_cov_mps2: np.ndarray  # (2, 2)
-    tokens_given: int
-    tokens_tracked: int
-    tokens_inliers: int
-    used_global_search: bool
-    landmarks_visible: int
-    landmarks_tracked: int
-    n_landmarks: int
-    observations: tuple[Observation, ...]
-    new_landmark_id: int | None
-    dr_x_m: float
-    dr_y_m: float
-    skipped_reason: str | None = None
-    token_uv_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (K, 2) tracked tokens
-    measurements: FrameMeasurements | None = None  # what this frame measured, as both back ends consume it
-    recovery: RecoveryEvent | None = None  # the filter re-admitted to its map in this frame
 
 
 class SlamPipeline:
@@ -153,8 +102,8 @@ class SlamPipeline:
             from rovslam.slam.smoother import Isam2Smoother
 
             self.smoother = Isam2Smoother(config.smoother)
-        # What the reported covariance adds for the online back end (rovslam.slam.apparent): fixed by the config.
-        self._apparent_sigmas = apparent_sigmas(config, graph=self.smoother is not None)
+        # The frames' records; what the reported covariance adds for the back end (rovslam.slam.apparent): fixed by the config.
+        self.records = FrameRecords(config, self.scale, self.ekf, apparent_sigmas(config, graph=self.smoother is not None))
         self.landmarks: list[LandmarkRecord] = []
         self.recovery = RecoveryMonitor(config.association)
         # Sunlight caustics: bright structures that do not move with the seabed, taken out while they are seen.
@@ -171,7 +120,6 @@ class SlamPipeline:
         self._prev_t_s: float | None = None
         self._prev_altitude_m: float | None = None
         self._prev_attitude = (0.0, 0.0)
-        self._last_meas: FrameMeasurements | None = None  # the latest frame's (landmark_rows: the apparent frame)
         self._last_speed_mps: np.ndarray | None = None  # (surge, sway) of the last good step
         self._dr = np.zeros(2)
         self._n = 0  # frames processed (not skipped)
@@ -191,9 +139,40 @@ class SlamPipeline:
         for frame in frames:
             yield self.process(frame)
 
+    # ------------------------------------------------------------------ the run's records
+    def landmark_rows(self) -> list[dict]:
+        """The map for landmarks.csv; covariances with the apparent frame's errors (at the last frame's altitude)."""
+        return self.records.landmark_rows(self.landmarks)
+
+    def sunlight_summary(self) -> dict:
+        """What ``summary.json`` says of the sunlight: frames it was taken out of, and when it changed."""
+        opening_px = self.config.bandpass.sunlight_px if self.sunlight is not None else 0
+        return records.sunlight_summary(opening_px, self._sunlit_frames, self.sunlight_events)
+
+    def speed_bias_summary(self) -> dict:
+        """What ``summary.json`` says of the speed error w (:func:`rovslam.pipeline.records.speed_bias_summary`)."""
+        return records.speed_bias_summary(self._drag_frames, self._drag_sum_mps, self._drag_sigma_sum_mps)
+
+    def altitude_bias_summary(self) -> dict:
+        """What ``summary.json`` says of the altitude offset ``b`` (:func:`rovslam.pipeline.records.altitude_bias_summary`)."""
+        return records.altitude_bias_summary(self._altitude_bias_sigmas_m)
+
+    def sunlight_warnings(self) -> list[str]:
+        """One line for the run's warnings when the sunlight was taken out of any frame."""
+        return records.sunlight_warnings(self.config.bandpass.sunlight_px, self._sunlit_frames, self._n,
+                                         self.sunlight_events, self._drag_frames, self._drag_sum_mps,
+                                         self._drag_sigma_sum_mps)
+
     # ------------------------------------------------------------------ the loop
     def process(self, frame: Frame) -> FrameResult:
-        """One frame through the paper's loop (steps 1 to 8)."""
+        """One frame: the paper's loop (steps 1 to 8), then the back end fed with what the frame measured."""
+        step = self._steps(frame)
+        meas = self.records.measurements(step, self.heading.compass_sigma_rad)
+        estimate = self._back_end(meas, step.heading)
+        return self.records.result(step, meas, estimate)
+
+    def _steps(self, frame: Frame) -> FrameStep:
+        """The paper's loop (steps 1 to 8) over one frame, or the skip of an unusable one."""
         dt_s = 0.0 if self._prev_t_s is None else frame.t_s - self._prev_t_s
         prior = self.heading.prior(frame.heading_rad, dt_s)
         track_img, reason = self._tracking_image(frame)
@@ -229,11 +208,17 @@ class SlamPipeline:
             self._bright_history.push(frame.t_s, self._bright, *consensus)
         self._sunlit_frames += self.sunlight is not None and self.sunlight.active
         self._n += 1
-        return self._result(
-            frame, dt_s, heading, alt.altitude_m, speed,
-            altitude=alt, tracks=tracks, visible=len(visible), observations=tuple(observations), new_id=new_id,
-            recovery=event,
-        )
+        return FrameStep(frame, dt_s, heading, alt.altitude_m, speed, self._dr.copy(), altitude=alt, tracks=tracks,
+                         visible=len(visible), observations=self.records.full_res(observations), new_id=new_id,
+                         recovery=event)
+
+    def _back_end(self, meas: FrameMeasurements, heading: HeadingEstimate) -> Estimate:
+        """The estimate reported for the frame: the EKF's, or the iSAM2 smoother's once fed this frame's measurements."""
+        xy, cov, heading_map = self.ekf.vehicle_xy_m, self.ekf.vehicle_cov_m2, self.ekf.map_heading_rad(heading.heading_rad)
+        if self.smoother is not None:
+            est = self.smoother.add_frame(meas)
+            xy, cov, heading_map = est.xy_m, est.cov_xy_m2, est.heading_rad
+        return Estimate(xy, cov, heading_map)
 
     # ------------------------------------------------------------------ before step 1
     def _tracking_image(self, frame: Frame) -> tuple[np.ndarray | None, str | None]:
@@ -288,51 +273,6 @@ class SlamPipeline:
         if speed is not None and speed.ok and len(speed.inlier_mask) == len(uv0):
             uv0, uv1 = uv0[speed.inlier_mask], uv1[speed.inlier_mask]
         return uv0, uv1
-
-    def sunlight_summary(self) -> dict:
-        """What ``summary.json`` says of the sunlight: frames it was taken out of, and when it changed."""
-        return {"opening_px": self.config.bandpass.sunlight_px if self.sunlight is not None else 0,
-                "frames_removed": int(self._sunlit_frames),
-                "changes": [{"frame": e.frame, "t_s": e.t_s, "removed": e.removed, "share": e.share}
-                            for e in self.sunlight_events]}
-
-    def _drag_means_mps(self) -> tuple[np.ndarray, np.ndarray]:
-        n = max(self._drag_frames, 1)
-        return self._drag_sum_mps / n, self._drag_sigma_sum_mps / n
-
-    def speed_bias_summary(self) -> dict:
-        """What ``summary.json`` says of the speed error w: the frames it was driven, its mean and mean sigma
-        over them (m/s, world frame x north, y east)."""
-        mean, sigma = self._drag_means_mps()
-        return {"frames": int(self._drag_frames), "mean_mps": [float(v) for v in mean],
-                "mean_sigma_mps": [float(v) for v in sigma]}
-
-    def altitude_bias_summary(self) -> dict:
-        """What ``summary.json`` says of the altitude offset ``b``: its process sigma over the predictions
-        (median and 95th percentile, m; with the relief under the tokens it exceeds the configured one)."""
-        sig = np.asarray(self._altitude_bias_sigmas_m, dtype=float)
-        if sig.size == 0:
-            return {"predictions": 0, "sigma_median_m": None, "sigma_p95_m": None}
-        return {"predictions": int(sig.size), "sigma_median_m": float(np.median(sig)),
-                "sigma_p95_m": float(np.percentile(sig, 95))}
-
-    def sunlight_warnings(self) -> list[str]:
-        """One line for the run's warnings when the sunlight was taken out of any frame."""
-        if not self._sunlit_frames:
-            return []
-        first = next(e for e in self.sunlight_events if e.removed)
-        return [f"bright light that does not move with the seabed (sunlight caustics) was seen from t = "
-                f"{first.t_s:.1f} s: bright structures narrower than {self.config.bandpass.sunlight_px} px were "
-                f"removed from {self._sunlit_frames} of {self._n} frames before tracking ([bandpass] sunlight_px; "
-                "0 turns this off)" + self._drag_note()]
-
-    def _drag_note(self) -> str:
-        if not self._drag_frames:
-            return ""
-        mean, sigma = self._drag_means_mps()
-        (wx, wy), (sx, sy) = mean * 1e3, sigma * 1e3
-        return (f"; the drag it leaves on the speed, as the filter estimated it (mean over those frames): "
-                f"{wx:+.1f} +- {sx:.1f} mm/s north, {wy:+.1f} +- {sy:.1f} mm/s east ([slam] speed_bias_sigma_mps)")
 
     # ------------------------------------------------------------------ step 1
     def _measure_altitude(self, frame: Frame, att: tuple[float, float]) -> AltitudeEstimate:
@@ -611,36 +551,48 @@ class SlamPipeline:
             walk = heading.walk_var_rad2  # without a compass: the integrated heading's error is eps's random walk
             self._predict(speed, prior.previous_rad, dt_s, heading.sigma_rad if walk is None else 0.0, alt.altitude_m,
                           bias_sigma, walk, bias_tau)
+        candidates = self._update_landmarks(tracked, alt, heading)
+        candidates = self._recover(tracked, candidates, alt, heading, frame)
+        return self._apply_decisions(tracked, associate(candidates), frame)
+
+    def _update_landmarks(self, tracked: list[TrackedLandmark], alt: AltitudeEstimate,
+                          heading: HeadingEstimate) -> list[MatchCandidate]:
+        """Step 6: the joint compatibility test of the frame's matches, then the filter's update (3) of each kept one.
+
+        A tentative landmark corrects only itself. Returns one :class:`~rovslam.association.MatchCandidate`
+        per match, in order, with the reason it was refused before the update or the update's outcome.
+        """
         assoc = self.config.association
-        refused = {id(t): t.refused for t in tracked if t.refused}
-        live = [t for t in tracked if not t.refused]
+        refused = [t.refused for t in tracked]
+        live = [k for k, t in enumerate(tracked) if not t.refused]
         if assoc.joint_compatibility and len(live) > 1:
-            args = [self._update_args(t, alt, heading) for t in live]
+            args = [self._update_args(tracked[k], alt, heading) for k in live]
             _, out = jointly_compatible(lambda ix: self.ekf.joint_nis([args[j] for j in ix]), len(live),
                                         assoc.joint_quantile)
             for j in out:
-                refused[id(live[j])] = REASON_JOINT
-        results = {}
-        for t in live:
-            if id(t) in refused:
-                continue
-            res = self.ekf.update(*self._update_args(t, alt, heading), landmark_only=not t.record.confirmed
-                                  and assoc.confirm_observations > 0)
-            results[id(t)] = res
-        self._recover(live, results, refused, alt, heading, frame)
+                refused[live[j]] = REASON_JOINT
+        candidates = []
+        for t, why in zip(tracked, refused):
+            candidate = MatchCandidate(t.record.id, t.record.confirmed, t.score, why)
+            if not why:
+                res = self.ekf.update(*self._update_args(t, alt, heading), landmark_only=not t.record.confirmed
+                                      and assoc.confirm_observations > 0)
+                candidate = _judged(candidate, res)
+            candidates.append(candidate)
+        return candidates
+
+    def _apply_decisions(self, tracked: list[TrackedLandmark], decisions: tuple[MatchDecision, ...],
+                         frame: Frame) -> list[Observation]:
+        """Step 6: each match's decision counted in its landmark's record and by the recovery monitor."""
+        confirm_after = self.config.association.confirm_observations
         observations = []
-        for t in tracked:
-            res = results.get(id(t))
-            accepted = res is not None and res.accepted
-            reason = refused.get(id(t), "" if accepted else REASON_GATE)
-            tentative = not t.record.confirmed
-            if id(t) not in refused or reason == REASON_JOINT:
-                t.record.observed(accepted, frame.t_s, assoc.confirm_observations)
-            if t.record.confirmed and reason != REASON_LASER:  # found and refused still counts as missing
-                self.recovery.searched(t.record.id, accepted)
-            nis = res.nis if res is not None else math.nan
-            observations.append(Observation(t.record.id, "track", t.uv_px, t.mn_px, t.score, nis, accepted, reason,
-                                            tentative))
+        for t, d in zip(tracked, decisions):
+            if d.counts_observation:
+                t.record.observed(d.accepted, frame.t_s, confirm_after)
+            if t.record.confirmed and d.counts_search:  # found and refused still counts as missing
+                self.recovery.searched(t.record.id, d.accepted)
+            observations.append(Observation(t.record.id, "track", t.uv_px, t.mn_px, t.score, d.nis, d.accepted, d.reason,
+                                            d.tentative))
         return observations
 
     def _update_args(self, t: TrackedLandmark, alt: AltitudeEstimate, heading: HeadingEstimate) -> tuple:
@@ -648,32 +600,31 @@ class SlamPipeline:
         return (t.record.id, t.mn_px, heading.heading_rad, alt.altitude_m, self.focal_px, None, alt.sigma_m,
                 heading.observation_sigma_rad)
 
-    def _recover(self, live: list[TrackedLandmark], results: dict, refused: dict, alt: AltitudeEstimate,
-                 heading: HeadingEstimate, frame: Frame) -> None:
+    def _recover(self, tracked: list[TrackedLandmark], candidates: list[MatchCandidate], alt: AltitudeEstimate,
+                 heading: HeadingEstimate, frame: Frame) -> list[MatchCandidate]:
         """Strong, confirmed matches refused by the innovation test: the filter may be the one that is wrong.
 
         Each tells the vehicle offset that would explain it (``-(Z - h)/f R [nu]``); when the
         :class:`~rovslam.association.RecoveryMonitor` finds them consistent for long enough, the
         vehicle covariance is inflated by that offset, they are admitted, and the event recorded.
+        Returns the candidates, those admitted with their new update's outcome.
         """
-        strong = [t for t in live if id(t) in results and not results[id(t)].accepted and t.record.confirmed
-                  and t.score >= self.config.association.strong_correlation]
-        oldest_refused = min((t.record.id for t in strong), default=-1)
-        accepted_older = any(results[id(t)].accepted for t in live
-                             if id(t) in results and t.record.confirmed and t.record.id < oldest_refused)
+        strong, accepted_older = strong_refusals(candidates, self.config.association.strong_correlation)
         theta = self.ekf.map_heading_rad(heading.heading_rad)
         offsets = []
-        for t in strong:
-            depth = alt.altitude_m - self.ekf.landmark_height_m(t.record.id)
-            offsets.append(-(depth / self.focal_px) * (rot2(theta) @ results[id(t)].innovation_px))
-        offset = self.recovery.refusals(frame.t_s, offsets, [t.record.id for t in strong], accepted_older)
+        for k in strong:
+            depth = alt.altitude_m - self.ekf.landmark_height_m(candidates[k].landmark_id)
+            offsets.append(-(depth / self.focal_px) * (rot2(theta) @ candidates[k].innovation_px))
+        offset = self.recovery.refusals(frame.t_s, offsets, [candidates[k].landmark_id for k in strong], accepted_older)
         if offset is None:
-            return
+            return candidates
         self.ekf.inflate_vehicle_covariance(4.0 * np.outer(offset, offset) + np.eye(2) * (0.25 * float(offset @ offset)))
-        for t in strong:
-            results[id(t)] = self.ekf.update(*self._update_args(t, alt, heading))
+        candidates = list(candidates)
+        for k in strong:
+            candidates[k] = _judged(candidates[k], self.ekf.update(*self._update_args(tracked[k], alt, heading)))
         self.recovery.recovered(RecoveryEvent(frame.index, frame.t_s, (float(offset[0]), float(offset[1])),
-                                              tuple(t.record.id for t in strong), "refused matches"))
+                                              tuple(candidates[k].landmark_id for k in strong), "refused matches"))
+        return candidates
 
     def _speed_bias_sigma_mps(self) -> float:
         """The odometry's slow speed error: sunlight caustics drifting over the seabed drag the tokens."""
@@ -721,7 +672,7 @@ class SlamPipeline:
         self.tokens.extract(track_img, local_variance(track_img, self.config.speed_templates.size_px), mask)
 
     # ------------------------------------------------------------------ unusable frames
-    def _skip(self, frame: Frame, dt_s: float, prior: HeadingPrior, reason: str) -> FrameResult:
+    def _skip(self, frame: Frame, dt_s: float, prior: HeadingPrior, reason: str) -> FrameStep:
         """An unusable frame: predict with the held speed, follow the compass, reset the token tracks."""
         self.skipped.append((frame.index, frame.t_s, reason))
         speed = None
@@ -734,94 +685,7 @@ class SlamPipeline:
         self._prev_t_s = frame.t_s
         if self._prev_altitude_m is None:
             self._prev_altitude_m = self.altimeter_fallback
-        return self._result(frame, dt_s, heading, self._prev_altitude_m, speed, skipped_reason=reason)
-
-    # ------------------------------------------------------------------ records
-    def _result(
-        self, frame: Frame, dt_s: float, heading: HeadingEstimate, altitude_m: float, speed: SpeedMeasurement | None,
-        *, altitude: AltitudeEstimate | None = None, tracks: TokenTracks | None = None, visible: int = 0,
-        observations: tuple[Observation, ...] = (), new_id: int | None = None, skipped_reason: str | None = None,
-        recovery: RecoveryEvent | None = None,
-    ) -> FrameResult:
-        """The one place a :class:`FrameResult` is built (processed and skipped frames alike).
-
-        Pixels are reported in the full-resolution frame (:meth:`_full_res`), whatever the processing scale.
-        """
-        observations = tuple(self._full_res(o) for o in observations)
-        meas = self._measurements(frame, dt_s, heading, altitude_m, altitude, speed, observations)
-        self._last_meas = meas
-        xy, cov, heading_map = self.ekf.vehicle_xy_m, self.ekf.vehicle_cov_m2, self.ekf.map_heading_rad(heading.heading_rad)
-        if self.smoother is not None:
-            est = self.smoother.add_frame(meas)
-            xy, cov, heading_map = est.xy_m, est.cov_xy_m2, est.heading_rad
-        return FrameResult(
-            index=frame.index, t_s=frame.t_s, dt_s=dt_s, x_m=float(xy[0]), y_m=float(xy[1]),
-            cov_xy_m2=self._reported_cov(cov, xy, meas),
-            heading_rad=heading_map, altitude_m=altitude_m,
-            altitude_sigma_m=altitude.sigma_m if altitude else math.nan,
-            altitude_source=altitude.source if altitude else "none",
-            laser_spots_uv_px=altitude.spots_uv_px if altitude else _NO_POINTS,
-            surge_mps=speed.surge_mps if speed else 0.0, sway_mps=speed.sway_mps if speed else 0.0,
-            speed_ok=bool(speed.ok) if speed else False, speed_cov_mps2=speed.cov_mps2 if speed else _NO_COV,
-            tokens_given=tracks.n_given if tracks else 0, tokens_tracked=tracks.n_tracked if tracks else 0,
-            tokens_inliers=speed.n_inliers if speed else 0,
-            used_global_search=tracks.used_global_search if tracks else False,
-            landmarks_visible=visible, landmarks_tracked=sum(o.accepted for o in observations if o.kind == "track"),
-            n_landmarks=self.ekf.n_landmarks, observations=observations, new_landmark_id=new_id,
-            dr_x_m=float(self._dr[0]), dr_y_m=float(self._dr[1]), skipped_reason=skipped_reason,
-            token_uv_px=self.scale.to_full_px(tracks.uv_curr_px) if tracks else _NO_POINTS, measurements=meas, recovery=recovery,
-        )
-
-    def _measurements(
-        self, frame: Frame, dt_s: float, heading: HeadingEstimate, altitude_m: float,
-        altitude: AltitudeEstimate | None, speed: SpeedMeasurement | None, observations: tuple[Observation, ...],
-    ) -> FrameMeasurements:
-        """This frame's measurements in plain numbers (:mod:`rovslam.slam.measurements`), for either back end."""
-        slam = self.config.slam
-        sigma_z = altitude.sigma_m if altitude else math.nan
-        turn = speed is not None and speed.ok and math.isfinite(speed.dpsi_sigma_rad) and speed.dpsi_sigma_rad > 0
-        landmarks = tuple(self._landmark_measurement(o, altitude_m, sigma_z) for o in observations)
-        return FrameMeasurements(
-            index=frame.index, t_s=frame.t_s, dt_s=dt_s,
-            speed_mps=speed.speed_mps if speed else np.zeros(2), speed_cov_mps2=speed.cov_mps2 if speed else _NO_COV,
-            speed_ok=bool(speed.ok) if speed else False, heading_rad=heading.heading_rad,
-            heading_sigma_rad=heading.sigma_rad if heading.sigma_rad is not None else slam.heading_sigma_rad,
-            compass_rad=frame.heading_rad, compass_sigma_rad=self.heading.compass_sigma_rad,
-            heading_step_rad=speed.dpsi_rad if turn else math.nan,
-            heading_step_sigma_rad=speed.dpsi_sigma_rad if turn else math.nan,
-            altitude_m=altitude_m, altitude_sigma_m=sigma_z, focal_px=self.scale.full.focal_px, landmarks=landmarks,
-            attitude_sigma_rad=self.config.odometry.attitude_sigma_rad if frame.has_attitude else 0.0,
-        )
-
-    def _landmark_measurement(self, o: Observation, altitude_m: float, sigma_z: float) -> LandmarkMeasurement:
-        """An observation as the flat-seabed model (3) at the frame's altitude sees it (for the smoother).
-
-        A landmark ``h`` above the seabed is seen at depth ``Z - h``: its [m, n] scaled by
-        ``(Z - h) / Z`` is what a flat seabed at Z would show (the filter's current height).
-        """
-        depth = altitude_m - self.ekf.landmark_height_m(o.landmark_id)
-        scale = depth / altitude_m
-        noise = observation_noise_px2(o.mn_px, self.config.slam.pixel_sigma_px * self.scale.focal_ratio, depth, sigma_z)
-        return LandmarkMeasurement(o.landmark_id, o.kind, o.mn_px * scale, noise * scale**2, o.accepted)
-
-    def _full_res(self, o: Observation) -> Observation:
-        """An observation in full-resolution pixels: its template centre, and its [m, n] over the full focal length."""
-        if self.scale.identity:
-            return o
-        return dataclasses.replace(o, uv_px=self.scale.to_full_px(o.uv_px), mn_px=o.mn_px * self.scale.focal_ratio)
-
-    def _reported_cov(self, cov_m2: np.ndarray, xy_m: np.ndarray, meas: FrameMeasurements) -> np.ndarray:
-        """(2, 2) covariance of the true position: the back end's, plus the apparent frame's errors.
-
-        The tilt the AHRS leaves, the heading error every frame shares (the compass's constant
-        error; its drift too when the back end does not estimate it) and, for the iSAM2 back end,
-        which does not hold it, the altimeter's lasting error move the whole estimate, and no
-        image can see them (:mod:`rovslam.slam.apparent`).
-        """
-        heading_sigma_rad, altitude_sigma_m, altitude_scale = self._apparent_sigmas
-        return np.asarray(cov_m2, dtype=np.float64) + apparent_frame_cov_m2(
-            xy_m, meas.altitude_m, meas.attitude_sigma_rad, heading_sigma_rad if meas.has_compass else 0.0,
-            altitude_offset_sigma_m(altitude_sigma_m, altitude_scale, meas.altitude_m) / meas.altitude_m)
+        return FrameStep(frame, dt_s, heading, self._prev_altitude_m, speed, self._dr.copy(), skipped_reason=reason)
 
     def _inside(self, uv_px: np.ndarray, half_px: float) -> bool:
         """Is the ``(2,)`` centre (u, v) finite and ``half_px`` inside the image's border? (Python floats: cheaper)"""
@@ -829,19 +693,7 @@ class SlamPipeline:
         return (math.isfinite(u) and math.isfinite(v) and half_px <= u <= self.camera.width_px - 1 - half_px
                 and half_px <= v <= self.camera.height_px - 1 - half_px)
 
-    def landmark_rows(self) -> list[dict]:
-        """The map for landmarks.csv; covariances with the apparent frame's errors (at the last frame's altitude)."""
-        rows = []
-        for rec in self.landmarks:
-            xy = self.ekf.landmark_xy_m(rec.id)
-            c = self.ekf.landmark_cov_m2(rec.id)
-            if self._last_meas is not None:
-                c = self._reported_cov(c, xy, self._last_meas)
-            rows.append(
-                {"id": rec.id, "x_m": float(xy[0]), "y_m": float(xy[1]), "var_x_m2": float(c[0, 0]),
-                 "cov_xy_m2": float(c[0, 1]), "var_y_m2": float(c[1, 1]), "first_t_s": rec.first_t_s,
-                 "observations": rec.observations, "local_variance": rec.local_variance,
-                 "height_m": self.ekf.landmark_height_m(rec.id), "height_sigma_m": self.ekf.landmark_height_sigma_m(rec.id),
-                 "self_similarity": rec.self_similarity, "confirmed": int(rec.confirmed), "rejected": rec.rejected}
-            )
-        return rows
+
+def _judged(candidate: MatchCandidate, res: UpdateResult) -> MatchCandidate:
+    """A match with the outcome of the filter's update (3) on it."""
+    return dataclasses.replace(candidate, updated=True, accepted=res.accepted, nis=res.nis, innovation_px=res.innovation_px)
