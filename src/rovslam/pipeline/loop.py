@@ -42,41 +42,41 @@ from rovslam.association import (
     jointly_compatible,
     strong_refusals,
 )
-from rovslam.camera import ground_to_pixels, mn_to_ground, pixels_to_ground, rot2
+from rovslam.camera import ground_to_pixels, mn_to_ground, rot2
 from rovslam.config import RunConfig
 from rovslam.heading import HeadingEstimate, HeadingPrior, HeadingTracker
 from rovslam.io.sequence import Frame, SequenceInfo
 from rovslam.landmarks import LandmarkRecord, most_distinctive, oriented_patch
 from rovslam.odometry import SpeedEstimator, SpeedMeasurement
 from rovslam.pipeline import records
+from rovslam.pipeline.depth import DepthModel
+from rovslam.pipeline.image import SunlightWatch, tracking_image
+from rovslam.pipeline.geometry import (
+    consensus_tokens,
+    covers_laser_spot,
+    inside_image,
+    landmark_mn_at_frame_time,
+    motion_hint,
+    search_radius_px,
+    token_predictions,
+)
 from rovslam.pipeline.records import Estimate, FrameRecords, FrameResult, FrameStep, Observation, TrackedLandmark
-from rovslam.shutter import mn_at_frame_time, mn_rate_px_s, tokens_at_frame_time
+from rovslam.shutter import tokens_at_frame_time
 from rovslam.slam import EkfSlam
 from rovslam.slam.apparent import apparent_sigmas
 from rovslam.slam.ekf import UpdateResult
 from rovslam.slam.measurements import FrameMeasurements
-from rovslam.slam.motion import altitude_offset_sigma_m, motion_step_m, ou_sum_as_one
+from rovslam.slam.motion import motion_step_m
 from rovslam.slam.observation import pixels_to_mn
-from rovslam.sunlight import BrightHistory, SunlightEvent, SunlightMonitor, moving_light_share
 from rovslam.vision.filters import (
-    bandpass,
-    contrast_std,
-    despeckled_channels,
     local_variance,
-    remove_specks,
-    template_channel,
 )
-from rovslam.vision.laser import SOURCE_FIXED, SOURCE_HELD, AltitudeEstimate, LaserAltimeter
+from rovslam.vision.laser import AltitudeEstimate, LaserAltimeter
 from rovslam.vision.scale import processing_scale
 from rovslam.vision.templates import Template, extract_templates, inhibit_boxes, inhibition_mask
 from rovslam.vision.tracking import TokenTracker, TokenTracks, match_template
 
-__all__ = ["MIN_TEXTURE_STD", "SlamPipeline"]
-
-# A frame whose template channel has less contrast than this (8-bit units, std of the
-# band-passed image) carries no texture to track: black, saturated or flat.
-MIN_TEXTURE_STD = 0.5
-
+__all__ = ["SlamPipeline"]
 
 class SlamPipeline:
     """Stateful runner of the per-frame loop for one sequence."""
@@ -97,6 +97,7 @@ class SlamPipeline:
         self.speed = SpeedEstimator(config.odometry)
         self.heading = HeadingTracker(config.odometry, config.slam)
         self.ekf = EkfSlam(config.slam, initial_altitude_m=self.altimeter_fallback)
+        self.depth = DepthModel(config, self.altitude, self.speed, self.ekf)  # step 1's Z over time, the relief's error
         self.smoother = None  # the iSAM2 back end ([slam] backend = "isam2"): the EKF then only associates
         if config.slam.backend == "isam2":
             from rovslam.slam.smoother import Isam2Smoother
@@ -107,15 +108,12 @@ class SlamPipeline:
         self.landmarks: list[LandmarkRecord] = []
         self.recovery = RecoveryMonitor(config.association)
         # Sunlight caustics: bright structures that do not move with the seabed, taken out while they are seen.
-        self.sunlight = SunlightMonitor() if config.bandpass.sunlight_px > config.bandpass.despeckle_px else None
-        self.sunlight_events: list[SunlightEvent] = []
-        self._sunlit_frames = 0
+        self.sunlight_watch = SunlightWatch(config.bandpass)
+        self.sunlight = self.sunlight_watch.monitor
         self._drag_frames = 0  # predictions that drove the filter's speed error w
         self._drag_sum_mps = np.zeros(2)  # w summed over them, and its sigma
         self._drag_sigma_sum_mps = np.zeros(2)
         self._altitude_bias_sigmas_m = array("d")  # b's process sigma of each prediction (summary.json; 8 bytes each)
-        self._bright_history = BrightHistory()  # (H, W) float32 bright structures of the last frames
-        self._bright: np.ndarray | None = None  # ... and of this one
         self.skipped: list[tuple[int, float, str]] = []
         self._prev_t_s: float | None = None
         self._prev_altitude_m: float | None = None
@@ -146,8 +144,8 @@ class SlamPipeline:
 
     def sunlight_summary(self) -> dict:
         """What ``summary.json`` says of the sunlight: frames it was taken out of, and when it changed."""
-        opening_px = self.config.bandpass.sunlight_px if self.sunlight is not None else 0
-        return records.sunlight_summary(opening_px, self._sunlit_frames, self.sunlight_events)
+        watch = self.sunlight_watch
+        return records.sunlight_summary(watch.opening_px, watch.frames_removed, watch.events)
 
     def speed_bias_summary(self) -> dict:
         """What ``summary.json`` says of the speed error w (:func:`rovslam.pipeline.records.speed_bias_summary`)."""
@@ -159,9 +157,9 @@ class SlamPipeline:
 
     def sunlight_warnings(self) -> list[str]:
         """One line for the run's warnings when the sunlight was taken out of any frame."""
-        return records.sunlight_warnings(self.config.bandpass.sunlight_px, self._sunlit_frames, self._n,
-                                         self.sunlight_events, self._drag_frames, self._drag_sum_mps,
-                                         self._drag_sigma_sum_mps)
+        watch = self.sunlight_watch
+        return records.sunlight_warnings(self.config.bandpass.sunlight_px, watch.frames_removed, self._n, watch.events,
+                                         self._drag_frames, self._drag_sum_mps, self._drag_sigma_sum_mps)
 
     # ------------------------------------------------------------------ the loop
     def process(self, frame: Frame) -> FrameResult:
@@ -193,7 +191,7 @@ class SlamPipeline:
         n_events = len(self.recovery.events)
         observations = self._predict_and_update(speed, tracked, alt, prior, heading, dt_s, frame)  # step 6
         event = self.recovery.events[-1] if len(self.recovery.events) > n_events else None
-        consensus = self._consensus_tokens(tracks, speed)
+        consensus = consensus_tokens(tracks, speed)
         relit = self._watch_sunlight(frame, *consensus)
         if relit is not None:  # the sunlight was taken out (or left in again): steps 7 and 8 cut from that image
             track_img = relit
@@ -204,9 +202,7 @@ class SlamPipeline:
         self._extract_tokens(track_img, mask)  # step 8
 
         self._prev_t_s, self._prev_altitude_m, self._prev_attitude = frame.t_s, alt.altitude_m, att
-        if self._bright is not None:
-            self._bright_history.push(frame.t_s, self._bright, *consensus)
-        self._sunlit_frames += self.sunlight is not None and self.sunlight.active
+        self.sunlight_watch.end_frame(frame.t_s, *consensus)
         self._n += 1
         return FrameStep(frame, dt_s, heading, alt.altitude_m, speed, self._dr.copy(), altitude=alt, tracks=tracks,
                          visible=len(visible), observations=self.records.full_res(observations), new_id=new_id,
@@ -225,117 +221,39 @@ class SlamPipeline:
         """``(H, W) float32`` band-passed template channel, or the reason the frame is unusable."""
         if frame.image is None or frame.error is not None:
             return None, frame.error or "no image"
-        cfg = self.config.bandpass
-        wide_px = cfg.sunlight_px if self.sunlight is not None else 0
-        if self.scale.identity:
-            chan, wide = despeckled_channels(frame.image, cfg.channel, cfg.despeckle_px, wide_px)
-        else:  # the channel reduced to the processing scale (area average on floats), then despeckled
-            chan = remove_specks(self.scale.reduce(template_channel(frame.image, cfg.channel)), cfg.despeckle_px)
-            wide = remove_specks(chan, wide_px) if wide_px else None
-        if wide is not None:  # the bright structures between the two widths: the sunlight, if any
-            self._bright = chan - wide
-            if self.sunlight.active:
-                chan = wide
-        img = bandpass(chan, cfg.sigma_fine_px, cfg.sigma_coarse_px)
-        std = contrast_std(img)
-        if std < MIN_TEXTURE_STD:
-            return None, "no texture (black, saturated or flat frame)"
-        if std < cfg.min_contrast_std:  # dark or low-contrast: lifted as a camera's gain would, for the thresholds
-            img *= np.float32(cfg.min_contrast_std / std)
-        return img, None
+        watch = self.sunlight_watch
+        img, bright, reason = tracking_image(frame.image, self.config.bandpass, self.scale, watch.opening_px, watch.removing)
+        if bright is not None:
+            watch.bright = bright
+        return img, reason
 
     def _watch_sunlight(self, frame: Frame, uv0: np.ndarray, uv1: np.ndarray) -> np.ndarray | None:
         """After step 6: did the bright structures around the tokens move with them? (:mod:`rovslam.sunlight`)
 
         ``uv0``, ``uv1``: ``(N, 2)`` the consensus's tokens in the previous frame and in this one
-        (:meth:`_consensus_tokens`). Returns this frame's tracking image when the sunlight was just taken out (or left in
-        again), so that steps 7 and 8 cut their templates from it; None when nothing changed.
+        (:func:`~rovslam.pipeline.geometry.consensus_tokens`). Returns this frame's tracking image when
+        the sunlight was just taken out (or left in again), so that steps 7 and 8 cut their templates
+        from it; None when nothing changed.
         """
-        if self.sunlight is None or self._bright is None:
-            return None
-        earlier = self._bright_history.baseline(frame.t_s, uv0)  # over 0.2 s, whatever the frame rate
-        if earlier is None:
-            return None
-        share = moving_light_share(earlier[0], self._bright, earlier[1], uv1, self.config.speed_templates.size_px)
-        if not self.sunlight.observe(share):
+        if not self.sunlight_watch.changed(frame.t_s, uv0, uv1, self.config.speed_templates.size_px):
             return None
         img, reason = self._tracking_image(frame)
         if reason is not None:  # no texture left without the sunlight: keep the image as it was
             self.sunlight.active = not self.sunlight.active
             return None
-        self.sunlight_events.append(SunlightEvent(self._n, frame.t_s, self.sunlight.active, self.sunlight.share))
+        self.sunlight_watch.record_change(self._n, frame.t_s)
         return img
-
-    @staticmethod
-    def _consensus_tokens(tracks: TokenTracks, speed: SpeedMeasurement | None) -> tuple[np.ndarray, np.ndarray]:
-        """``(N, 2)`` previous and current centres of the tokens the speed consensus kept (all, without one)."""
-        uv0, uv1 = tracks.uv_prev_px, tracks.uv_curr_px
-        if speed is not None and speed.ok and len(speed.inlier_mask) == len(uv0):
-            uv0, uv1 = uv0[speed.inlier_mask], uv1[speed.inlier_mask]
-        return uv0, uv1
 
     # ------------------------------------------------------------------ step 1
     def _measure_altitude(self, frame: Frame, att: tuple[float, float]) -> AltitudeEstimate:
         """Step 1: laser spots -> image depth Z, fused with the sonar, filtered over time (not an assumed value)."""
         alt = self.altimeter.measure(frame.image, frame.sonar_altitude_m, *att)
-        if alt.source == SOURCE_FIXED:
-            return self._held_altitude(frame.t_s, alt)
-        z, sigma = self.altitude.update(frame.t_s, alt.altitude_m, alt.sigma_m)
-        return dataclasses.replace(alt, altitude_m=z, sigma_m=self._with_terrain_sigma_m(z, sigma, alt))
-
-    def _with_terrain_sigma_m(self, altitude_m: float, sigma_m: float, alt: AltitudeEstimate) -> float:
-        """The filtered altitude's sigma, widened by the relief without the filter's altitude-offset state b:
-        over relief the lasers (or the sonar) range to the seabed under their few points, not to the mean
-        seabed; that spread is Z's error too."""
-        if self.ekf.altitude_bias_sigma_m != 0.0:
-            return sigma_m
-        return math.sqrt(sigma_m * sigma_m + self._terrain_sigma_m(altitude_m, alt) ** 2)
-
-    def _held_altitude(self, t_s: float, assumed: AltitudeEstimate) -> AltitudeEstimate:
-        """A frame with no laser spot and no sonar reading: the altitude filter's prediction, while it is surer.
-
-        Between two readings the vehicle's altitude is what the filter predicts, its sigma growing
-        with the vertical acceleration; the assumed altitude (``[vehicle] altitude_m``, else the
-        paper's) takes over only before the first reading or once the prediction is less sure than
-        it (``[laser] fixed_altitude_sigma_m``).
-        """
-        pred = self.altitude.predict(t_s)
-        if pred is None or not pred[1] < assumed.sigma_m:
-            return assumed
-        z, sigma = pred
-        return dataclasses.replace(assumed, altitude_m=z, sigma_m=self._with_terrain_sigma_m(z, sigma, assumed),
-                                   source=SOURCE_HELD)
-
-    def _terrain_sigma_m(self, altitude_m: float, alt: AltitudeEstimate) -> float:
-        """How far the relief under the altimeter's points strays from the mean seabed (from the tokens' parallax)."""
-        samples = max(alt.n_spots, 1) if alt.source.startswith("laser") else 1
-        return self._relief_sigma_m(altitude_m, samples)
-
-    def _relief_sigma_m(self, altitude_m: float, samples: int = 1) -> float:
-        """The relief's height spread at depth Z from the tokens' parallax, over ``samples`` independent points (m)."""
-        return self.config.odometry.relief_scale_gain * altitude_m * math.sqrt(self.speed.relief_var / samples)
+        return self.depth.filtered(frame.t_s, alt)
 
     def _altitude_bias_process(self, altitude_m: float, alt: AltitudeEstimate) -> tuple[float, float]:
-        """The altitude offset ``b``'s stationary sigma (m) and correlation time (s) over this step.
-
-        The tokens' speed is measured at the altitude Z, but the tokens stand on the relief: their
-        depth strays from Z by about one token's relative height spread (the tokens of one frame stand
-        on the same relief features, so their mean does not average it away), a scale error of the
-        speed that lasts while the same relief is under the camera. ``b`` carries it beside the
-        altimeter's lasting error: their sum, two Ornstein-Uhlenbeck processes (the altimeter's:
-        ``[slam] altitude_bias_sigma_m`` and the laser rig's share ``altitude_scale_sigma`` of Z in
-        quadrature, :func:`~rovslam.slam.motion.altitude_offset_sigma_m`, with ``altitude_bias_tau_s``;
-        the relief's: sigma ``gain Z sigma_s`` from the tokens' parallax with
-        ``altitude_bias_relief_tau_s``), held as one with
-        the same variance and the same integrated autocovariance (so the same long-run drift).
-        """
-        slam = self.config.slam
-        # the altimeter's lasting error at this depth: its offset and the laser rig's share of Z
-        lasting = altitude_offset_sigma_m(slam.altitude_bias_sigma_m, slam.altitude_scale_sigma, altitude_m)
-        if not slam.altitude_bias_relief:  # the altimeter's lasting error, or the relief under its spots if larger
-            return max(lasting, self._terrain_sigma_m(altitude_m, alt)), slam.altitude_bias_tau_s
-        relief = self._relief_sigma_m(altitude_m)  # one token's spread: the tokens share their relief features
-        return ou_sum_as_one(lasting, slam.altitude_bias_tau_s, relief, slam.altitude_bias_relief_tau_s)
+        """The altitude offset ``b``'s stationary sigma (m) and correlation time (s) over this step
+        (:meth:`rovslam.pipeline.depth.DepthModel.bias_process`: the altimeter's lasting error and the relief's)."""
+        return self.depth.bias_process(altitude_m, alt)
 
     # ------------------------------------------------------------------ step 2
     def _inhibit_laser_spots(self, alt: AltitudeEstimate) -> np.ndarray:
@@ -368,7 +286,7 @@ class SlamPipeline:
         psi_map = self.ekf.map_heading_rad(psi)
         half = lm.size_px / 2.0
         assoc = self.config.association
-        inside = [k for k, uv in enumerate(uv_pred) if not self.landmarks[int(visible[k])].dead and self._inside(uv, half - 2)]
+        inside = [k for k, uv in enumerate(uv_pred) if not self.landmarks[int(visible[k])].dead and inside_image(uv, half - 2, self.camera)]
         wide = self.recovery.wide_candidates(int(visible[k]) for k in inside if self.landmarks[int(visible[k])].confirmed)
         # A landmark lost for several frames: a wider window, and only clear, unambiguous matches.
         strict = self._strict_tracker
@@ -379,13 +297,13 @@ class SlamPipeline:
             if i in wide:
                 m = match_template(track_img, oriented_patch(rec, psi_map), uv, assoc.wide_search_radius_px, strict)
             else:
-                m = match_template(track_img, oriented_patch(rec, psi_map), uv, self._search_radius_px(s, slack_px),
+                m = match_template(track_img, oriented_patch(rec, psi_map), uv, search_radius_px(s, slack_px, lm),
                                    self.config.tracker)
-            if not (m.ok and self._inside(m.uv_px, half)):
+            if not (m.ok and inside_image(m.uv_px, half, self.camera)):
                 if rec.confirmed:
                     self.recovery.searched(i, False)
                 continue
-            refused = REASON_LASER if self._covers_laser_spot(m.uv_px, self.scale.to_processed_px(alt.spots_uv_px)) else ""
+            refused = REASON_LASER if covers_laser_spot(m.uv_px, self.scale.to_processed_px(alt.spots_uv_px), lm.size_px) else ""
             tracked.append(TrackedLandmark(rec, m.uv_px, pixels_to_mn(self.camera, m.uv_px, z, *att)[0], m.score, refused))
         return visible, tracked
 
@@ -397,17 +315,6 @@ class SlamPipeline:
             return motion_step_m(self._last_speed_mps, heading, dt_s), px_per_m * self.config.odometry.gap_speed_sigma_mps * dt_s
         # No speed measured yet: the survey speed bounds the motion either way.
         return np.zeros(2), px_per_m * self.config.odometry.survey_speed_mps * dt_s
-
-    def _search_radius_px(self, innovation_cov_px2: np.ndarray, slack_px: float) -> int:
-        """Search radius: 3 sigma of the predicted position and of the speed change, plus a margin."""
-        lm = self.config.landmark_templates
-        sigma_px = math.hypot(math.sqrt(max(float(np.max(np.linalg.eigvalsh(innovation_cov_px2))), 0.0)), slack_px)
-        return int(min(lm.max_search_radius_px, math.ceil(3.0 * sigma_px) + lm.search_margin_px))
-
-    def _covers_laser_spot(self, uv_px: np.ndarray, spots_uv_px: np.ndarray) -> bool:
-        """Whether a laser spot lies inside the landmark template centred at ``uv_px`` (with 2 px to spare)."""
-        half = self.config.landmark_templates.size_px / 2.0
-        return bool(len(spots_uv_px)) and bool(np.any(np.max(np.abs(spots_uv_px - uv_px), axis=1) < half + 2))
 
     def _choose_new_landmark(
         self, track_img: np.ndarray, mask: np.ndarray, tracked: list[TrackedLandmark]
@@ -444,7 +351,8 @@ class SlamPipeline:
     ) -> tuple[TokenTracks, SpeedMeasurement | None]:
         """Step 5: track the previous frame's tokens (their windows follow the turn) -> surge, sway, turn."""
         common, offsets = self._token_predictions(prior.step_rad, att, dt_s)
-        if self.tokens.reselect_for_motion(self._motion_hint(track_img, common, offsets)):
+        hint = motion_hint(*self.tokens.motion_prior(track_img), common, offsets, self.config.tracker.min_global_confidence)
+        if self.tokens.reselect_for_motion(hint):
             common, offsets = self._token_predictions(prior.step_rad, att, dt_s)  # the tokens changed
         tracks = self.tokens.track(track_img, common, mask, offsets)
         if self._prev_t_s is None:
@@ -459,44 +367,16 @@ class SlamPipeline:
         )
         return tracks, speed
 
-    def _motion_hint(self, track_img: np.ndarray, common: np.ndarray | None, offsets: np.ndarray | None) -> np.ndarray:
-        """The image motion the tokens should survive: the phase correlation's when confident, else the predicted one.
-
-        Returns ``(2,)`` pixels (NaN when neither is known); the mean per-token offset (turn, tilt) is included.
-        """
-        g_shift, g_conf = self.tokens.motion_prior(track_img)
-        mean_offset = np.zeros(2) if offsets is None else np.mean(offsets, axis=0)
-        if g_shift is not None and (common is None or g_conf >= self.config.tracker.min_global_confidence):
-            return g_shift
-        return np.full(2, np.nan) if common is None else common + mean_offset
-
     def _token_predictions(
         self, dpsi_rad: float, att: tuple[float, float], dt_s: float
     ) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """Where the speed tokens should be now: a common shift and per-token offsets, in pixels.
-
-        The motion model (1) moves each token's seabed point by the last good speed and turns
-        it by the compass heading change, seen through the current attitude. Returns
-        ``(common (2,) or None, offsets (N, 2) or None)``: the common part is the translation
-        (None when no speed is known yet, so the tracker searches globally); the offsets hold
-        what rotation and tilt change add per token.
-        """
+        """Where the speed tokens should be now: ``(common (2,) or None, offsets (N, 2) or None)`` pixels
+        (:func:`rovslam.pipeline.geometry.token_predictions`; none without tokens or a previous altitude)."""
         toks = self.tokens.tokens
         if not toks or self._prev_altitude_m is None:
             return None, None
-        uv0 = np.array([t.centre_uv_px for t in toks])
-        z = self._prev_altitude_m
-        g0 = pixels_to_ground(self.camera, uv0, z, *self._prev_attitude)
-        rot = ground_to_pixels(self.camera, g0 @ rot2(dpsi_rad), z, *att) - uv0  # R(dpsi)^T g
-        if not np.all(np.isfinite(rot)):
-            return None, None
-        if self._last_speed_mps is None:
-            return None, rot
-        full = ground_to_pixels(self.camera, (g0 - self._last_speed_mps * dt_s) @ rot2(dpsi_rad), z, *att) - uv0
-        if not np.all(np.isfinite(full)):
-            return None, rot
-        common = np.mean(full - rot, axis=0)
-        return common, full - common
+        return token_predictions(self.camera, np.array([t.centre_uv_px for t in toks]), self._prev_altitude_m,
+                                 self._prev_attitude, att, dpsi_rad, self._last_speed_mps, dt_s)
 
     def _landmarks_at_frame_time(
         self, tracked: list[TrackedLandmark], speed: SpeedMeasurement | None, prior: HeadingPrior,
@@ -505,24 +385,10 @@ class SlamPipeline:
         """Step 5, rolling shutter: each landmark's [m, n] moved to the frame's time (:mod:`rovslam.shutter`)."""
         if self.camera.readout_s == 0.0 or speed is None:
             return tracked
-        return [dataclasses.replace(t, mn_px=self._mn_at_frame_time(
-            t.mn_px, t.uv_px[1], alt.altitude_m - self.ekf.landmark_height_m(t.record.id), speed, prior, dt_s))
+        return [dataclasses.replace(t, mn_px=landmark_mn_at_frame_time(
+            self.camera, t.mn_px, t.uv_px[1], alt.altitude_m - self.ekf.landmark_height_m(t.record.id), speed, prior,
+            dt_s))
             for t in tracked]
-
-    def _mn_at_frame_time(self, mn_px: np.ndarray, v_px: float, depth_m: float, speed: SpeedMeasurement | None,
-                          prior: HeadingPrior | None, dt_s: float) -> np.ndarray:
-        """A landmark's [m, n] seen at image row ``v_px`` moved to the frame's time (unchanged for a global shutter)."""
-        if self.camera.readout_s == 0.0 or speed is None or prior is None:
-            return mn_px
-        rate = mn_rate_px_s(mn_px, speed.speed_mps, self._yaw_rate_radps(speed, prior, dt_s), depth_m, self.focal_px)
-        return mn_at_frame_time(self.camera, v_px, mn_px, rate)
-
-    def _yaw_rate_radps(self, speed: SpeedMeasurement, prior: HeadingPrior, dt_s: float) -> float:
-        """The turn rate over the last frame interval: the tokens' turn when they measured it, else the compass's."""
-        if not dt_s > 0:
-            return 0.0
-        step = speed.dpsi_rad if speed.ok and math.isfinite(speed.dpsi_rad) else prior.step_rad
-        return float(step) / dt_s if math.isfinite(step) else 0.0
 
     def _fuse_heading(self, prior: HeadingPrior, speed: SpeedMeasurement | None, dt_s: float) -> HeadingEstimate:
         """Step 5, heading: the compass smoothed with the turn the tokens measured."""
@@ -655,7 +521,8 @@ class SlamPipeline:
     ) -> tuple[int, Observation]:
         """Step 7: augment the state with the new landmark by (4) and keep its template."""
         mn = pixels_to_mn(self.camera, template.centre_uv_px, alt.altitude_m, *att)[0]
-        mn = self._mn_at_frame_time(mn, template.centre_uv_px[1], alt.altitude_m, speed, prior, dt_s)  # rolling shutter
+        mn = landmark_mn_at_frame_time(self.camera, mn, template.centre_uv_px[1], alt.altitude_m, speed, prior,
+                                       dt_s)  # rolling shutter
         new_id = self.ekf.augment(
             mn, heading.heading_rad, alt.altitude_m, self.focal_px, altitude_sigma_m=alt.sigma_m,
             heading_sigma_rad=heading.observation_sigma_rad,
@@ -686,12 +553,6 @@ class SlamPipeline:
         if self._prev_altitude_m is None:
             self._prev_altitude_m = self.altimeter_fallback
         return FrameStep(frame, dt_s, heading, self._prev_altitude_m, speed, self._dr.copy(), skipped_reason=reason)
-
-    def _inside(self, uv_px: np.ndarray, half_px: float) -> bool:
-        """Is the ``(2,)`` centre (u, v) finite and ``half_px`` inside the image's border? (Python floats: cheaper)"""
-        u, v = float(uv_px[0]), float(uv_px[1])
-        return (math.isfinite(u) and math.isfinite(v) and half_px <= u <= self.camera.width_px - 1 - half_px
-                and half_px <= v <= self.camera.height_px - 1 - half_px)
 
 
 def _judged(candidate: MatchCandidate, res: UpdateResult) -> MatchCandidate:
