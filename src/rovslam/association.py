@@ -30,11 +30,12 @@ from functools import lru_cache
 import numpy as np
 from scipy.stats import chi2
 
+from rovslam.camera import rot2
 from rovslam.config import AssociationConfig
 from rovslam.errors import InvalidArgumentError
 
 __all__ = ["MatchCandidate", "MatchDecision", "RecoveryEvent", "RecoveryMonitor", "ToldOffset", "associate",
-           "jointly_compatible", "strong_refusals"]
+           "jointly_compatible", "recovery_inflation_m2", "strong_refusals", "told_offset_m"]
 
 REASON_GATE = "innovation test"
 REASON_JOINT = "joint compatibility"
@@ -126,6 +127,20 @@ def strong_refusals(candidates: Sequence[MatchCandidate], strong_correlation: fl
     oldest_refused = min((candidates[k].landmark_id for k in strong), default=-1)
     accepted_older = any(c.accepted for c in candidates if c.updated and c.confirmed and c.landmark_id < oldest_refused)
     return strong, accepted_older
+
+
+def told_offset_m(innovation_px: np.ndarray, depth_m: float, heading_rad: float, focal_px: float) -> np.ndarray:
+    """``(2,)`` vehicle offset (world frame, m) that would explain a refused match's ``(2,)`` innovation.
+
+    ``-(Z - h)/f R(psi) [nu]``: the landmark seen at depth ``depth_m`` (``Z - h``), with the map
+    heading ``heading_rad``.
+    """
+    return -(depth_m / focal_px) * (rot2(heading_rad) @ innovation_px)
+
+
+def recovery_inflation_m2(offset_m: np.ndarray) -> np.ndarray:
+    """``(2, 2)`` covariance added to the vehicle's when it recovers by the ``(2,)`` offset the matches told."""
+    return 4.0 * np.outer(offset_m, offset_m) + np.eye(2) * (0.25 * float(offset_m @ offset_m))
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,8 @@ the bright structures narrower than ``[bandpass] sunlight_px`` and decides with
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from rovslam.config import BandpassConfig
@@ -83,9 +85,23 @@ class SunlightWatch:
         share = moving_light_share(earlier[0], self.bright, earlier[1], uv1, size_px)
         return self.monitor.observe(share)
 
-    def record_change(self, frame: int, t_s: float) -> None:
-        """The change just decided took effect at the ``frame``-th processed frame."""
+    def watch(self, t_s: float, frame: int, uv0: np.ndarray, uv1: np.ndarray, size_px: int,
+              retrack: Callable[[], tuple[np.ndarray | None, str | None]]) -> np.ndarray | None:
+        """After step 6 of the ``frame``-th processed frame: is the sunlight to be taken out (or left in again)?
+
+        ``uv0``, ``uv1``, ``size_px``: as for :meth:`changed`. When the monitor changes its mind,
+        ``retrack()`` makes the frame's tracking image again (``(img, reason)``) and it is
+        returned, so that steps 7 and 8 cut their templates from it; None when nothing changed,
+        or when no texture is left without the sunlight (the change is then undone).
+        """
+        if not self.changed(t_s, uv0, uv1, size_px):
+            return None
+        img, reason = retrack()
+        if reason is not None:  # no texture left without the sunlight: keep the image as it was
+            self.monitor.active = not self.monitor.active
+            return None
         self.events.append(SunlightEvent(frame, t_s, self.monitor.active, self.monitor.share))
+        return img
 
     def end_frame(self, t_s: float, uv0: np.ndarray, uv1: np.ndarray) -> None:
         """The frame at ``t_s`` is done: keep its bright structures with the consensus's ``(N, 2)`` tokens."""

@@ -33,33 +33,31 @@ import numpy as np
 from rovslam.altitude import AltitudeFilter
 from rovslam.association import (
     REASON_JOINT,
-    REASON_LASER,
     MatchCandidate,
     MatchDecision,
     RecoveryEvent,
     RecoveryMonitor,
     associate,
     jointly_compatible,
+    recovery_inflation_m2,
     strong_refusals,
+    told_offset_m,
 )
-from rovslam.camera import ground_to_pixels, mn_to_ground, rot2
 from rovslam.config import RunConfig
 from rovslam.heading import HeadingEstimate, HeadingPrior, HeadingTracker
 from rovslam.io.sequence import Frame, SequenceInfo
-from rovslam.landmarks import LandmarkRecord, most_distinctive, oriented_patch
+from rovslam.landmarks import LandmarkRecord
 from rovslam.odometry import SpeedEstimator, SpeedMeasurement
 from rovslam.pipeline import records
 from rovslam.pipeline.depth import DepthModel
 from rovslam.pipeline.image import SunlightWatch, tracking_image
 from rovslam.pipeline.geometry import (
     consensus_tokens,
-    covers_laser_spot,
-    inside_image,
     landmark_mn_at_frame_time,
     motion_hint,
-    search_radius_px,
     token_predictions,
 )
+from rovslam.pipeline.search import LandmarkSearch
 from rovslam.pipeline.records import Estimate, FrameRecords, FrameResult, FrameStep, Observation, TrackedLandmark
 from rovslam.shutter import tokens_at_frame_time
 from rovslam.slam import EkfSlam
@@ -73,8 +71,8 @@ from rovslam.vision.filters import (
 )
 from rovslam.vision.laser import AltitudeEstimate, LaserAltimeter
 from rovslam.vision.scale import processing_scale
-from rovslam.vision.templates import Template, extract_templates, inhibit_boxes, inhibition_mask
-from rovslam.vision.tracking import TokenTracker, TokenTracks, match_template
+from rovslam.vision.templates import Template, inhibit_boxes, inhibition_mask
+from rovslam.vision.tracking import TokenTracker, TokenTracks
 
 __all__ = ["SlamPipeline"]
 
@@ -107,6 +105,7 @@ class SlamPipeline:
         self.records = FrameRecords(config, self.scale, self.ekf, apparent_sigmas(config, graph=self.smoother is not None))
         self.landmarks: list[LandmarkRecord] = []
         self.recovery = RecoveryMonitor(config.association)
+        self.search = LandmarkSearch(config, self.scale, self.ekf, self.landmarks, self.recovery)  # step 3
         # Sunlight caustics: bright structures that do not move with the seabed, taken out while they are seen.
         self.sunlight_watch = SunlightWatch(config.bandpass)
         self.sunlight = self.sunlight_watch.monitor
@@ -121,10 +120,6 @@ class SlamPipeline:
         self._last_speed_mps: np.ndarray | None = None  # (surge, sway) of the last good step
         self._dr = np.zeros(2)
         self._n = 0  # frames processed (not skipped)
-        # The tracker settings of a wide search (built once: a checked dataclass costs 50 us to build)
-        self._strict_tracker = dataclasses.replace(
-            config.tracker, min_correlation=config.association.strong_correlation,
-            max_second_peak_ratio=min(config.tracker.max_second_peak_ratio, 0.9))
 
     @property
     def altimeter_fallback(self) -> float:
@@ -228,21 +223,13 @@ class SlamPipeline:
         return img, reason
 
     def _watch_sunlight(self, frame: Frame, uv0: np.ndarray, uv1: np.ndarray) -> np.ndarray | None:
-        """After step 6: did the bright structures around the tokens move with them? (:mod:`rovslam.sunlight`)
+        """After step 6: did the bright structures around the consensus's ``(N, 2)`` tokens move with them?
 
-        ``uv0``, ``uv1``: ``(N, 2)`` the consensus's tokens in the previous frame and in this one
-        (:func:`~rovslam.pipeline.geometry.consensus_tokens`). Returns this frame's tracking image when
-        the sunlight was just taken out (or left in again), so that steps 7 and 8 cut their templates
-        from it; None when nothing changed.
+        This frame's tracking image when the sunlight was just taken out (or left in again), for
+        steps 7 and 8; None when nothing changed (:meth:`rovslam.pipeline.image.SunlightWatch.watch`).
         """
-        if not self.sunlight_watch.changed(frame.t_s, uv0, uv1, self.config.speed_templates.size_px):
-            return None
-        img, reason = self._tracking_image(frame)
-        if reason is not None:  # no texture left without the sunlight: keep the image as it was
-            self.sunlight.active = not self.sunlight.active
-            return None
-        self.sunlight_watch.record_change(self._n, frame.t_s)
-        return img
+        return self.sunlight_watch.watch(frame.t_s, self._n, uv0, uv1, self.config.speed_templates.size_px,
+                                         lambda: self._tracking_image(frame))
 
     # ------------------------------------------------------------------ step 1
     def _measure_altitude(self, frame: Frame, att: tuple[float, float]) -> AltitudeEstimate:
@@ -265,76 +252,14 @@ class SlamPipeline:
     def _track_landmarks(
         self, track_img: np.ndarray, alt: AltitudeEstimate, att: tuple[float, float], prior: HeadingPrior, dt_s: float
     ) -> tuple[np.ndarray, list[TrackedLandmark]]:
-        """Step 3: search the landmarks that pass the visibility gate (5) around their predicted position.
+        """Step 3: search the landmarks that pass the visibility gate (5) around their predicted position, moved by
+        the last speed. Returns the ids that passed (5) and the landmarks found (:meth:`LandmarkSearch.track`)."""
+        return self.search.track(track_img, alt, att, prior, dt_s, self._last_speed_mps)
 
-        The filter still holds the previous frame's position (its prediction comes at step 6,
-        once this frame's speed is measured): the search moves it by the last speed (x_pred
-        of the paper's Fig. 1) and widens by what the speed may have changed. Landmarks whose
-        predicted template leaves the image, matches on the border, and matches with a laser
-        spot inside the template (it corrupts the correlation) are not tracked.
-        Returns the ids that passed (5) and the landmarks found.
-        """
-        lm = self.config.landmark_templates
-        z = alt.altitude_m
-        psi = prior.predicted_rad
-        visible = self.ekf.visible_landmarks(psi, z, self.focal_px, self.camera.width_px, self.camera.height_px)
-        if len(visible) == 0:
-            return visible, []
-        offset_m, slack_px = self._expected_motion(prior, z, dt_s)
-        mn_pred, s_pred = self.ekf.predict_observations(visible, psi, z, self.focal_px, offset_m)  # (3)
-        uv_pred = ground_to_pixels(self.camera, mn_to_ground(mn_pred, z, self.focal_px), z, *att)
-        psi_map = self.ekf.map_heading_rad(psi)
-        half = lm.size_px / 2.0
-        assoc = self.config.association
-        inside = [k for k, uv in enumerate(uv_pred) if not self.landmarks[int(visible[k])].dead and inside_image(uv, half - 2, self.camera)]
-        wide = self.recovery.wide_candidates(int(visible[k]) for k in inside if self.landmarks[int(visible[k])].confirmed)
-        # A landmark lost for several frames: a wider window, and only clear, unambiguous matches.
-        strict = self._strict_tracker
-        tracked = []
-        for k in inside:
-            i, uv, s = int(visible[k]), uv_pred[k], s_pred[k]
-            rec = self.landmarks[i]
-            if i in wide:
-                m = match_template(track_img, oriented_patch(rec, psi_map), uv, assoc.wide_search_radius_px, strict)
-            else:
-                m = match_template(track_img, oriented_patch(rec, psi_map), uv, search_radius_px(s, slack_px, lm),
-                                   self.config.tracker)
-            if not (m.ok and inside_image(m.uv_px, half, self.camera)):
-                if rec.confirmed:
-                    self.recovery.searched(i, False)
-                continue
-            refused = REASON_LASER if covers_laser_spot(m.uv_px, self.scale.to_processed_px(alt.spots_uv_px), lm.size_px) else ""
-            tracked.append(TrackedLandmark(rec, m.uv_px, pixels_to_mn(self.camera, m.uv_px, z, *att)[0], m.score, refused))
-        return visible, tracked
-
-    def _expected_motion(self, prior: HeadingPrior, altitude_m: float, dt_s: float) -> tuple[np.ndarray, float]:
-        """Vehicle displacement since the last frame by (1) with the last speed, and the search slack in pixels."""
-        px_per_m = self.focal_px / altitude_m
-        if self._last_speed_mps is not None and dt_s > 0:
-            heading = self.ekf.map_heading_rad(prior.previous_rad)
-            return motion_step_m(self._last_speed_mps, heading, dt_s), px_per_m * self.config.odometry.gap_speed_sigma_mps * dt_s
-        # No speed measured yet: the survey speed bounds the motion either way.
-        return np.zeros(2), px_per_m * self.config.odometry.survey_speed_mps * dt_s
-
-    def _choose_new_landmark(
-        self, track_img: np.ndarray, mask: np.ndarray, tracked: list[TrackedLandmark]
-    ) -> Template | None:
-        """Step 3, new-landmark test (6), when none is tracked: a strong template unlike its neighbourhood.
-
-        The paper takes the highest local variance; a template whose autocorrelation within
-        the search region has another high peak (a lattice, ripples, look-alike burrows)
-        would be confused with its neighbour, so it is never chosen, and of the strongest
-        candidates the most distinctive is (:func:`rovslam.landmarks.most_distinctive`).
-        """
-        if any(not t.refused for t in tracked) or not self.ekf.may_add_landmark():
-            return None
-        lm, assoc = self.config.landmark_templates, self.config.association
-        cands = extract_templates(
-            track_img, local_variance(track_img, lm.size_px), lm.size_px, assoc.candidates, lm.min_local_variance,
-            lm.border_px, mask, None, assoc.max_self_similarity if assoc.max_self_similarity < 1.0 else None,
-            assoc.similarity_radius_px,
-        )
-        return most_distinctive(cands)
+    def _choose_new_landmark(self, track_img: np.ndarray, mask: np.ndarray, tracked: list[TrackedLandmark]) -> Template | None:
+        """Step 3, new-landmark test (6), when none is tracked: a strong template unlike its neighbourhood
+        (:meth:`rovslam.pipeline.search.LandmarkSearch.choose_new`)."""
+        return self.search.choose_new(track_img, mask, tracked)
 
     # ------------------------------------------------------------------ step 4
     def _inhibit_landmarks(self, mask: np.ndarray, tracked: list[TrackedLandmark], new: Template | None) -> None:
@@ -419,7 +344,8 @@ class SlamPipeline:
                           bias_sigma, walk, bias_tau)
         candidates = self._update_landmarks(tracked, alt, heading)
         candidates = self._recover(tracked, candidates, alt, heading, frame)
-        return self._apply_decisions(tracked, associate(candidates), frame)
+        return _counted(tracked, associate(candidates), frame.t_s, self.config.association.confirm_observations,
+                        self.recovery)
 
     def _update_landmarks(self, tracked: list[TrackedLandmark], alt: AltitudeEstimate,
                           heading: HeadingEstimate) -> list[MatchCandidate]:
@@ -447,20 +373,6 @@ class SlamPipeline:
             candidates.append(candidate)
         return candidates
 
-    def _apply_decisions(self, tracked: list[TrackedLandmark], decisions: tuple[MatchDecision, ...],
-                         frame: Frame) -> list[Observation]:
-        """Step 6: each match's decision counted in its landmark's record and by the recovery monitor."""
-        confirm_after = self.config.association.confirm_observations
-        observations = []
-        for t, d in zip(tracked, decisions):
-            if d.counts_observation:
-                t.record.observed(d.accepted, frame.t_s, confirm_after)
-            if t.record.confirmed and d.counts_search:  # found and refused still counts as missing
-                self.recovery.searched(t.record.id, d.accepted)
-            observations.append(Observation(t.record.id, "track", t.uv_px, t.mn_px, t.score, d.nis, d.accepted, d.reason,
-                                            d.tentative))
-        return observations
-
     def _update_args(self, t: TrackedLandmark, alt: AltitudeEstimate, heading: HeadingEstimate) -> tuple:
         """The arguments of ``EkfSlam.update`` / ``joint_nis`` for one match."""
         return (t.record.id, t.mn_px, heading.heading_rad, alt.altitude_m, self.focal_px, None, alt.sigma_m,
@@ -470,21 +382,19 @@ class SlamPipeline:
                  heading: HeadingEstimate, frame: Frame) -> list[MatchCandidate]:
         """Strong, confirmed matches refused by the innovation test: the filter may be the one that is wrong.
 
-        Each tells the vehicle offset that would explain it (``-(Z - h)/f R [nu]``); when the
+        Each tells the vehicle offset that would explain it (:func:`~rovslam.association.told_offset_m`); when the
         :class:`~rovslam.association.RecoveryMonitor` finds them consistent for long enough, the
         vehicle covariance is inflated by that offset, they are admitted, and the event recorded.
         Returns the candidates, those admitted with their new update's outcome.
         """
         strong, accepted_older = strong_refusals(candidates, self.config.association.strong_correlation)
         theta = self.ekf.map_heading_rad(heading.heading_rad)
-        offsets = []
-        for k in strong:
-            depth = alt.altitude_m - self.ekf.landmark_height_m(candidates[k].landmark_id)
-            offsets.append(-(depth / self.focal_px) * (rot2(theta) @ candidates[k].innovation_px))
+        offsets = [told_offset_m(candidates[k].innovation_px, alt.altitude_m - self.ekf.landmark_height_m(
+            candidates[k].landmark_id), theta, self.focal_px) for k in strong]
         offset = self.recovery.refusals(frame.t_s, offsets, [candidates[k].landmark_id for k in strong], accepted_older)
         if offset is None:
             return candidates
-        self.ekf.inflate_vehicle_covariance(4.0 * np.outer(offset, offset) + np.eye(2) * (0.25 * float(offset @ offset)))
+        self.ekf.inflate_vehicle_covariance(recovery_inflation_m2(offset))
         candidates = list(candidates)
         for k in strong:
             candidates[k] = _judged(candidates[k], self.ekf.update(*self._update_args(tracked[k], alt, heading)))
@@ -558,3 +468,17 @@ class SlamPipeline:
 def _judged(candidate: MatchCandidate, res: UpdateResult) -> MatchCandidate:
     """A match with the outcome of the filter's update (3) on it."""
     return dataclasses.replace(candidate, updated=True, accepted=res.accepted, nis=res.nis, innovation_px=res.innovation_px)
+
+
+def _counted(tracked: list[TrackedLandmark], decisions: tuple[MatchDecision, ...], t_s: float, confirm_after: int,
+             recovery: RecoveryMonitor) -> list[Observation]:
+    """Step 6: each match's decision counted in its landmark's record and by the recovery monitor; its observation."""
+    observations = []
+    for t, d in zip(tracked, decisions):
+        if d.counts_observation:
+            t.record.observed(d.accepted, t_s, confirm_after)
+        if t.record.confirmed and d.counts_search:  # found and refused still counts as missing
+            recovery.searched(t.record.id, d.accepted)
+        observations.append(Observation(t.record.id, "track", t.uv_px, t.mn_px, t.score, d.nis, d.accepted, d.reason,
+                                        d.tentative))
+    return observations
