@@ -31,6 +31,8 @@ NEVER = {
     "association": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.vision"],
     "slam": ["rovslam.vision", "rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.sim"],
     "pipeline": ["rovslam.cli", "rovslam.viz", "rovslam.sim", "rovslam.eval", "rovslam.batch"],
+    "tallies": ["rovslam.cli", "rovslam.viz", "rovslam.sim", "rovslam.eval", "rovslam.batch", "rovslam.slam",
+                "rovslam.vision"],
     "io": ["rovslam.slam.ekf", "rovslam.slam.gating", "rovslam.cli", "rovslam.viz", "rovslam.pipeline"],
     "sim": ["rovslam.slam", "rovslam.pipeline", "rovslam.cli", "rovslam.viz", "rovslam.eval"],
     "eval": ["rovslam.cli", "rovslam.viz"],
