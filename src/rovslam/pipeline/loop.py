@@ -50,15 +50,10 @@ from rovslam.landmarks import LandmarkRecord
 from rovslam.odometry import SpeedEstimator, SpeedMeasurement
 from rovslam.pipeline import records
 from rovslam.pipeline.depth import DepthModel
+from rovslam.pipeline.geometry import consensus_tokens, landmark_mn_at_frame_time, motion_hint, token_predictions
 from rovslam.pipeline.image import SunlightWatch, tracking_image
-from rovslam.pipeline.geometry import (
-    consensus_tokens,
-    landmark_mn_at_frame_time,
-    motion_hint,
-    token_predictions,
-)
-from rovslam.pipeline.search import LandmarkSearch
 from rovslam.pipeline.records import Estimate, FrameRecords, FrameResult, FrameStep, Observation, TrackedLandmark
+from rovslam.pipeline.search import LandmarkSearch
 from rovslam.shutter import tokens_at_frame_time
 from rovslam.slam import EkfSlam
 from rovslam.slam.apparent import apparent_sigmas
@@ -66,15 +61,14 @@ from rovslam.slam.ekf import UpdateResult
 from rovslam.slam.measurements import FrameMeasurements
 from rovslam.slam.motion import motion_step_m
 from rovslam.slam.observation import pixels_to_mn
-from rovslam.vision.filters import (
-    local_variance,
-)
+from rovslam.vision.filters import local_variance
 from rovslam.vision.laser import AltitudeEstimate, LaserAltimeter
 from rovslam.vision.scale import processing_scale
 from rovslam.vision.templates import Template, inhibit_boxes, inhibition_mask
 from rovslam.vision.tracking import TokenTracker, TokenTracks
 
 __all__ = ["SlamPipeline"]
+
 
 class SlamPipeline:
     """Stateful runner of the per-frame loop for one sequence."""
