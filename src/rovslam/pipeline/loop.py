@@ -336,10 +336,10 @@ class SlamPipeline:
             walk = heading.walk_var_rad2  # without a compass: the integrated heading's error is eps's random walk
             self._predict(speed, prior.previous_rad, dt_s, heading.sigma_rad if walk is None else 0.0, alt.altitude_m,
                           bias_sigma, walk, bias_tau)
+        assoc = self.config.association
         candidates = self._update_landmarks(tracked, alt, heading)
         candidates = self._recover(tracked, candidates, alt, heading, frame)
-        return _counted(tracked, associate(candidates), frame.t_s, self.config.association.confirm_observations,
-                        self.recovery)
+        return _counted(tracked, associate(candidates), frame.t_s, assoc.confirm_observations, self.recovery)
 
     def _update_landmarks(self, tracked: list[TrackedLandmark], alt: AltitudeEstimate,
                           heading: HeadingEstimate) -> list[MatchCandidate]:
