@@ -155,7 +155,7 @@ class SlamPipeline:
         """One frame: the paper's loop (steps 1 to 8), then the back end fed with what the frame measured."""
         step = self._steps(frame)
         meas = self.records.measurements(step, self.heading.compass_sigma_rad)
-        estimate = self._back_end(meas, step.heading)
+        estimate = self._back_end(meas, step.heading)  # the iSAM2 smoother is fed here (else: the EKF's estimate)
         return self.records.result(step, meas, estimate)
 
     def _steps(self, frame: Frame) -> FrameStep:
