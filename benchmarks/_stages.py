@@ -24,11 +24,11 @@ from typing import Any
 # (label, targets); a target is "module:Attr.path". Order = the order of the table.
 STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("decode", ("rovslam.io.sequence:Sequence._load",)),
-    ("channel and despeckle", ("rovslam.pipeline:despeckled_channels", "rovslam.pipeline:template_channel",
-                               "rovslam.pipeline:remove_specks")),
-    ("band-pass (+ texture check)", ("rovslam.pipeline:bandpass", "rovslam.pipeline:contrast_std",
+    ("channel and despeckle", ("rovslam.pipeline.image:despeckled_channels", "rovslam.pipeline.image:template_channel",
+                               "rovslam.pipeline.image:remove_specks")),
+    ("band-pass (+ texture check)", ("rovslam.pipeline.image:bandpass", "rovslam.pipeline.image:contrast_std",
                                      "rovslam.pipeline:SlamPipeline._tracking_image")),
-    ("local variance", ("rovslam.pipeline:local_variance",)),
+    ("local variance", ("rovslam.pipeline.loop:local_variance", "rovslam.pipeline.search:local_variance")),
     ("laser (spots, altitude, inhibition)", ("rovslam.pipeline:SlamPipeline._measure_altitude",
                                              "rovslam.pipeline:SlamPipeline._inhibit_laser_spots")),
     ("landmark search (gate, match, new)", ("rovslam.pipeline:SlamPipeline._track_landmarks",
@@ -44,12 +44,13 @@ STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("EKF (predict, update, augment)", ("rovslam.pipeline:SlamPipeline._predict_and_update",
                                         "rovslam.pipeline:SlamPipeline._add_landmark",
                                         "rovslam.pipeline:SlamPipeline._start_filter")),
-    ("result records", ("rovslam.pipeline:SlamPipeline._result", "rovslam.pipeline:SlamPipeline._skip")),
+    ("result records", ("rovslam.pipeline.records:FrameRecords.measurements", "rovslam.pipeline.records:FrameRecords.result",
+                        "rovslam.pipeline:SlamPipeline._back_end", "rovslam.pipeline:SlamPipeline._skip")),
     ("writers (CSV, templates, summary)", ("rovslam.io.results:ResultWriter.write_frame",
                                            "rovslam.io.results:ResultWriter.write_landmark_template",
                                            "rovslam.io.results:GalleryWriter.write_frame",
                                            "rovslam.io.measurements:MeasurementWriter.write",
-                                           "rovslam.runner:SourceTally.add",
+                                           "rovslam.tallies:SourceTally.add",
                                            "rovslam.runner:_Run._finish",
                                            "rovslam.io.results:ResultWriter.write_config",
                                            "rovslam.io.results:ResultWriter.write_summary")),
@@ -58,7 +59,7 @@ PROGRESS = "progress display"
 GLUE = "loop and glue"
 # Targets a run may legitimately never call (no unusable frame, no AHRS, frames at the processing scale).
 MAY_BE_UNCALLED = {"rovslam.pipeline:SlamPipeline._skip", "rovslam.pipeline:SlamPipeline._start_filter",
-                   "rovslam.pipeline:template_channel", "rovslam.pipeline:remove_specks",
+                   "rovslam.pipeline.image:template_channel", "rovslam.pipeline.image:remove_specks",
                    "rovslam.io.results:ResultWriter.write_landmark_template"}
 
 

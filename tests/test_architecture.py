@@ -35,6 +35,8 @@ NEVER = {
              "rovslam.cli", "rovslam.pipeline", "rovslam.sim", "rovslam.eval", "rovslam.nav"],
     "core": ["rovslam.config", "rovslam.vision", "rovslam.slam", "rovslam.io", "rovslam.viz", "rovslam.cli",
              "rovslam.pipeline", "rovslam.sim", "rovslam.eval", "rovslam.nav", "rovslam.odometry", "rovslam.heading"],
+    "tallies": ["rovslam.cli", "rovslam.viz", "rovslam.sim", "rovslam.eval", "rovslam.batch", "rovslam.slam",
+                "rovslam.vision"],
     "io": ["rovslam.slam.ekf", "rovslam.slam.gating", "rovslam.cli", "rovslam.viz", "rovslam.pipeline", "rovslam.nav"],
     "sim": ["rovslam.slam", "rovslam.pipeline", "rovslam.cli", "rovslam.viz", "rovslam.eval"],
     "eval": ["rovslam.cli", "rovslam.viz"],

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-from rovslam.runner import MAP_USE_MIN_FOUND, MAP_USE_MIN_FRAMES, MapTally
+from rovslam.tallies import MAP_USE_MIN_FOUND, MAP_USE_MIN_FRAMES, MapTally
 
 
 def _res(visible: int, tracked: int, skipped: str | None = None) -> SimpleNamespace:

@@ -5,6 +5,10 @@ Beyond the paper, which takes every match its innovation gate lets through (step
 * :func:`jointly_compatible`: the landmarks matched in one frame share the vehicle's error, so
   their innovations are tested together (the joint NIS, chi-square with 2K degrees of
   freedom); while the set fails, the match with the largest share of the joint NIS is refused.
+* :func:`associate`: the frame's matches, each with what the tests said of it
+  (:class:`MatchCandidate`), in; one :class:`MatchDecision` per match out: accepted, or refused
+  with its reason, and what it counts for (its landmark's record, the recovery monitor).
+  :func:`strong_refusals` picks the matches that speak against the filter.
 * :class:`RecoveryMonitor`: correct-looking matches (high correlation, confirmed landmarks)
   refused by the innovation test frame after frame, all telling the same vehicle offset, mean
   that the filter has become inconsistent (a wrong match, an odometry fault moved it outside
@@ -18,16 +22,20 @@ Every refusal keeps its reason; every recovery is an event of the run.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
 from scipy.stats import chi2
 
+from rovslam.camera import rot2
 from rovslam.config import AssociationConfig
 from rovslam.errors import InvalidArgumentError
 
-__all__ = ["RecoveryEvent", "RecoveryMonitor", "ToldOffset", "jointly_compatible"]
+__all__ = ["MatchCandidate", "MatchDecision", "RecoveryEvent", "RecoveryMonitor", "ToldOffset", "associate",
+           "jointly_compatible", "recovery_inflation_m2", "strong_refusals", "told_offset_m"]
 
 REASON_GATE = "innovation test"
 REASON_JOINT = "joint compatibility"
@@ -57,6 +65,82 @@ def jointly_compatible(joint_nis, n: int, quantile: float) -> tuple[list[int], l
             break
         refused.append(kept.pop(int(np.argmax(share))))
     return kept, refused
+
+
+@dataclass(frozen=True)
+class MatchCandidate:
+    """One landmark match of a frame, with what was said of it before the decision (plain numbers).
+
+    ``refused``: the reason it was refused before the filter's innovation test
+    (:data:`REASON_LASER`, :data:`REASON_JOINT`), "" when the test ran on it; ``updated``,
+    ``accepted``, ``nis``, ``innovation_px``: that test's outcome (the filter's update).
+    """
+
+    landmark_id: int
+    confirmed: bool  # the landmark's state before this frame's observation is counted
+    score: float  # the template's normalised correlation
+    refused: str = ""
+    updated: bool = False
+    accepted: bool = False
+    nis: float = math.nan
+    innovation_px: np.ndarray | None = None  # (2,) [m, n] measured - predicted, when updated
+
+
+@dataclass(frozen=True)
+class MatchDecision:
+    """What happens to one match: accepted, or refused with its reason, and what it counts for."""
+
+    landmark_id: int
+    accepted: bool
+    reason: str  # "" when accepted, else why it was refused
+    nis: float  # the innovation test's NIS (NaN when it did not run)
+    tentative: bool  # a landmark not yet confirmed: it corrected only itself
+    counts_observation: bool  # counted in its landmark's record (found and judged by the filter)
+    counts_search: bool  # tells the recovery monitor whether it was found, once the landmark is confirmed
+
+
+def associate(candidates: Sequence[MatchCandidate]) -> tuple[MatchDecision, ...]:
+    """One decision per candidate, in order: accepted when the filter's test let it through.
+
+    A match refused before the test keeps that reason; one the test refused gets
+    :data:`REASON_GATE`. A match refused for a laser spot inside its template says nothing of its
+    landmark (it is neither counted in the landmark's record nor as found or missed); one refused
+    by the joint compatibility test counts as refused.
+    """
+    out = []
+    for c in candidates:
+        accepted = c.updated and c.accepted
+        reason = c.refused if c.refused else ("" if accepted else REASON_GATE)
+        out.append(MatchDecision(c.landmark_id, accepted, reason, c.nis if c.updated else math.nan, not c.confirmed,
+                                 not c.refused or c.refused == REASON_JOINT, reason != REASON_LASER))
+    return tuple(out)
+
+
+def strong_refusals(candidates: Sequence[MatchCandidate], strong_correlation: float) -> tuple[list[int], bool]:
+    """``(indices, accepted_older)``: the strong, confirmed matches the filter's test refused, for recovery.
+
+    Strong: a correlation of at least ``strong_correlation``. ``accepted_older``: a confirmed
+    landmark older (lower id) than every refused one was accepted (see :meth:`RecoveryMonitor.refusals`).
+    """
+    strong = [k for k, c in enumerate(candidates) if c.updated and not c.accepted and c.confirmed
+              and c.score >= strong_correlation]
+    oldest_refused = min((candidates[k].landmark_id for k in strong), default=-1)
+    accepted_older = any(c.accepted for c in candidates if c.updated and c.confirmed and c.landmark_id < oldest_refused)
+    return strong, accepted_older
+
+
+def told_offset_m(innovation_px: np.ndarray, depth_m: float, heading_rad: float, focal_px: float) -> np.ndarray:
+    """``(2,)`` vehicle offset (world frame, m) that would explain a refused match's ``(2,)`` innovation.
+
+    ``-(Z - h)/f R(psi) [nu]``: the landmark seen at depth ``depth_m`` (``Z - h``), with the map
+    heading ``heading_rad``.
+    """
+    return -(depth_m / focal_px) * (rot2(heading_rad) @ innovation_px)
+
+
+def recovery_inflation_m2(offset_m: np.ndarray) -> np.ndarray:
+    """``(2, 2)`` covariance added to the vehicle's when it recovers by the ``(2,)`` offset the matches told."""
+    return 4.0 * np.outer(offset_m, offset_m) + np.eye(2) * (0.25 * float(offset_m @ offset_m))
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,93 @@
+"""Step 1's image depth Z over time, and what the relief under the measured points adds to its error.
+
+:class:`DepthModel` (one per :class:`~rovslam.pipeline.SlamPipeline`) filters the altimeter's
+readings over time (:class:`rovslam.altitude.AltitudeFilter`), holds the filter's prediction
+through a frame without a reading, widens Z's sigma by the relief when the EKF holds no
+altitude offset, and gives the offset ``b``'s process over each step. The relief's height
+spread comes from the speed tokens' parallax (:attr:`rovslam.odometry.SpeedEstimator.relief_var`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from rovslam.altitude import AltitudeFilter
+from rovslam.config import RunConfig
+from rovslam.odometry import SpeedEstimator
+from rovslam.slam import EkfSlam
+from rovslam.slam.motion import altitude_offset_sigma_m, ou_sum_as_one
+from rovslam.vision.laser import SOURCE_FIXED, SOURCE_HELD, AltitudeEstimate
+
+__all__ = ["DepthModel"]
+
+
+class DepthModel:
+    """The altimeter's readings filtered over time, and the errors the relief adds to them (reads the others' state)."""
+
+    def __init__(self, config: RunConfig, altitude: AltitudeFilter, speed: SpeedEstimator, ekf: EkfSlam) -> None:
+        self.config = config
+        self.altitude = altitude
+        self.speed = speed
+        self.ekf = ekf
+
+    def filtered(self, t_s: float, alt: AltitudeEstimate) -> AltitudeEstimate:
+        """The reading of the frame at ``t_s`` filtered over time (held when there was none)."""
+        if alt.source == SOURCE_FIXED:
+            return self.held(t_s, alt)
+        z, sigma = self.altitude.update(t_s, alt.altitude_m, alt.sigma_m)
+        return dataclasses.replace(alt, altitude_m=z, sigma_m=self.with_terrain_sigma_m(z, sigma, alt))
+
+    def with_terrain_sigma_m(self, altitude_m: float, sigma_m: float, alt: AltitudeEstimate) -> float:
+        """The filtered altitude's sigma, widened by the relief without the filter's altitude-offset state b:
+        over relief the lasers (or the sonar) range to the seabed under their few points, not to the mean
+        seabed; that spread is Z's error too."""
+        if self.ekf.altitude_bias_sigma_m != 0.0:
+            return sigma_m
+        return math.sqrt(sigma_m * sigma_m + self.terrain_sigma_m(altitude_m, alt) ** 2)
+
+    def held(self, t_s: float, assumed: AltitudeEstimate) -> AltitudeEstimate:
+        """A frame with no laser spot and no sonar reading: the altitude filter's prediction, while it is surer.
+
+        Between two readings the vehicle's altitude is what the filter predicts, its sigma growing
+        with the vertical acceleration; the assumed altitude (``[vehicle] altitude_m``, else the
+        paper's) takes over only before the first reading or once the prediction is less sure than
+        it (``[laser] fixed_altitude_sigma_m``).
+        """
+        pred = self.altitude.predict(t_s)
+        if pred is None or not pred[1] < assumed.sigma_m:
+            return assumed
+        z, sigma = pred
+        return dataclasses.replace(assumed, altitude_m=z, sigma_m=self.with_terrain_sigma_m(z, sigma, assumed),
+                                   source=SOURCE_HELD)
+
+    def terrain_sigma_m(self, altitude_m: float, alt: AltitudeEstimate) -> float:
+        """How far the relief under the altimeter's points strays from the mean seabed (from the tokens' parallax)."""
+        samples = max(alt.n_spots, 1) if alt.source.startswith("laser") else 1
+        return self.relief_sigma_m(altitude_m, samples)
+
+    def relief_sigma_m(self, altitude_m: float, samples: int = 1) -> float:
+        """The relief's height spread at depth Z from the tokens' parallax, over ``samples`` independent points (m)."""
+        return self.config.odometry.relief_scale_gain * altitude_m * math.sqrt(self.speed.relief_var / samples)
+
+    def bias_process(self, altitude_m: float, alt: AltitudeEstimate) -> tuple[float, float]:
+        """The altitude offset ``b``'s stationary sigma (m) and correlation time (s) over this step.
+
+        The tokens' speed is measured at the altitude Z, but the tokens stand on the relief: their
+        depth strays from Z by about one token's relative height spread (the tokens of one frame stand
+        on the same relief features, so their mean does not average it away), a scale error of the
+        speed that lasts while the same relief is under the camera. ``b`` carries it beside the
+        altimeter's lasting error: their sum, two Ornstein-Uhlenbeck processes (the altimeter's:
+        ``[slam] altitude_bias_sigma_m`` and the laser rig's share ``altitude_scale_sigma`` of Z in
+        quadrature, :func:`~rovslam.slam.motion.altitude_offset_sigma_m`, with ``altitude_bias_tau_s``;
+        the relief's: sigma ``gain Z sigma_s`` from the tokens' parallax with
+        ``altitude_bias_relief_tau_s``), held as one with
+        the same variance and the same integrated autocovariance (so the same long-run drift).
+        """
+        slam = self.config.slam
+        # the altimeter's lasting error at this depth: its offset and the laser rig's share of Z
+        lasting = altitude_offset_sigma_m(slam.altitude_bias_sigma_m, slam.altitude_scale_sigma, altitude_m)
+        if not slam.altitude_bias_relief:  # the altimeter's lasting error, or the relief under its spots if larger
+            return max(lasting, self.terrain_sigma_m(altitude_m, alt)), slam.altitude_bias_tau_s
+        relief = self.relief_sigma_m(altitude_m)  # one token's spread: the tokens share their relief features
+        return ou_sum_as_one(lasting, slam.altitude_bias_tau_s, relief, slam.altitude_bias_relief_tau_s)
