@@ -48,9 +48,9 @@ def _map_bytes(pipe) -> int:
 
 
 def worker(spec: dict) -> dict:
+    import rovslam.runner as runner
     from benchmarks._harness import ReplaySource, source_override
     from rovslam.io.sequence import open_sequence
-    import rovslam.runner as runner
 
     seq = open_sequence(spec["folder"])
     src = ReplaySource(seq, spec["times"])

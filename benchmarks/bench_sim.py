@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rovslam.io.sequence import SequenceInfo, SequenceWriter
+from rovslam.core import SequenceInfo
+from rovslam.io.sequence import SequenceWriter
 from rovslam.sim import SCENARIOS, frame_pose, frame_rng, renderer_for, simulate, simulate_trajectory
 from rovslam.sim.scenarios import build_world, survey_area_m
 

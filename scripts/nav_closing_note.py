@@ -41,7 +41,7 @@ def points(n: int, span_m: float, seed: int) -> list[tuple[str, float, float]]:
 
 def one_run(args: tuple) -> dict:
     preset, seed, estimator, survey_s, hold_s, n_points, span_m, out = args
-    from rovslam.nav.guidance import Goal
+    from rovslam.core import Goal
     from rovslam.navigate import navigate
 
     pois = [Goal(name, np.array([x, y])) for name, x, y in points(n_points, span_m, seed)]

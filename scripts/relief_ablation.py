@@ -33,7 +33,6 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-
 DIVES = {  # the dive's variant: the preset's fields replaced (none: as the preset makes it)
     "as-simulated": {},
     "no-lamps": {"lighting": None},
@@ -105,12 +104,12 @@ def exact_heading_config():
 def true_speed(groundtruth: Path) -> Iterator[None]:
     """Inside this block, the speed the odometry hands the filter is the true body speed of each step.
 
-    :class:`rovslam.odometry.SpeedEstimator` measures step k (frame k-1 to frame k) while
+    :class:`rovslam.sensor.odometry.SpeedEstimator` measures step k (frame k-1 to frame k) while
     :meth:`rovslam.pipeline.SlamPipeline.process` runs frame k; its result keeps everything the
     tokens reported (Q, turn, inliers, ok) but the surge and sway.
     """
-    import rovslam.odometry as odometry
     import rovslam.pipeline as pipeline
+    import rovslam.sensor.odometry as odometry
     from rovslam.eval import true_body_speed_mps
     from rovslam.io.sequence import read_groundtruth
 

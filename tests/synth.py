@@ -252,7 +252,7 @@ def survey_measurements(
     turn and pixels get the noise of ``noise``; ``heading_rad`` of a record is the pipeline's
     heading input (heading.HeadingFilter of the compass and the turns).
     """
-    from rovslam.heading import HeadingFilter
+    from rovslam.sensor.heading import HeadingFilter
     from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
     from rovslam.slam.observation import observation_noise_px2, observe_mn
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from rovslam.config import RunConfig, SlamConfig
+from rovslam.core import SequenceInfo
 from rovslam.errors import ConfigError, InvalidMeasurementError
-from rovslam.io.sequence import SequenceInfo
 from rovslam.pipeline import SlamPipeline
 from rovslam.sim import PAPER_LASERS, PORTOFINO_CAMERA
 from rovslam.slam.ekf import EkfSlam

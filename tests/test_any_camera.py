@@ -34,9 +34,10 @@ from rovslam.config import (
     TrackerConfig,
     from_dict,
 )
-from rovslam.io.sequence import Frame, SequenceInfo, open_sequence
-from rovslam.odometry import SpeedEstimator
+from rovslam.core import Frame, SequenceInfo
+from rovslam.io.sequence import open_sequence
 from rovslam.pipeline import SlamPipeline
+from rovslam.sensor.odometry import SpeedEstimator
 from rovslam.vision.filters import bandpass, local_variance, template_channel
 from rovslam.vision.scale import ProcessingScale, auto_scale, processing_scale
 from rovslam.vision.tracking import TokenTracker, leaving_mask

@@ -16,25 +16,27 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "rovslam"
 # part -> packages it must never import (docs/architecture.md, "Modules").
 NEVER = {
     "averages": ["rovslam.camera", "rovslam.config", "rovslam.vision", "rovslam.slam", "rovslam.io", "rovslam.viz",
-                 "rovslam.cli", "rovslam.pipeline", "rovslam.odometry", "rovslam.heading", "rovslam.sunlight"],
+                 "rovslam.cli", "rovslam.pipeline", "rovslam.sensor.odometry", "rovslam.sensor.heading", "rovslam.sensor.sunlight"],
     "errors": ["rovslam.camera", "rovslam.config", "rovslam.vision", "rovslam.slam", "rovslam.io", "rovslam.viz",
                "rovslam.cli", "rovslam.pipeline", "rovslam.sim", "rovslam.eval"],
-    "config": ["rovslam.cli", "rovslam.viz", "rovslam.pipeline", "rovslam.slam", "rovslam.vision", "rovslam.io"],
-    "camera": ["rovslam.cli", "rovslam.viz", "rovslam.pipeline", "rovslam.slam", "rovslam.vision", "rovslam.io"],
-    "vision": ["rovslam.slam", "rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.sim"],
-    "odometry": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.sim"],
-    "shutter": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.sim"],
-    "sunlight": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.sim"],
-    "heading": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.vision"],
-    "altitude": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.vision"],
-    "landmarks": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam"],
-    "association": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.vision"],
-    "slam": ["rovslam.vision", "rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.sim"],
+    "config": ["rovslam.cli", "rovslam.viz", "rovslam.pipeline", "rovslam.slam", "rovslam.vision", "rovslam.io", "rovslam.sensor", "rovslam.mapping"],
+    "camera": ["rovslam.cli", "rovslam.viz", "rovslam.pipeline", "rovslam.slam", "rovslam.vision", "rovslam.io", "rovslam.sensor", "rovslam.mapping"],
+    "vision": ["rovslam.slam", "rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.sim", "rovslam.sensor", "rovslam.mapping"],
+    "sensor": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.sim"],
+    "mapping": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.sim"],
+    "sensor.odometry": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.sim"],
+    "sensor.shutter": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.sim"],
+    "sensor.sunlight": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.sim"],
+    "sensor.heading": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.vision"],
+    "sensor.altitude": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.vision"],
+    "mapping.landmarks": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam"],
+    "mapping.association": ["rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.slam", "rovslam.vision"],
+    "slam": ["rovslam.vision", "rovslam.io", "rovslam.viz", "rovslam.cli", "rovslam.pipeline", "rovslam.sim", "rovslam.sensor", "rovslam.mapping"],
     "pipeline": ["rovslam.cli", "rovslam.viz", "rovslam.sim", "rovslam.eval", "rovslam.batch"],
     "data": ["rovslam.config", "rovslam.camera", "rovslam.vision", "rovslam.slam", "rovslam.io", "rovslam.viz",
              "rovslam.cli", "rovslam.pipeline", "rovslam.sim", "rovslam.eval", "rovslam.nav"],
     "core": ["rovslam.config", "rovslam.vision", "rovslam.slam", "rovslam.io", "rovslam.viz", "rovslam.cli",
-             "rovslam.pipeline", "rovslam.sim", "rovslam.eval", "rovslam.nav", "rovslam.odometry", "rovslam.heading"],
+             "rovslam.pipeline", "rovslam.sim", "rovslam.eval", "rovslam.nav", "rovslam.sensor", "rovslam.mapping"],
     "tallies": ["rovslam.cli", "rovslam.viz", "rovslam.sim", "rovslam.eval", "rovslam.batch", "rovslam.slam",
                 "rovslam.vision"],
     "io": ["rovslam.slam.ekf", "rovslam.slam.gating", "rovslam.cli", "rovslam.viz", "rovslam.pipeline", "rovslam.nav"],
@@ -46,8 +48,13 @@ NEVER = {
 }
 
 
+GROUPS = ("sensor", "mapping")  # packages that group stages: each of their modules is a part of its own
+
+
 def _part(path: Path) -> str:
     rel = path.relative_to(SRC)
+    if rel.parts[0] in GROUPS and len(rel.parts) > 1 and rel.parts[1] != "__init__.py":
+        return f"{rel.parts[0]}.{rel.parts[1].removesuffix('.py')}"
     return rel.parts[0].removesuffix(".py")
 
 

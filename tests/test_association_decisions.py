@@ -1,4 +1,4 @@
-"""The association's decision per match (rovslam.association.associate) on plain data: every reason kept,
+"""The association's decision per match (rovslam.mapping.association.associate) on plain data: every reason kept,
 and what each refusal counts for."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from rovslam.association import (
+from rovslam.mapping.association import (
     REASON_GATE,
     REASON_JOINT,
     REASON_LASER,

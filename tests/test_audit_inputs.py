@@ -181,6 +181,7 @@ def test_unknown_frames_columns_are_refused_with_the_known_ones_listed(tmp_path,
 
 def test_other_extra_frames_columns_are_ignored_as_before(tmp_path):
     import fuzz_corpus as fc
+
     from rovslam.io.sequence import open_sequence
 
     seq = fc.write_sequence(tmp_path / "seq")
@@ -190,6 +191,7 @@ def test_other_extra_frames_columns_are_ignored_as_before(tmp_path):
 
 def test_every_sequence_rovslam_writes_is_still_read(tmp_path):
     import fuzz_corpus as fc
+
     from rovslam.io.sequence import open_sequence
     from rovslam.sim import simulate
 
@@ -328,8 +330,8 @@ def test_ctrl_c_while_the_cli_is_imported_exits_130_without_a_traceback(monkeypa
     import sys
     import tomllib
 
-    import rovslam.cli as cli
     import rovslam.__main__ as entry
+    import rovslam.cli as cli
 
     with open(Path(__file__).parents[1] / "pyproject.toml", "rb") as fh:
         assert tomllib.load(fh)["project"]["scripts"]["rovslam"] == "rovslam.__main__:main"

@@ -14,10 +14,10 @@ import shutil
 import threading
 from pathlib import Path
 
+import fuzz_corpus as fc
 import pytest
 from typer.testing import CliRunner
 
-import fuzz_corpus as fc
 from rovslam.cli import app
 from rovslam.config import RunConfig, SpeedTemplateConfig
 from rovslam.errors import ConfigError, ImageReadError, ResultsFormatError, SequenceFormatError
@@ -171,7 +171,8 @@ def test_a_folder_given_for_a_csv_file_is_called_a_folder(tmp_path):
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="named pipes")
 def test_a_named_pipe_where_an_image_or_text_belongs_does_not_block(tmp_path):
     """A pipe named frame9.png in an image folder hung `rovslam run` for ever (open() waits for a writer)."""
-    from rovslam.io.sequence import read_image, read_text
+    from rovslam.io.sequence import read_image
+    from rovslam.io.text import read_text
 
     pipe = tmp_path / "frame9.png"
     os.mkfifo(pipe)

@@ -5,15 +5,14 @@ from __future__ import annotations
 
 import inspect
 import math
-from pathlib import Path
 
 import cv2
+import fuzz_corpus as fc
 import numpy as np
 import pytest
+from rosbag_writer import T0_NS, BagWriter, orientation_xyzw
 from typer.testing import CliRunner
 
-import fuzz_corpus as fc
-from rosbag_writer import T0_NS, BagWriter, orientation_xyzw
 from rovslam.cli import app
 from rovslam.errors import BagError
 from rovslam.io.bag import BagSource, open_bag

@@ -9,11 +9,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import fuzz_corpus as fc
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-import fuzz_corpus as fc
 from rovslam.cli import app
 
 runner = CliRunner()

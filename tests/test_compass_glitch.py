@@ -16,8 +16,8 @@ import pytest
 
 from rovslam.config import OdometryConfig, RunConfig
 from rovslam.eval.metrics import evaluate_run
-from rovslam.heading import HeadingFilter, HeadingTracker
 from rovslam.runner import run_sequence
+from rovslam.sensor.heading import HeadingFilter, HeadingTracker
 from rovslam.sim import simulate
 
 SIGMA = math.radians(0.5)

@@ -26,9 +26,10 @@ import numpy as np
 import pytest
 from synth import paper_camera, seabed_frame, seabed_spectrum, simulate_variant
 
-from rovslam.association import RecoveryMonitor
 from rovslam.config import AssociationConfig, RunConfig
-from rovslam.io.sequence import Frame, SequenceInfo, open_sequence, read_groundtruth
+from rovslam.core import Frame, SequenceInfo
+from rovslam.io.sequence import open_sequence, read_groundtruth
+from rovslam.mapping.association import RecoveryMonitor
 from rovslam.pipeline import SlamPipeline
 from rovslam.sim import simulate
 

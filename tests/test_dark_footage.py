@@ -13,15 +13,16 @@ import dataclasses
 
 import numpy as np
 import pytest
+from synth import paper_camera, seabed_frame, seabed_spectrum, simulate_variant
 
 from rovslam.config import BandpassConfig, RunConfig
+from rovslam.core import Frame, SequenceInfo
 from rovslam.eval.metrics import consistency
-from rovslam.io.sequence import Frame, SequenceInfo, read_groundtruth
+from rovslam.io.sequence import read_groundtruth
 from rovslam.pipeline import SlamPipeline
 from rovslam.runner import run_sequence
 from rovslam.sim.render import SensorParams
 from rovslam.vision.filters import contrast_std
-from synth import paper_camera, seabed_frame, seabed_spectrum, simulate_variant
 
 PAPER = RunConfig(bandpass=BandpassConfig(min_contrast_std=0.0))
 

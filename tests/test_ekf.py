@@ -9,7 +9,15 @@ from scipy.stats import chi2
 from rovslam.camera import Camera, ground_to_pixels, rot2
 from rovslam.config import SlamConfig
 from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError
-from rovslam.slam import EkfSlam, MotionInput, UpdateResult, landmark_from_mn, observation_noise_px2, observe_mn, pixels_to_mn
+from rovslam.slam import (
+    EkfSlam,
+    MotionInput,
+    UpdateResult,
+    landmark_from_mn,
+    observation_noise_px2,
+    observe_mn,
+    pixels_to_mn,
+)
 
 Z, F, W, H, DT = 1.31, 1075.0, 360, 272, 0.2
 
@@ -166,7 +174,6 @@ def test_paper_augmentation_is_the_diagonal_block_only():
     mn, psi = np.array([60.0, -30.0]), 1.1
     ekf.augment(mn, psi, Z, F)
     x1, p1 = snapshot(ekf)
-    g = Z / F * rot2(psi)
     np.testing.assert_array_equal(p1[10:12, :10], 0.0)
     np.testing.assert_array_equal(p1[:10, 10:12], 0.0)
     # P_Xi = P_x + Z^2/f^2 R_m (R_m = sigma^2 I is rotation invariant).

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from rovslam.errors import SequenceFormatError
-from rovslam.eval.metrics import align_by_time, consistency, nees, trajectory_errors
+from rovslam.eval.align import align_by_time
+from rovslam.eval.metrics import consistency, nees, trajectory_errors
 
 
 def test_ate_of_a_constant_offset():

@@ -15,7 +15,6 @@ import json
 import shutil
 
 import cv2
-
 import numpy as np
 import pytest
 

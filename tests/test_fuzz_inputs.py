@@ -18,12 +18,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import fuzz_corpus as fc
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import fuzz_corpus as fc
 from rovslam.errors import ConfigError, ResultsFormatError, SequenceFormatError
 
 CASES = fc.all_cases()

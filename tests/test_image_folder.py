@@ -6,10 +6,10 @@ import os
 import re
 from pathlib import Path
 
+import fuzz_corpus as fc
 import pytest
 from typer.testing import CliRunner
 
-import fuzz_corpus as fc
 from rovslam.cli import app
 from rovslam.io.camera_file import read_camera_file
 from rovslam.io.folder import ImageFolderSource, natural_key

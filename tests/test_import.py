@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import math
 
+import fuzz_corpus as fc
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-import fuzz_corpus as fc
 from rovslam.cli import app
 from rovslam.errors import OutputError
 from rovslam.io.importer import import_source

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from synth import crosshatch_track, landmark_field, survey_measurements
 
 from rovslam.errors import InvalidMeasurementError, ResultsFormatError
 from rovslam.io.measurements import (
@@ -17,7 +18,6 @@ from rovslam.io.measurements import (
     write_measurements,
 )
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
-from synth import crosshatch_track, landmark_field, survey_measurements
 
 
 def frame(index=1, **changes):

@@ -13,10 +13,10 @@ from rovslam.sim import simulate
 from rovslam.sim.world import World
 from rovslam.viz.frames import open_frames
 from rovslam.viz.mosaic import (
+    Mosaic,
     MosaicGrid,
     Poses,
     TiledAccumulator,
-    Mosaic,
     build_mosaic,
     decorate,
     landmark_labels,

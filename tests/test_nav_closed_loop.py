@@ -14,8 +14,8 @@ import math
 import numpy as np
 import pytest
 
+from rovslam.core import Goal
 from rovslam.io.sequence import open_sequence
-from rovslam.nav import Goal
 from rovslam.navigate import navigate
 from rovslam.sim import SCENARIOS, simulate
 from rovslam.sim.live import LiveSimulator, TrueState

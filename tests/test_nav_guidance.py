@@ -7,13 +7,13 @@ import math
 import numpy as np
 import pytest
 
+from rovslam.core import Goal
 from rovslam.errors import InvalidArgumentError
 from rovslam.nav import (
     Arrival,
     Command,
     DeadReckoningCovariance,
     DynamicsParams,
-    Goal,
     GuidanceConfig,
     HoldEnd,
     Mission,

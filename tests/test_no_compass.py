@@ -18,9 +18,9 @@ import pytest
 
 from rovslam.config import OdometryConfig, SlamConfig
 from rovslam.eval.metrics import consistency, evaluate_run
-from rovslam.heading import NO_COMPASS_STEP_SIGMA_RAD, HeadingTracker
 from rovslam.io.sequence import read_groundtruth
 from rovslam.runner import run_sequence
+from rovslam.sensor.heading import NO_COMPASS_STEP_SIGMA_RAD, HeadingTracker
 from rovslam.sim import simulate
 from rovslam.slam import EkfSlam, MotionInput
 

@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 from rovslam.camera import Camera, ground_to_pixels, pixels_to_ground, rot2
 from rovslam.config import OdometryConfig, SlamConfig
 from rovslam.errors import ConfigError, InvalidArgumentError, InvalidMeasurementError
-from rovslam.heading import HeadingFilter
-from rovslam.odometry import SpeedEstimator, SpeedMeasurement, speed_from_tokens
+from rovslam.sensor.heading import HeadingFilter
+from rovslam.sensor.odometry import SpeedEstimator, SpeedMeasurement, speed_from_tokens
 
 CAM = Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5)
 Z = 1.31

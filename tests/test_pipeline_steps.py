@@ -11,13 +11,13 @@ import math
 
 import numpy as np
 import pytest
+from synth import paper_camera, seabed_frame, seabed_spectrum
 
 from rovslam.config import RunConfig
-from rovslam.heading import HeadingTracker
-from rovslam.io.sequence import Frame, SequenceInfo
+from rovslam.core import Frame, SequenceInfo
 from rovslam.pipeline import SlamPipeline
+from rovslam.sensor.heading import HeadingTracker
 from rovslam.vision.laser import AltitudeEstimate
-from synth import paper_camera, seabed_frame, seabed_spectrum
 
 CAM = paper_camera()
 Z = 1.31

@@ -2,10 +2,10 @@
 
 import os
 
+import fuzz_corpus as fc
 import numpy as np
 import pytest
 
-import fuzz_corpus as fc
 from rovslam.camera import Camera, LaserPointer
 from rovslam.errors import ImageReadError, SequenceFormatError
 from rovslam.io import SequenceInfo, SequenceWriter, open_sequence, read_groundtruth

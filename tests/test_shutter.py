@@ -5,15 +5,15 @@ import shutil
 
 import numpy as np
 import pytest
+from synth import simulate_variant
 
 from rovslam.camera import Camera, rot2
 from rovslam.errors import SequenceFormatError
 from rovslam.io.sequence import open_sequence
 from rovslam.runner import run_sequence
-from rovslam.shutter import mn_at_frame_time, mn_rate_px_s, tokens_at_frame_time
+from rovslam.sensor.shutter import mn_at_frame_time, mn_rate_px_s, tokens_at_frame_time
 from rovslam.sim.render import SensorParams
 from rovslam.sim.vehicle import VehicleParams
-from synth import simulate_variant
 
 CAM = Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5, readout_s=0.03)
 

@@ -14,8 +14,7 @@ from rovslam.camera import ground_to_pixels
 from rovslam.cli import app
 from rovslam.errors import ConfigError, SimulationError
 from rovslam.io.sequence import open_sequence
-from rovslam.sim import (PAPER_LASERS, PORTOFINO_CAMERA, CalibrationErrors, DrawnCalibration, draw_calibration,
-                         simulate)
+from rovslam.sim import PAPER_LASERS, PORTOFINO_CAMERA, CalibrationErrors, DrawnCalibration, draw_calibration, simulate
 from rovslam.sim.calibration import recorded_lasers
 from rovslam.vision.laser import triangulate_spots
 

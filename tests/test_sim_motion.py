@@ -7,8 +7,16 @@ import pytest
 
 from rovslam.camera import footprint_m
 from rovslam.errors import SimulationError
-from rovslam.sim import SCENARIOS, VehicleParams, World, frame_pose, frame_rng, read_sensors, renderer_for
-from rovslam.sim import simulate_trajectory
+from rovslam.sim import (
+    SCENARIOS,
+    VehicleParams,
+    World,
+    frame_pose,
+    frame_rng,
+    read_sensors,
+    renderer_for,
+    simulate_trajectory,
+)
 from rovslam.sim.codec import H264Params, H264RoundTrip
 
 NEW_PRESETS = ("portofino-relief", "photo-survey", "photo-turns", "hd-survey", "still-camera", "turbid-relief",

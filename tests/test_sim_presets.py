@@ -13,8 +13,9 @@ from synth import photo_available
 from test_sim_presets_frozen import folder_digest
 
 from rovslam.camera import pixels_to_ground, rot2
+from rovslam.core import SequenceInfo
 from rovslam.errors import SimulationError
-from rovslam.io.sequence import SequenceInfo, SequenceWriter, open_sequence, read_groundtruth
+from rovslam.io.sequence import SequenceWriter, open_sequence, read_groundtruth
 from rovslam.sim import SCENARIOS, simulate, simulate_trajectory
 from rovslam.sim import scenarios as scenarios_module
 

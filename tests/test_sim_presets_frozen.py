@@ -16,7 +16,16 @@ import cv2
 import numpy as np
 import pytest
 
-from rovslam.sim import SCENARIOS, World, frame_pose, frame_rng, read_sensors, renderer_for, simulate, simulate_trajectory
+from rovslam.sim import (
+    SCENARIOS,
+    World,
+    frame_pose,
+    frame_rng,
+    read_sensors,
+    renderer_for,
+    simulate,
+    simulate_trajectory,
+)
 
 SEQUENCE_DIGESTS = {
     ("portofino", 0): "bb339c03505efa1a110fefacfccdeda7ce9bc68655b33e8eb9548d855cfa10d3",

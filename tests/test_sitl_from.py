@@ -20,7 +20,8 @@ import pytest
 from _sitl_peers import MavlinkPeer, VideoReader, free_udp_port, wait_udp_bound
 
 from rovslam.camera import Camera
-from rovslam.io.sequence import SequenceInfo, SequenceWriter, read_groundtruth
+from rovslam.core import SequenceInfo
+from rovslam.io.sequence import SequenceWriter, read_groundtruth
 
 RATE_HZ, N, T0_S = 10.0, 8, 100.0
 W, H = 160, 120
@@ -272,8 +273,8 @@ def test_bad_input_is_refused_before_anything_is_written(tmp_path, args, says):
     """The same checks through the command's function (in this process): SimulationError, nothing written."""
     import typer
 
-    from rovslam.errors import SimulationError
     from rovslam.cli.sitl import sitl
+    from rovslam.errors import SimulationError
 
     opts = dict(scenario=None, seed=0, video="udp://127.0.0.1:5600", mavlink="udpout:127.0.0.1:14550",
                 duration_s=None, from_seq=None, rtp=False, pace=1.0, mode="ALT_HOLD", crf=20, wait_for_peer_s=0.0,

@@ -12,6 +12,7 @@ import math
 import numpy as np
 import pytest
 from scipy.stats import chi2
+from synth import SurveyNoise, crosshatch_track, landmark_field, lawnmower_track, survey_measurements
 from typer.testing import CliRunner
 
 from rovslam.camera import rot2
@@ -23,7 +24,6 @@ from rovslam.slam import EkfSlam, MotionInput, observation_noise_px2, observe_mn
 from rovslam.slam.apparent import apparent_frame_cov_m2
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 from rovslam.slam.smoother import Isam2Smoother, SmootherConfig
-from synth import SurveyNoise, crosshatch_track, landmark_field, lawnmower_track, survey_measurements
 
 # The paper's grid (0.7 m square, lanes 17.5 cm apart, flown north-south then east-west), 100 s:
 # the start area is passed over again and again. The compass has its white noise (0.5 deg)

@@ -243,7 +243,7 @@ def test_extract_reuses_the_reduction_track_made_of_the_same_image():
 def _best_hypothesis_reference(a, b, prior_rad, prior_var, thr, sigma0, joint):
     """The hypothesis search with one pair at a time (a Python loop, ``rot2(t) @ v``), as it was."""
     from rovslam.camera import rot2, wrap_angle
-    from rovslam.odometry import _MAX_HYPOTHESES
+    from rovslam.sensor.odometry import _MAX_HYPOTHESES
 
     thetas = [prior_rad]
     ds = [np.median(a - b @ rot2(prior_rad).T, axis=0)]
@@ -280,7 +280,7 @@ def _best_hypothesis_reference(a, b, prior_rad, prior_var, thr, sigma0, joint):
 def test_best_hypothesis_is_the_pair_by_pair_search(seed, n, joint, turn, outliers):
     """Rigid-motion hypotheses of all token pairs at once: the same turn, translation and inliers, bit for bit."""
     from rovslam.camera import rot2
-    from rovslam.odometry import _best_hypothesis
+    from rovslam.sensor.odometry import _best_hypothesis
 
     rng = np.random.default_rng(seed)
     b = rng.uniform(-0.2, 0.2, (n, 2))

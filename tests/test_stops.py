@@ -14,10 +14,10 @@ import subprocess
 import sys
 import time
 
+import fuzz_corpus as fc
 import numpy as np
 import pytest
 
-import fuzz_corpus as fc
 from rovslam.io.results import read_results
 
 

@@ -12,8 +12,7 @@ import pytest
 from rovslam.config import BandpassConfig, RunConfig
 from rovslam.eval.metrics import evaluate_run
 from rovslam.runner import run_sequence
-from rovslam.sim import SCENARIOS, simulate
-from rovslam.sunlight import (
+from rovslam.sensor.sunlight import (
     MIN_BRIGHT_RMS,
     SUNLIGHT_OFF_SHARE,
     SUNLIGHT_ON_SHARE,
@@ -22,6 +21,7 @@ from rovslam.sunlight import (
     SunlightMonitor,
     moving_light_share,
 )
+from rovslam.sim import SCENARIOS, simulate
 
 
 def _bright(seed: int, shape=(200, 260)) -> np.ndarray:

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from rovslam.config import OdometryConfig, RunConfig
-from rovslam.heading import TURN_NOISE_MIN_WINDOWS, HeadingFilter, HeadingTracker
+from rovslam.sensor.heading import TURN_NOISE_MIN_WINDOWS, HeadingFilter, HeadingTracker
 
 COMPASS_SIGMA = np.deg2rad(0.4)
 TURN_SIGMA = np.deg2rad(0.044)  # a step's turn sigma on the real-photo survey at 5 Hz

@@ -131,7 +131,7 @@ class BandpassConfig(_Checked):
     # MAX_OPENING_PX: a disc kernel's memory grows with its square (100001 px asked for 10 GB).
     despeckle_px: int = _num(7, ge=0, le=MAX_OPENING_PX)
     # While bright structures around the speed tokens do not move with them (sunlight caustics:
-    # rovslam.sunlight), those narrower than this are removed (31 px: 6 cm at 500 px/m); 0 or
+    # rovslam.sensor.sunlight), those narrower than this are removed (31 px: 6 cm at 500 px/m); 0 or
     # not above despeckle_px: never.
     sunlight_px: int = _num(31, ge=0, le=MAX_OPENING_PX)
     # A frame whose band-passed standard deviation is below this (a dark or low-contrast camera) is
@@ -280,7 +280,7 @@ class LaserConfig(_Checked):
     min_altitude_m: float = _num(0.05, gt=0)  # altitudes (laser or sonar) outside this range are rejected
     max_altitude_m: float = _num(30.0, gt=0)  # altitudes (laser or sonar) above this are rejected
     assumed_altitude_m: float = _num(1.31, gt=0)  # no laser, no sonar, no [vehicle] altitude_m: the paper's 1.31 m
-    altitude_accel_sigma_mps2: float = _num(0.05, gt=0)  # vertical acceleration of the altitude filter (rovslam.altitude)
+    altitude_accel_sigma_mps2: float = _num(0.05, gt=0)  # vertical acceleration of the altitude filter (rovslam.sensor.altitude)
 
     def _check_relations(self) -> None:
         if self.max_spot_area_px < self.min_spot_area_px:

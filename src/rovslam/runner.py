@@ -38,11 +38,17 @@ import numpy as np
 
 from rovslam import __version__
 from rovslam.config import RunConfig, to_dict
-from rovslam.errors import (ConfigError, InvalidArgumentError, OutputError, RovslamError, SequenceFormatError,
-                            UnusableRunError)
+from rovslam.core import Frame
+from rovslam.errors import (
+    ConfigError,
+    InvalidArgumentError,
+    OutputError,
+    SequenceFormatError,
+    UnusableRunError,
+)
 from rovslam.io.camera_file import CAMERA_TABLES
 from rovslam.io.results import GalleryWriter, ResultWriter, describe_os_error, prepare_output_folder
-from rovslam.io.sequence import Frame, Sequence, open_sequence
+from rovslam.io.sequence import Sequence, open_sequence
 from rovslam.io.source import InputOptions, SourceDescription, option_flag
 from rovslam.pipeline import FrameResult, SlamPipeline
 from rovslam.tallies import MapTally, SourceTally, TimeGaps

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from rovslam.io.sequence import Frame
+from rovslam.core import Frame
 from rovslam.io.source import ASSUMED_ALTITUDE, HELD_ALTITUDE, TOKENS_ONLY, SourceDescription
 from rovslam.pipeline import FrameResult
 

@@ -94,13 +94,15 @@ def main() -> None:
 
 
 # The commands: importing a module registers its commands on `app`, listed by --help in this order.
-from rovslam.cli import simulate  # noqa: E402, F401
-from rovslam.cli import run  # noqa: E402, F401  (run, import, topics)
-from rovslam.cli import evaluate  # noqa: E402, F401  (eval)
-from rovslam.cli import batch  # noqa: E402, F401
-from rovslam.cli import demo  # noqa: E402, F401
-from rovslam.cli import report  # noqa: E402, F401  (report, mosaic)
-from rovslam.cli import config  # noqa: E402, F401
-from rovslam.cli import smooth  # noqa: E402, F401
-from rovslam.cli import navigate  # noqa: E402, F401
-from rovslam.cli import sitl  # noqa: E402, F401
+from rovslam.cli import (
+    batch,  # noqa: E402, F401
+    config,  # noqa: E402, F401
+    demo,  # noqa: E402, F401
+    evaluate,  # noqa: E402, F401  (eval)
+    navigate,  # noqa: E402, F401
+    report,  # noqa: E402, F401  (report, mosaic)
+    run,  # noqa: E402, F401  (run, import, topics)
+    simulate,  # noqa: E402, F401
+    sitl,  # noqa: E402, F401
+    smooth,  # noqa: E402, F401
+)

@@ -30,7 +30,8 @@ def simulate(
 ) -> None:
     """Simulate an ROV dive over a seabed and write a sequence folder with exact ground truth."""
     from rovslam.errors import SimulationError
-    from rovslam.sim import SCENARIOS, CalibrationErrors, simulate as run_sim
+    from rovslam.sim import SCENARIOS, CalibrationErrors
+    from rovslam.sim import simulate as run_sim
 
     if list_scenarios:
         for name, sc in SCENARIOS.items():

@@ -41,8 +41,9 @@ import numpy as np
 
 from rovslam.core import Frame
 from rovslam.errors import NavigationError
-from rovslam.io.sequence import MAX_ATTITUDE_RAD, read_csv_table
+from rovslam.io.sequence import MAX_ATTITUDE_RAD
 from rovslam.io.source import SourceDescription
+from rovslam.io.text import read_csv_table
 
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}

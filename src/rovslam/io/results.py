@@ -49,8 +49,8 @@ from rovslam.io.output import (  # atomic_write_*, describe_os_error, output_err
     describe_os_error,
     output_errors,
 )
-from rovslam.io.sequence import float_cell, not_a_file, read_csv_table, read_text
 from rovslam.io.source import TOKENS_ONLY
+from rovslam.io.text import float_cell, not_a_file, read_csv_table, read_text
 
 TRAJECTORY_COLUMNS = (
     "t_s",

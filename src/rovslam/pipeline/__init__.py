@@ -7,7 +7,7 @@
   reported covariance, the map's rows and what ``summary.json`` says of the run.
 """
 
-from rovslam.landmarks import LandmarkRecord
+from rovslam.mapping.landmarks import LandmarkRecord
 from rovslam.pipeline.loop import SlamPipeline
 from rovslam.pipeline.records import FrameResult, Observation, TrackedLandmark
 

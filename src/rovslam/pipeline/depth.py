@@ -1,10 +1,10 @@
 """Step 1's image depth Z over time, and what the relief under the measured points adds to its error.
 
 :class:`DepthModel` (one per :class:`~rovslam.pipeline.SlamPipeline`) filters the altimeter's
-readings over time (:class:`rovslam.altitude.AltitudeFilter`), holds the filter's prediction
+readings over time (:class:`rovslam.sensor.altitude.AltitudeFilter`), holds the filter's prediction
 through a frame without a reading, widens Z's sigma by the relief when the EKF holds no
 altitude offset, and gives the offset ``b``'s process over each step. The relief's height
-spread comes from the speed tokens' parallax (:attr:`rovslam.odometry.SpeedEstimator.relief_var`).
+spread comes from the speed tokens' parallax (:attr:`rovslam.sensor.odometry.SpeedEstimator.relief_var`).
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from rovslam.altitude import AltitudeFilter
 from rovslam.config import RunConfig
-from rovslam.odometry import SpeedEstimator
+from rovslam.sensor.altitude import AltitudeFilter
+from rovslam.sensor.odometry import SpeedEstimator
 from rovslam.slam import EkfSlam
 from rovslam.slam.motion import altitude_offset_sigma_m, ou_sum_as_one
 from rovslam.vision.laser import SOURCE_FIXED, SOURCE_HELD, AltitudeEstimate

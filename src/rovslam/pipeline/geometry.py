@@ -3,7 +3,7 @@
 Where a template may be (inside the image, the landmark search radius, a laser spot inside
 it), where the speed tokens should be now (:func:`token_predictions`, :func:`motion_hint`),
 which tokens the speed consensus kept, and a landmark's [m, n] moved to the frame's time under a
-rolling shutter (:mod:`rovslam.shutter`).
+rolling shutter (:mod:`rovslam.sensor.shutter`).
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import numpy as np
 
 from rovslam.camera import Camera, ground_to_pixels, pixels_to_ground, rot2
 from rovslam.config import LandmarkTemplateConfig
-from rovslam.heading import HeadingPrior
-from rovslam.odometry import SpeedMeasurement
-from rovslam.shutter import mn_at_frame_time, mn_rate_px_s
+from rovslam.sensor.heading import HeadingPrior
+from rovslam.sensor.odometry import SpeedMeasurement
+from rovslam.sensor.shutter import mn_at_frame_time, mn_rate_px_s
 from rovslam.vision.tracking import TokenTracks
 
 __all__ = ["consensus_tokens", "covers_laser_spot", "inside_image", "landmark_mn_at_frame_time", "motion_hint",

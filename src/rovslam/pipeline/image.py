@@ -4,7 +4,7 @@
 template channel (:mod:`rovslam.vision.filters`) and says when it carries no texture to track.
 :class:`SunlightWatch` (one per :class:`~rovslam.pipeline.SlamPipeline`) keeps, frame by frame,
 the bright structures narrower than ``[bandpass] sunlight_px`` and decides with
-:class:`rovslam.sunlight.SunlightMonitor` whether they move with the seabed; while they do not
+:class:`rovslam.sensor.sunlight.SunlightMonitor` whether they move with the seabed; while they do not
 (sunlight caustics), they are taken out of the tracking image.
 """
 
@@ -15,7 +15,7 @@ from collections.abc import Callable
 import numpy as np
 
 from rovslam.config import BandpassConfig
-from rovslam.sunlight import BrightHistory, SunlightEvent, SunlightMonitor, moving_light_share
+from rovslam.sensor.sunlight import BrightHistory, SunlightEvent, SunlightMonitor, moving_light_share
 from rovslam.vision.filters import bandpass, contrast_std, despeckled_channels, remove_specks, template_channel
 from rovslam.vision.scale import ProcessingScale
 
@@ -76,7 +76,7 @@ class SunlightWatch:
     def changed(self, t_s: float, uv0: np.ndarray, uv1: np.ndarray, size_px: int) -> bool:
         """Did the monitor change its mind at ``t_s``? The bright structures around the ``(N, 2)`` tokens
         (``uv0`` in the previous frame, ``uv1`` in this one) compared with those 0.2 s back
-        (:func:`rovslam.sunlight.moving_light_share` over ``size_px`` windows)."""
+        (:func:`rovslam.sensor.sunlight.moving_light_share` over ``size_px`` windows)."""
         if self.monitor is None or self.bright is None:
             return False
         earlier = self.history.baseline(t_s, uv0)  # over 0.2 s, whatever the frame rate

@@ -13,7 +13,7 @@ The order of the steps keeps the speed and the landmark measurements independent
 * Step 4: inhibit pixels near the tracked / new landmark templates;
 * Step 5: track the previous frame's speed templates -> surge, sway and the turn;
 * Step 6: EKF prediction (1), (2) with that speed and the heading, then update (3) with the
-  landmark observations, each match accepted or refused by :func:`rovslam.association.associate`;
+  landmark observations, each match accepted or refused by :func:`rovslam.mapping.association.associate`;
 * Step 7: augment the state with the new landmark (4);
 * Step 8: extract fresh speed templates for the next frame.
 
@@ -30,8 +30,9 @@ from collections.abc import Iterable, Iterator
 
 import numpy as np
 
-from rovslam.altitude import AltitudeFilter
-from rovslam.association import (
+from rovslam.config import RunConfig
+from rovslam.core import Frame, SequenceInfo
+from rovslam.mapping.association import (
     REASON_JOINT,
     MatchCandidate,
     MatchDecision,
@@ -43,18 +44,17 @@ from rovslam.association import (
     strong_refusals,
     told_offset_m,
 )
-from rovslam.config import RunConfig
-from rovslam.heading import HeadingEstimate, HeadingPrior, HeadingTracker
-from rovslam.io.sequence import Frame, SequenceInfo
-from rovslam.landmarks import LandmarkRecord
-from rovslam.odometry import SpeedEstimator, SpeedMeasurement
+from rovslam.mapping.landmarks import LandmarkRecord
 from rovslam.pipeline import records
 from rovslam.pipeline.depth import DepthModel
 from rovslam.pipeline.geometry import consensus_tokens, landmark_mn_at_frame_time, motion_hint, token_predictions
 from rovslam.pipeline.image import SunlightWatch, tracking_image
 from rovslam.pipeline.records import Estimate, FrameRecords, FrameResult, FrameStep, Observation, TrackedLandmark
 from rovslam.pipeline.search import LandmarkSearch
-from rovslam.shutter import tokens_at_frame_time
+from rovslam.sensor.altitude import AltitudeFilter
+from rovslam.sensor.heading import HeadingEstimate, HeadingPrior, HeadingTracker
+from rovslam.sensor.odometry import SpeedEstimator, SpeedMeasurement
+from rovslam.sensor.shutter import tokens_at_frame_time
 from rovslam.slam import EkfSlam, MotionInput
 from rovslam.slam.apparent import apparent_sigmas
 from rovslam.slam.ekf import UpdateResult
@@ -301,7 +301,7 @@ class SlamPipeline:
         self, tracked: list[TrackedLandmark], speed: SpeedMeasurement | None, prior: HeadingPrior,
         alt: AltitudeEstimate, dt_s: float,
     ) -> list[TrackedLandmark]:
-        """Step 5, rolling shutter: each landmark's [m, n] moved to the frame's time (:mod:`rovslam.shutter`)."""
+        """Step 5, rolling shutter: each landmark's [m, n] moved to the frame's time (:mod:`rovslam.sensor.shutter`)."""
         if self.camera.readout_s == 0.0 or speed is None:
             return tracked
         return [dataclasses.replace(t, mn_px=landmark_mn_at_frame_time(
@@ -328,7 +328,7 @@ class SlamPipeline:
 
         The matches are first tested together (joint compatibility); a tentative landmark
         corrects only itself until confirmed; strong matches refused frame after frame start a
-        recovery (:mod:`rovslam.association`).
+        recovery (:mod:`rovslam.mapping.association`).
         """
         if speed is not None and dt_s > 0:
             bias_sigma, bias_tau = self._altitude_bias_process(alt.altitude_m, alt)
@@ -345,7 +345,7 @@ class SlamPipeline:
                           heading: HeadingEstimate) -> list[MatchCandidate]:
         """Step 6: the joint compatibility test of the frame's matches, then the filter's update (3) of each kept one.
 
-        A tentative landmark corrects only itself. Returns one :class:`~rovslam.association.MatchCandidate`
+        A tentative landmark corrects only itself. Returns one :class:`~rovslam.mapping.association.MatchCandidate`
         per match, in order, with the reason it was refused before the update or the update's outcome.
         """
         assoc = self.config.association
@@ -376,8 +376,8 @@ class SlamPipeline:
                  heading: HeadingEstimate, frame: Frame) -> list[MatchCandidate]:
         """Strong, confirmed matches refused by the innovation test: the filter may be the one that is wrong.
 
-        Each tells the vehicle offset that would explain it (:func:`~rovslam.association.told_offset_m`); when the
-        :class:`~rovslam.association.RecoveryMonitor` finds them consistent for long enough, the
+        Each tells the vehicle offset that would explain it (:func:`~rovslam.mapping.association.told_offset_m`); when the
+        :class:`~rovslam.mapping.association.RecoveryMonitor` finds them consistent for long enough, the
         vehicle covariance is inflated by that offset, they are admitted, and the event recorded.
         Returns the candidates, those admitted with their new update's outcome.
         """

@@ -17,18 +17,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rovslam.association import RecoveryEvent
 from rovslam.config import RunConfig
-from rovslam.heading import HeadingEstimate
-from rovslam.io.sequence import Frame
-from rovslam.landmarks import LandmarkRecord
-from rovslam.odometry import SpeedMeasurement
+from rovslam.core import Frame
+from rovslam.mapping.association import RecoveryEvent
+from rovslam.mapping.landmarks import LandmarkRecord
+from rovslam.sensor.heading import HeadingEstimate
+from rovslam.sensor.odometry import SpeedMeasurement
+from rovslam.sensor.sunlight import SunlightEvent
 from rovslam.slam import EkfSlam
 from rovslam.slam.apparent import apparent_frame_cov_m2
 from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 from rovslam.slam.motion import altitude_offset_sigma_m
 from rovslam.slam.observation import observation_noise_px2
-from rovslam.sunlight import SunlightEvent
 from rovslam.vision.laser import AltitudeEstimate
 from rovslam.vision.scale import ProcessingScale
 from rovslam.vision.tracking import TokenTracks

@@ -13,13 +13,13 @@ import dataclasses
 
 import numpy as np
 
-from rovslam.association import REASON_LASER, RecoveryMonitor
 from rovslam.camera import ground_to_pixels, mn_to_ground
 from rovslam.config import RunConfig
-from rovslam.heading import HeadingPrior
-from rovslam.landmarks import LandmarkRecord, most_distinctive, oriented_patch
+from rovslam.mapping.association import REASON_LASER, RecoveryMonitor
+from rovslam.mapping.landmarks import LandmarkRecord, most_distinctive, oriented_patch
 from rovslam.pipeline.geometry import covers_laser_spot, inside_image, search_radius_px
 from rovslam.pipeline.records import TrackedLandmark
+from rovslam.sensor.heading import HeadingPrior
 from rovslam.slam import EkfSlam
 from rovslam.slam.motion import motion_step_m
 from rovslam.slam.observation import pixels_to_mn
@@ -113,7 +113,7 @@ class LandmarkSearch:
         The paper takes the highest local variance; a template whose autocorrelation within
         the search region has another high peak (a lattice, ripples, look-alike burrows)
         would be confused with its neighbour, so it is never chosen, and of the strongest
-        candidates the most distinctive is (:func:`rovslam.landmarks.most_distinctive`).
+        candidates the most distinctive is (:func:`rovslam.mapping.landmarks.most_distinctive`).
         ``mask``: ``(H, W) bool`` pixels where no template may be.
         """
         if any(not t.refused for t in tracked) or not self.ekf.may_add_landmark():

@@ -21,8 +21,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from rovslam.errors import SimulationError
 from rovslam.core import Frame, SequenceInfo
+from rovslam.errors import SimulationError
 from rovslam.sim.relief import ReliefParams
 from rovslam.sim.render import Pose, renderer_for
 from rovslam.sim.scenarios import SCENARIOS, Scenario, build_world, frame_rng

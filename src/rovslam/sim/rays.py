@@ -22,7 +22,7 @@ from rovslam.errors import SimulationError
 from rovslam.sim.world import World
 
 if TYPE_CHECKING:
-    from rovslam.sim.render import Pose, SensorParams
+    from rovslam.sim.params import Pose, SensorParams
 
 RAY_ITERATIONS = 3  # Newton steps of the ray-relief intersection
 _MIN_CLEARANCE_M = 0.05  # the camera must stay this far above the highest relief

@@ -436,7 +436,8 @@ def simulate(
     :mod:`rovslam.sim.calibration`), drawn for the seed from a :class:`CalibrationErrors` or given
     as a :class:`DrawnCalibration`, recorded in ``[metadata]``; None: exact sensors.
     """
-    from rovslam.io.sequence import SequenceInfo, SequenceWriter
+    from rovslam.core import SequenceInfo
+    from rovslam.io.sequence import SequenceWriter
     from rovslam.sim.codec import H264RoundTrip
 
     t_start = time.perf_counter()

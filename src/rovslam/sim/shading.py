@@ -29,7 +29,7 @@ from rovslam.sim.water import WaterParams
 from rovslam.sim.world import World
 
 if TYPE_CHECKING:
-    from rovslam.sim.render import Pose, SensorParams
+    from rovslam.sim.params import Pose, SensorParams
 
 
 class LampCone:

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from rovslam.core import SequenceInfo
 from rovslam.errors import SimulationError
-from rovslam.io.sequence import SequenceInfo
 
 __all__ = ["FrameSource", "SitlFrame", "preset_frames", "sequence_frames"]
 

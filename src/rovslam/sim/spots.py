@@ -20,7 +20,7 @@ from rovslam.sim.water import WaterParams
 from rovslam.sim.world import World
 
 if TYPE_CHECKING:
-    from rovslam.sim.render import LaserSpotParams, Pose
+    from rovslam.sim.params import LaserSpotParams, Pose
 
 _LASER_ITERATIONS = 5  # Newton steps of the beam-relief intersection (to full precision)
 

@@ -164,7 +164,7 @@ def despeckled_channels(
     """The despeckled channel and, when ``wide_px >= 2``, that channel opened again with ``wide_px``.
 
     Both openings are taken on 8 bits (see :func:`despeckled_channel`); the second is what
-    :mod:`rovslam.sunlight` tracks on under sunlight caustics, and the difference of the two
+    :mod:`rovslam.sensor.sunlight` tracks on under sunlight caustics, and the difference of the two
     is the bright structures between the two widths. Returns ``((H, W) float32, (H, W) float32 or None)``.
     """
     if channel not in CHANNELS or np.asarray(image).dtype != np.uint8:

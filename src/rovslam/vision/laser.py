@@ -41,7 +41,7 @@ SOURCE_LASER = "laser"
 SOURCE_LASER_SONAR = "laser+sonar"
 SOURCE_SONAR = "sonar"
 SOURCE_FIXED = "fixed"
-SOURCE_HELD = "held"  # no reading in this frame: the altitude filter's prediction (rovslam.altitude)
+SOURCE_HELD = "held"  # no reading in this frame: the altitude filter's prediction (rovslam.sensor.altitude)
 
 
 

@@ -1,6 +1,6 @@
 """The rigid (or similarity) motion of matched seabed points: the consensus search and the fit.
 
-The operations :func:`rovslam.odometry.speed_from_tokens` is made of, on level-frame seabed
+The operations :func:`rovslam.sensor.odometry.speed_from_tokens` is made of, on level-frame seabed
 offsets ``a`` (previous frame) and ``b`` (current frame), ``(M, 2)`` metres each, related by
 ``a ~ s R(theta) b + d``:
 

@@ -50,7 +50,7 @@ TURN_NOISE_MIN_WINDOWS = 50
 class HeadingFilter:
     """Heading from the compass, smoothed with the tokens' measured heading changes (beyond the paper).
 
-    Predict ``psi += dpsi`` (the fused rotation of :func:`rovslam.odometry.speed_from_tokens`,
+    Predict ``psi += dpsi`` (the fused rotation of :func:`rovslam.sensor.odometry.speed_from_tokens`,
     variance ``dpsi_sigma^2``), update with the compass reading (variance ``compass_sigma^2``).
     Without token rotations it follows the compass.
 

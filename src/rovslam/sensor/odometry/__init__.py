@@ -22,7 +22,7 @@ scale error: ``speed * sigma_Z / Z``) and a floor ``min_speed_sigma_mps``.
 :func:`speed_from_tokens` is the pure operation; :class:`SpeedEstimator` is the thin
 stateful wrapper that holds the last good speed when a frame gives no usable tokens and grows
 its covariance with the gap. The hypothesis search and the rigid (similarity) fit are in
-:mod:`rovslam.odometry.rigid`.
+:mod:`rovslam.sensor.odometry.rigid`.
 """
 
 from __future__ import annotations
@@ -36,9 +36,9 @@ from rovslam.averages import DecayingMean
 from rovslam.camera import Camera, pixels_to_ground, rot2
 from rovslam.config import OdometryConfig
 from rovslam.errors import InvalidArgumentError, InvalidMeasurementError, finite_scalar
-from rovslam.odometry.rigid import (
+from rovslam.sensor.odometry.rigid import (
     _CHI2_2DOF_99,
-    _MAX_HYPOTHESES,  # noqa: F401 (imported from here by the tests)
+    _MAX_HYPOTHESES,  # noqa: F401 (the tests read it from here)
     _best_hypothesis,
     _floor_eigenvalues,
     _rigid_fit,
