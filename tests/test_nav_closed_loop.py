@@ -57,7 +57,11 @@ def test_slam_reaches_every_point_within_2_cm_of_the_truth(acceptance):
     assert summary.status == "complete" and len(summary.arrivals) == 5
     errs = [r["true_err_m"] for r in summary.arrivals]
     assert all(r["reached"] == 1 for r in summary.arrivals)
-    assert max(errs) < 0.02, errs
+    # Measured (this mission, summary.arrivals): true arrival errors 1.9, 1.8, 6.2, 2.8, 4.1 mm (mean 3.4 mm),
+    # hold RMS 2.7 to 8.6 mm. The issue asks for 2 cm; the bounds are 2.4 and 2.3 times the measured worst,
+    # and the mean above a third of its figure (steering by the truth would arrive about 0 mm off).
+    assert max(errs) < 0.015, errs
+    assert np.mean(errs) > 0.001, errs
     assert all(r["hold_rms_true_m"] < 0.02 for r in summary.arrivals)
     # the controller stopped on its estimate: within the arrival radius of the point
     assert all(r["est_err_m"] <= 0.005 for r in summary.arrivals)
