@@ -405,6 +405,27 @@ def _ate_m(results, root) -> float:
     return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
 
 
+def test_turbid_water_first_40_s_stay_inside_their_bounds(tmp_path):
+    """The slow turbid-water test below on its first 40 s (200 frames of ``turbid-relief``, seed 0):
+    the default inside 2-sigma, and with the thresholded laser-spot centres (the altitude read
+    0.8 % long all dive) inside 2-sigma with a mean NEES in a band, both sides.
+
+    Measured (this dive and :func:`_run`, frames 1-199): default 100 % inside, mean NEES 0.17, ATE
+    2.8 mm; thresholded 100 %, NEES 0.51, ATE 5.9 mm (the earlier filter, not run here: 100 %, NEES
+    1.01; over 300 frames 89.0 %, and over the slow test's 750 frames the thresholded NEES reaches
+    1.05). The band is 2.5 times the measured 0.51 either way; the ATE ratio, 0.48, is bounded as
+    the slow test bounds it.
+    """
+    seq = tmp_path / "seq"
+    simulate("turbid-relief", seq, frames=200, seed=0)
+    _, results, nees = _run(seq)
+    assert np.mean(nees < TWO_SIGMA_NEES) >= 0.95
+    _, results_long, nees_long = _run(seq, _thresholded_spots(RunConfig()))
+    assert np.mean(nees_long < TWO_SIGMA_NEES) >= 0.95
+    assert 0.2 <= float(np.mean(nees_long[1:])) <= 1.3, float(np.mean(nees_long[1:]))
+    assert _ate_m(results, seq) < 0.85 * _ate_m(results_long, seq)
+
+
 @pytest.mark.slow
 def test_turbid_water_stays_inside_its_bounds(tmp_path):
     """2.5 minutes of ``turbid-relief`` seed 0: >= 95 % inside 2-sigma, with and without a lasting

@@ -74,6 +74,27 @@ def test_dead_reckoning_arrives_farther_from_the_points(acceptance, dead_reckoni
     assert dr / slam > 0.88 * MEASURED_DR_OVER_SLAM, (dr, slam)  # > 1.29
 
 
+def test_a_short_mission_steered_by_dead_reckoning_arrives_farther(tmp_path):
+    """The fast version of the slow comparison below: ``portofino`` seed 1, a 40 s survey, then one
+    point (the square's north-east corner), 2 s hold; steered by slam, then by dead reckoning.
+
+    Measured (these two missions, mean true arrival error from ``summary.arrivals``): slam 2.92 mm
+    (411 frames), dead reckoning 9.40 mm (346 frames), 3.2 times. Bounds: slam under 2.5 times its
+    figure, dead reckoning above its figure / 2.5, the ratio above half its figure. This short
+    mission is not where the 3x requirement is measured: on seeds 2 and 3 (two points) the ratio
+    was 1.35 and 1.11, dead reckoning having drifted little in 40 s; the slow test measures it.
+    """
+    pois = [Goal("ne", np.array([0.5, 0.5]))]
+    errs = {}
+    for estimator in ("slam", "dead-reckoning"):
+        s = navigate("portofino", pois, tmp_path / estimator, estimator, survey_s=40.0, hold_s=2.0, seed=1, plot=False)
+        assert s.status == "complete" and [r["reached"] for r in s.arrivals] == [1]
+        errs[estimator] = float(s.arrivals[0]["true_err_m"])
+    assert errs["slam"] < 0.0073, errs
+    assert errs["dead-reckoning"] > 0.0038, errs
+    assert errs["dead-reckoning"] > 1.6 * errs["slam"], errs
+
+
 def test_the_mission_writes_the_usual_results_and_its_own(acceptance):
     summary, out = acceptance["slam"]
     arr = rows(out / "arrivals.csv")
