@@ -154,7 +154,7 @@ def test_back_to_landmark_0_after_a_short_survey(tmp_path):
     lm0 = rows(tmp_path / "o" / "landmarks.csv")[0]
     # the point is the landmark's map position (at the arrival; the map moves little after it)
     assert (back["x_m"], back["y_m"]) == pytest.approx((float(lm0["x_m"]), float(lm0["y_m"])), abs=2e-3)
-    assert back["true_err_m"] < 0.01
+    assert back["true_err_m"] < 0.01  # measured 4.4 mm (this mission, summary.arrivals): 2.3 times under the bound
 
 
 def test_a_live_frame_is_the_frame_simulate_writes_for_the_same_pose(tmp_path):
