@@ -47,9 +47,13 @@ def test_smoothing_an_ekf_run_from_its_files_is_accurate_and_consistent(dive):
     assert ev.smoothed is not None and ev.smoothed_consistency is not None
     print("online", ev.slam.ate_rmse_m, ev.consistency.coverage_2sigma,
           "smoothed", ev.smoothed.ate_rmse_m, ev.smoothed_consistency.coverage_2sigma)
-    assert ev.smoothed.ate_rmse_m < 0.005  # 5 mm over a 30 s dive
+    # Measured (this fixture's dive, portofino-short seed 4, 150 frames; smooth_run then evaluate_run):
+    # smoothed ATE RMSE 0.0643 cm against the online filter's 0.0769 cm (ratio 0.84), both 100 % inside
+    # 2-sigma. Bounds: 2.5 times the measured ATE, above a third of it (about 0 would mean the
+    # evaluation compared the estimate with itself), and the smoothed dive no worse than the online one.
+    assert 0.0002 < ev.smoothed.ate_rmse_m < 0.0016
     assert ev.smoothed_consistency.coverage_2sigma >= 0.9
-    assert ev.smoothed.ate_rmse_m <= 2.0 * ev.slam.ate_rmse_m
+    assert ev.smoothed.ate_rmse_m <= 1.0 * ev.slam.ate_rmse_m
 
 
 def test_the_isam2_back_end_gives_the_online_estimate_and_writes_the_smoothed_dive(dive):
@@ -58,7 +62,9 @@ def test_the_isam2_back_end_gives_the_online_estimate_and_writes_the_smoothed_di
     print("isam2 online", online.slam.ate_rmse_m, online.consistency.coverage_2sigma, "ekf", ekf.slam.ate_rmse_m)
     assert (dive / "isam2" / "trajectory_smoothed.csv").is_file()
     assert online.smoothed is not None
-    assert online.slam.ate_rmse_m < 0.005
+    # Measured (the same dive, evaluate_run): iSAM2 online ATE RMSE 0.0637 cm, 100 % inside 2-sigma;
+    # bound at 2.5 times that and above a third of it.
+    assert 0.0002 < online.slam.ate_rmse_m < 0.0016
     assert online.consistency.coverage_2sigma >= 0.9
     # The same measurements: the two online estimates agree to well within their uncertainty.
     a, b = read_results(dive / "isam2"), read_results(dive / "ekf")

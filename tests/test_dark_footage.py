@@ -75,5 +75,7 @@ def test_dark_dive_keeps_its_speed_and_its_map(dark_dive, tmp_path):
     assert lm_paper == 0 and speed_paper < 0.7 and ate_paper > 0.10
     # lifted: a map, a speed on nearly every frame, millimetres, inside the reported covariance
     assert n_lm >= 4 and speed_ok >= 0.97
-    assert ate < 0.005
+    # Measured: ATE RMSE 0.130 cm (100 % inside 2-sigma, speed on 99.3 % of frames, 8 landmarks; the paper's
+    # thresholds 27.8 cm), by this test's dive and runs; bound at 2.5 times that, and above a third of it.
+    assert 0.0004 < ate < 0.0033
     assert cons.coverage_2sigma >= 0.95

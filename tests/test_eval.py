@@ -210,11 +210,12 @@ def test_phase_correlation_baseline_on_a_simulated_dive(short_run):
 
     f = evaluate_run(short_run / "out", short_run / "seq" / "groundtruth.csv", short_run / "seq")
     pc, dr = f.phase_correlation, f.dead_reckoning
-    # Measured (seed 0, 300 frames): phase correlation 0.130 cm ATE RMSE, dead reckoning 0.115 cm,
-    # SLAM 0.067 cm, over a 3.78 m path.
+    # Measured (this fixture's dive, seed 0, 300 frames, then evaluate_run): phase correlation 0.141 cm
+    # ATE RMSE, dead reckoning 0.104 cm, SLAM 0.052 cm. The phase correlation's bound is 2.5 times its
+    # figure, and above a third of it.
     assert pc is not None and np.isfinite(pc.ate_rmse_m)
     assert 0.5 * dr.ate_rmse_m < pc.ate_rmse_m < 2.0 * dr.ate_rmse_m
-    assert pc.ate_rmse_m < 0.005
+    assert 0.00047 < pc.ate_rmse_m < 0.0035
     assert pc.distance_m == pytest.approx(f.slam.distance_m)  # errors in the same cell, same truth
     assert f.phase_correlation_over_slam_rmse == pytest.approx(pc.ate_rmse_m / f.slam.ate_rmse_m)
     d = f.to_dict()

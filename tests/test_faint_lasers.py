@@ -52,7 +52,9 @@ def test_faint_spots_give_the_altitude_without_an_altimeter(coral_without_altime
     ev = evaluate_run(tmp_path / "run", seq / "groundtruth.csv")
     src = _sources(tmp_path / "run")
     assert src.count("laser") >= 0.9 * len(src) and "fixed" not in src
-    assert ev.slam.ate_rmse_m < 0.003
+    # Measured: ATE RMSE 0.042 cm (100 % inside 2-sigma), by this test's dive and run then evaluate_run;
+    # bound at 2.6 times that, and above a third of it.
+    assert 0.00014 < ev.slam.ate_rmse_m < 0.0011
     assert ev.consistency.coverage_2sigma >= 0.95
     # control: the bright spots alone leave most frames to the assumed altitude
     off = RunConfig(laser=LaserConfig(assumed_altitude_m=1.8, faint_red_excess=0.0))

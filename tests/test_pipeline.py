@@ -39,10 +39,16 @@ def _figures(root):
 
 
 def test_portofino_short_meets_the_papers_accuracy(short_dive):
+    """The fast version of test_full_trial.py (slow): the first 600 frames of the same trial and seed
+    (measured on ``portofino`` cut at 1,200 frames, the first 600 give the same figures as below)."""
     f = _figures(short_dive)
     print(json.dumps({k: f.to_dict()[k] for k in ("slam", "dead_reckoning", "consistency", "landmarks")}, indent=1))
     assert f.frames == 600
-    assert f.slam.ate_rmse_m < 0.01
+    # Measured: ATE RMSE 0.0543 cm (dead reckoning 0.250 cm, 4.6 times worse; 100 % inside 2-sigma), by
+    # this fixture's dive and run (portofino-short, seed 0) then rovslam.eval.evaluate. The issue's aim is
+    # under 1 cm; the bound is 2.6 times the measured figure, and below it a third of it: an evaluation
+    # comparing the estimate with itself (or with a truth it was fed) would read about 0.
+    assert 0.0002 < f.slam.ate_rmse_m < 0.0014
     assert f.dead_reckoning.ate_rmse_m >= 3.0 * f.slam.ate_rmse_m
     assert f.consistency.coverage_2sigma >= 0.90
     assert f.landmarks >= 2
@@ -53,7 +59,10 @@ def test_portofino_short_meets_the_papers_accuracy(short_dive):
 def test_rough_preset_with_turns_swings_and_tilt(rough_dive):
     f = _figures(rough_dive)
     print(json.dumps({k: f.to_dict()[k] for k in ("slam", "dead_reckoning", "consistency", "landmarks")}, indent=1))
-    assert f.slam.ate_rmse_m < 0.02
+    # Measured: ATE RMSE 0.680 cm (dead reckoning 0.924 cm; 100 % inside 2-sigma, mean NEES 0.55), by this
+    # fixture's dive and run (rough-turns-short, seed 2) then rovslam.eval.evaluate; bound at 2.5 times that,
+    # and above a third of it (about 0 would mean the evaluation compared the estimate with itself).
+    assert 0.0023 < f.slam.ate_rmse_m < 0.017
     assert f.consistency.coverage_2sigma >= 0.90
 
 
@@ -105,4 +114,6 @@ def test_corrupt_and_black_frames_are_skipped_and_reported(short_dive, tmp_path)
     assert "not a readable" in summary.skipped[0][2] and "no texture" in summary.skipped[1][2]
     f = evaluate(read_results(tmp_path / "out"), read_groundtruth(seq / "groundtruth.csv"))
     assert f.skipped_frames == 2
-    assert f.slam.ate_rmse_m < 0.02
+    # Measured: ATE RMSE 0.0566 cm over these 150 frames with the two skipped (this test's own dive and
+    # run, then rovslam.eval.evaluate); bound at 2.6 times that, and above a third of it.
+    assert 0.0002 < f.slam.ate_rmse_m < 0.0015

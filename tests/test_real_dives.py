@@ -203,7 +203,7 @@ def test_without_navigation_the_summary_and_report_say_what_was_assumed(dive):
 
 @needs_sparus
 def test_sparus_video_with_its_own_navigation(tmp_path):
-    """Heading change within 3 degrees of the navigation's, direction of travel within 15 degrees."""
+    """Heading change within 1.6 degrees of the navigation's, direction of travel within 15 degrees."""
     import tomllib
 
     from rovslam.io.nav import nav_mapping, read_nav_csv
@@ -218,7 +218,10 @@ def test_sparus_video_with_its_own_navigation(tmp_path):
     t0, t1 = float(r.t_s[0]), float(r.t_s[-1])
     nav_turn = math.degrees(nav.sample(t1).heading_rad - nav.sample(t0).heading_rad)
     run_turn = math.degrees(r.trajectory["heading_rad"][-1] - r.trajectory["heading_rad"][0])
-    assert abs(run_turn - nav_turn) < 3.0, (run_turn, nav_turn)
+    # Measured (this run; test body run with the snippet at /work/shared/data/sparus): the run turns -24.14
+    # degrees against the log's -23.48 (0.66 apart), and travels at 23.8 degrees against the log's 30.7
+    # (6.9 apart); the bounds are 2.4 and 2.2 times those.
+    assert abs(run_turn - nav_turn) < 1.6, (run_turn, nav_turn)
     # The log's positions (ENU: x east, y north) at the first and last frame, interpolated.
     import csv
 
