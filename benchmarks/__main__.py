@@ -15,7 +15,7 @@ here = Path(__file__).parent
 args = [a for a in sys.argv[1:] if a != "--"]
 wanted = {a for a in args if not a.startswith("-") and (here / f"bench_{a}.py").is_file()}
 passed = [a for a in args if a not in wanted]
-scripts = sorted(p for p in here.glob("bench_*.py") if not wanted or p.stem[len("bench_"):] in wanted)
+scripts = sorted(p for p in here.glob("bench_*.py") if not wanted or p.stem[len("bench_") :] in wanted)
 status = 0
 for script in scripts:
     print(f"\n=== {script.stem} ===", flush=True)

@@ -67,7 +67,11 @@ def _hd_scenario():
         cam = Camera(width_px=1920, height_px=1080, fx_px=4800.0, fy_px=4800.0, cx_px=959.5, cy_px=539.5)
         vehicle = dataclasses.replace(base.vehicle, cruise_speed_mps=0.2, accel_limit_mps2=0.05, substeps=1)
         SCENARIOS["bench-hd"] = dataclasses.replace(
-            base, name="bench-hd", camera=cam, frame_rate_hz=25.0, vehicle=vehicle,
+            base,
+            name="bench-hd",
+            camera=cam,
+            frame_rate_hz=25.0,
+            vehicle=vehicle,
             description="portofino-short through a 1920x1080 camera, f = 4800 px, 25 frames/s, 0.2 m/s",
         )
     return "bench-hd"
@@ -83,7 +87,9 @@ def sequence_folder(case: Case, log=print) -> Path:
     if (folder / ".complete").is_file():
         return folder
     if case.texture == "photo" and not PHOTO.is_file():
-        raise SystemExit(f"benchmark: the real seabed photo {PHOTO} is missing (the shared data folder beside the repo)")
+        raise SystemExit(
+            f"benchmark: the real seabed photo {PHOTO} is missing (the shared data folder beside the repo)"
+        )
     shutil.rmtree(folder, ignore_errors=True)
     folder.parent.mkdir(parents=True, exist_ok=True)
     log(f"simulating {case.name} into {folder} (once; cached)", flush=True)
@@ -153,6 +159,7 @@ class ReplaySource:
         for j in range(len(self.seq) - 1, -1, -1):  # one frame at a time: nothing held
             yield from self.seq.frames(j, j + 1, prefetch=0)
 
+
 @contextmanager
 def source_override(source: Any) -> Iterator[None]:
     """Make :func:`rovslam.runner.run_sequence` run ``source`` whatever path it is given."""
@@ -188,8 +195,13 @@ def machine() -> dict[str, Any]:
         pass
     mem_gib = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     return {
-        "cpu": cpu, "cores": os.cpu_count(), "memory_gib": round(mem_gib, 1), "python": platform.python_version(),
-        "numpy": np.__version__, "opencv": cv2.__version__, "load_average": os.getloadavg(),
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "memory_gib": round(mem_gib, 1),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "opencv": cv2.__version__,
+        "load_average": os.getloadavg(),
         "platform": platform.platform(),
     }
 

@@ -24,43 +24,91 @@ from typing import Any
 # (label, targets); a target is "module:Attr.path". Order = the order of the table.
 STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("decode", ("rovslam.io.sequence:Sequence._load",)),
-    ("channel and despeckle", ("rovslam.pipeline.image:despeckled_channels", "rovslam.pipeline.image:template_channel",
-                               "rovslam.pipeline.image:remove_specks")),
-    ("band-pass (+ texture check)", ("rovslam.pipeline.image:bandpass", "rovslam.pipeline.image:contrast_std",
-                                     "rovslam.pipeline:SlamPipeline._tracking_image")),
+    (
+        "channel and despeckle",
+        (
+            "rovslam.pipeline.image:despeckled_channels",
+            "rovslam.pipeline.image:template_channel",
+            "rovslam.pipeline.image:remove_specks",
+        ),
+    ),
+    (
+        "band-pass (+ texture check)",
+        (
+            "rovslam.pipeline.image:bandpass",
+            "rovslam.pipeline.image:contrast_std",
+            "rovslam.pipeline:SlamPipeline._tracking_image",
+        ),
+    ),
     ("local variance", ("rovslam.pipeline.loop:local_variance", "rovslam.pipeline.search:local_variance")),
-    ("laser (spots, altitude, inhibition)", ("rovslam.pipeline:SlamPipeline._measure_altitude",
-                                             "rovslam.pipeline:SlamPipeline._inhibit_laser_spots")),
-    ("landmark search (gate, match, new)", ("rovslam.pipeline:SlamPipeline._track_landmarks",
-                                            "rovslam.pipeline:SlamPipeline._choose_new_landmark",
-                                            "rovslam.pipeline:SlamPipeline._inhibit_landmarks")),
-    ("token tracking (match, extract)", ("rovslam.pipeline:SlamPipeline._token_predictions",
-                                         "rovslam.vision.tracking:TokenTracker.track",
-                                         "rovslam.pipeline:SlamPipeline._extract_tokens")),
-    ("token tracking: phase correlation", ("rovslam.vision.tracking:global_shift", "rovslam.vision.tracking:reduce_image")),
+    (
+        "laser (spots, altitude, inhibition)",
+        ("rovslam.pipeline:SlamPipeline._measure_altitude", "rovslam.pipeline:SlamPipeline._inhibit_laser_spots"),
+    ),
+    (
+        "landmark search (gate, match, new)",
+        (
+            "rovslam.pipeline:SlamPipeline._track_landmarks",
+            "rovslam.pipeline:SlamPipeline._choose_new_landmark",
+            "rovslam.pipeline:SlamPipeline._inhibit_landmarks",
+        ),
+    ),
+    (
+        "token tracking (match, extract)",
+        (
+            "rovslam.pipeline:SlamPipeline._token_predictions",
+            "rovslam.vision.tracking:TokenTracker.track",
+            "rovslam.pipeline:SlamPipeline._extract_tokens",
+        ),
+    ),
+    (
+        "token tracking: phase correlation",
+        ("rovslam.vision.tracking:global_shift", "rovslam.vision.tracking:reduce_image"),
+    ),
     ("speed estimation", ("rovslam.pipeline:SlamPipeline._measure_speed",)),
     ("sunlight watch", ("rovslam.pipeline:SlamPipeline._watch_sunlight", "rovslam.sensor.sunlight:BrightHistory.push")),
     ("heading", ("rovslam.sensor.heading:HeadingTracker.prior", "rovslam.pipeline:SlamPipeline._fuse_heading")),
-    ("EKF (predict, update, augment)", ("rovslam.pipeline:SlamPipeline._predict_and_update",
-                                        "rovslam.pipeline:SlamPipeline._add_landmark",
-                                        "rovslam.pipeline:SlamPipeline._start_filter")),
-    ("result records", ("rovslam.pipeline.records:FrameRecords.measurements", "rovslam.pipeline.records:FrameRecords.result",
-                        "rovslam.pipeline:SlamPipeline._back_end", "rovslam.pipeline:SlamPipeline._skip")),
-    ("writers (CSV, templates, summary)", ("rovslam.io.results:ResultWriter.write_frame",
-                                           "rovslam.io.results:ResultWriter.write_landmark_template",
-                                           "rovslam.io.results:GalleryWriter.write_frame",
-                                           "rovslam.io.measurements:MeasurementWriter.write",
-                                           "rovslam.tallies:SourceTally.add",
-                                           "rovslam.runner:_Run._finish",
-                                           "rovslam.io.results:ResultWriter.write_config",
-                                           "rovslam.io.results:ResultWriter.write_summary")),
+    (
+        "EKF (predict, update, augment)",
+        (
+            "rovslam.pipeline:SlamPipeline._predict_and_update",
+            "rovslam.pipeline:SlamPipeline._add_landmark",
+            "rovslam.pipeline:SlamPipeline._start_filter",
+        ),
+    ),
+    (
+        "result records",
+        (
+            "rovslam.pipeline.records:FrameRecords.measurements",
+            "rovslam.pipeline.records:FrameRecords.result",
+            "rovslam.pipeline:SlamPipeline._back_end",
+            "rovslam.pipeline:SlamPipeline._skip",
+        ),
+    ),
+    (
+        "writers (CSV, templates, summary)",
+        (
+            "rovslam.io.results:ResultWriter.write_frame",
+            "rovslam.io.results:ResultWriter.write_landmark_template",
+            "rovslam.io.results:GalleryWriter.write_frame",
+            "rovslam.io.measurements:MeasurementWriter.write",
+            "rovslam.tallies:SourceTally.add",
+            "rovslam.runner:_Run._finish",
+            "rovslam.io.results:ResultWriter.write_config",
+            "rovslam.io.results:ResultWriter.write_summary",
+        ),
+    ),
 )
 PROGRESS = "progress display"
 GLUE = "loop and glue"
 # Targets a run may legitimately never call (no unusable frame, no AHRS, frames at the processing scale).
-MAY_BE_UNCALLED = {"rovslam.pipeline:SlamPipeline._skip", "rovslam.pipeline:SlamPipeline._start_filter",
-                   "rovslam.pipeline.image:template_channel", "rovslam.pipeline.image:remove_specks",
-                   "rovslam.io.results:ResultWriter.write_landmark_template"}
+MAY_BE_UNCALLED = {
+    "rovslam.pipeline:SlamPipeline._skip",
+    "rovslam.pipeline:SlamPipeline._start_filter",
+    "rovslam.pipeline.image:template_channel",
+    "rovslam.pipeline.image:remove_specks",
+    "rovslam.io.results:ResultWriter.write_landmark_template",
+}
 
 
 class MissingTarget(SystemExit):
@@ -104,8 +152,15 @@ class StageTimes:
     def table(self) -> list[tuple[str, float, float, int]]:
         """Rows ``(label, ms per frame, share of the total, calls)`` in stage order, glue last."""
         labels = [label for label, _ in STAGES] + [PROGRESS, GLUE]
-        return [(lb, 1e3 * self.seconds.get(lb, 0.0) / self.frames, self.seconds.get(lb, 0.0) / self.total_s,
-                 self.calls.get(lb, 0)) for lb in labels]
+        return [
+            (
+                lb,
+                1e3 * self.seconds.get(lb, 0.0) / self.frames,
+                self.seconds.get(lb, 0.0) / self.total_s,
+                self.calls.get(lb, 0),
+            )
+            for lb in labels
+        ]
 
     @property
     def glue_share(self) -> float:
@@ -125,8 +180,14 @@ class StageClock:
         self._undo: list[tuple[Any, str, Any]] = []
 
     def wrap(self, label: str, fn: Callable, target: str = "") -> Callable:
-        clock, stack, seconds, calls, tcalls, main = (self.clock, self._stack, self.seconds, self.calls,
-                                                      self.target_calls, self._main)
+        clock, stack, seconds, calls, tcalls, main = (
+            self.clock,
+            self._stack,
+            self.seconds,
+            self.calls,
+            self.target_calls,
+            self._main,
+        )
 
         @functools.wraps(fn)
         def timed(*args, **kwargs):
@@ -166,5 +227,7 @@ class StageClock:
         return out, self.clock() - t0
 
     def result(self, total_s: float, frames: int) -> StageTimes:
-        uncalled = [t for _, targets in STAGES for t in targets if self.target_calls[t] == 0 and t not in MAY_BE_UNCALLED]
+        uncalled = [
+            t for _, targets in STAGES for t in targets if self.target_calls[t] == 0 and t not in MAY_BE_UNCALLED
+        ]
         return StageTimes(dict(self.seconds), dict(self.calls), uncalled, total_s, frames)

@@ -76,8 +76,10 @@ def main() -> None:
     for name, shape, cpu, wall in rows:
         print(f"{name:<22}{shape:>11}{1000 * cpu:>9.2f}{1 / cpu:>9.1f}{1000 * wall:>9.2f}{1 / wall:>9.1f}")
     paper, full, auto = (r[2] for r in rows)
-    print(f"CPU time: HD auto is {full / auto:.1f}x faster than HD at full resolution and takes "
-          f"{auto / paper:.2f}x the paper camera's time per frame")
+    print(
+        f"CPU time: HD auto is {full / auto:.1f}x faster than HD at full resolution and takes "
+        f"{auto / paper:.2f}x the paper camera's time per frame"
+    )
 
 
 if __name__ == "__main__":

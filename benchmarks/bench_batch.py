@@ -50,7 +50,9 @@ def _stand_in(name: str):
     if "hd" in name:
         s = 1920 / 360
         cam = Camera(1920, 1080, base.camera.fx_px * s, base.camera.fy_px * s, 959.5, 539.5)
-        return replace(base, name="stand-in-hd", camera=cam, frame_rate_hz=25.0), "stand-in: portofino at 1920x1080, 25 Hz"
+        return replace(
+            base, name="stand-in-hd", camera=cam, frame_rate_hz=25.0
+        ), "stand-in: portofino at 1920x1080, 25 Hz"
     if "still" in name:
         return replace(base, name="stand-in-still", frame_rate_hz=1.5), "stand-in: portofino at 1.5 Hz"
     return base, "stand-in: portofino (360x272, 5 Hz)"
@@ -106,10 +108,14 @@ def main() -> None:
     matrix = load_matrix(args.matrix, {n: sc for n, (sc, _) in stand_ins.items()} | dict(SCENARIOS))
     n_long, n_short = args.frames, max(2, args.frames // 4)
     measured: dict[str, tuple[float, float, dict, float]] = {}
-    print(f"{matrix.name}: {len(matrix.cells)} cells; CPU seconds, medians of {args.repeats} cells of "
-          f"{n_short} and {n_long} frames")
-    print(f"{'scenario':<18}{'frames':>7}{'fixed s':>9}{'sim ms/f':>10}{'run ms/f':>10}{'eval ms/f':>10}"
-          f"{'decode ms/f':>12}{'cell s':>8}  measured on")
+    print(
+        f"{matrix.name}: {len(matrix.cells)} cells; CPU seconds, medians of {args.repeats} cells of "
+        f"{n_short} and {n_long} frames"
+    )
+    print(
+        f"{'scenario':<18}{'frames':>7}{'fixed s':>9}{'sim ms/f':>10}{'run ms/f':>10}{'eval ms/f':>10}"
+        f"{'decode ms/f':>12}{'cell s':>8}  measured on"
+    )
     cell_costs = []
     for group in matrix.groups:
         cells = [c for c in matrix.cells if c.group == group]
@@ -128,12 +134,16 @@ def main() -> None:
         frames = cells[0].frames or sc.n_frames
         cost = fixed + per_frame * frames
         cell_costs += [cost] * len(cells)
-        print(f"{group:<18}{frames:>7}{fixed:>9.1f}{1e3 * per['simulate']:>10.1f}{1e3 * per['run']:>10.1f}"
-              f"{1e3 * per['eval']:>10.1f}{1e3 * dec:>12.1f}{cost:>8.0f}  {note or 'itself'}, {cells[0].image_format}")
+        print(
+            f"{group:<18}{frames:>7}{fixed:>9.1f}{1e3 * per['simulate']:>10.1f}{1e3 * per['run']:>10.1f}"
+            f"{1e3 * per['eval']:>10.1f}{1e3 * dec:>12.1f}{cost:>8.0f}  {note or 'itself'}, {cells[0].image_format}"
+        )
     total = sum(cell_costs)
     wall = _project(cell_costs, args.cores)
-    print(f"total {total / 3600:.2f} CPU hours; projected wall time on {args.cores} cores: {wall / 3600:.2f} h "
-          f"({wall / 60:.0f} min), the busiest worker {100 * wall * args.cores / total:.0f} % of the mean")
+    print(
+        f"total {total / 3600:.2f} CPU hours; projected wall time on {args.cores} cores: {wall / 3600:.2f} h "
+        f"({wall / 60:.0f} min), the busiest worker {100 * wall * args.cores / total:.0f} % of the mean"
+    )
 
 
 if __name__ == "__main__":

@@ -53,8 +53,9 @@ def _scenario(resolution: str, rate_hz: float) -> str:
         return _hd_scenario()
     if "bench-10hz" not in SCENARIOS:
         base = SCENARIOS["portofino-short"]
-        SCENARIOS["bench-10hz"] = dataclasses.replace(base, name="bench-10hz", frame_rate_hz=rate_hz,
-                                                      description="portofino-short at 10 frames/s")
+        SCENARIOS["bench-10hz"] = dataclasses.replace(
+            base, name="bench-10hz", frame_rate_hz=rate_hz, description="portofino-short at 10 frames/s"
+        )
     return "bench-10hz"
 
 
@@ -91,21 +92,65 @@ def _run_case(resolution: str, seconds: float, work: Path) -> dict:
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
     live_log = (work / f"live-{resolution}.log").open("w")
     live = subprocess.Popen(
-        [sys.executable, "-m", "rovslam", "live", "--video", f"udp://127.0.0.1:{video}",
-         "--camera", str(seq / "sequence.toml"), "--mavlink", f"udpin:127.0.0.1:{mav}", "--out", str(out),
-         "--duration-s", str(seconds + MARGIN_S), "--quiet"],
-        env=env, preexec_fn=_pinned(live_cpu), stdout=subprocess.DEVNULL, stderr=live_log)
+        [
+            sys.executable,
+            "-m",
+            "rovslam",
+            "live",
+            "--video",
+            f"udp://127.0.0.1:{video}",
+            "--camera",
+            str(seq / "sequence.toml"),
+            "--mavlink",
+            f"udpin:127.0.0.1:{mav}",
+            "--out",
+            str(out),
+            "--duration-s",
+            str(seconds + MARGIN_S),
+            "--quiet",
+        ],
+        env=env,
+        preexec_fn=_pinned(live_cpu),
+        stdout=subprocess.DEVNULL,
+        stderr=live_log,
+    )
     sitl = subprocess.run(  # the dive starts when live's first HEARTBEAT arrives
-        [sys.executable, "-m", "rovslam", "sitl", "--from", str(seq), "--out", str(truth), "--duration-s",
-         str(seconds), "--video", f"udp://127.0.0.1:{video}", "--mavlink", f"udpout:127.0.0.1:{mav}",
-         "--wait-for-peer-s", str(MARGIN_S), "--quiet"],
-        env=env, preexec_fn=_pinned(sitl_cpu), capture_output=True, text=True, timeout=seconds * 5 + 600)
+        [
+            sys.executable,
+            "-m",
+            "rovslam",
+            "sitl",
+            "--from",
+            str(seq),
+            "--out",
+            str(truth),
+            "--duration-s",
+            str(seconds),
+            "--video",
+            f"udp://127.0.0.1:{video}",
+            "--mavlink",
+            f"udpout:127.0.0.1:{mav}",
+            "--wait-for-peer-s",
+            str(MARGIN_S),
+            "--quiet",
+        ],
+        env=env,
+        preexec_fn=_pinned(sitl_cpu),
+        capture_output=True,
+        text=True,
+        timeout=seconds * 5 + 600,
+    )
     _, status, usage = os.wait4(live.pid, 0)
     live.returncode = os.waitstatus_to_exitcode(status)
     live_log.close()
     err = (work / f"live-{resolution}.log").read_text()
-    row: dict = {"case": f"{resolution} {rate:g} Hz", "seconds": seconds, "live_exit": live.returncode,
-                 "sitl_exit": sitl.returncode, "live_cpu_s": usage.ru_utime + usage.ru_stime}
+    row: dict = {
+        "case": f"{resolution} {rate:g} Hz",
+        "seconds": seconds,
+        "live_exit": live.returncode,
+        "sitl_exit": sitl.returncode,
+        "live_cpu_s": usage.ru_utime + usage.ru_stime,
+    }
     if sitl.returncode != 0:
         row["error"] = f"sitl: {sitl.stderr.strip()[-300:]}"
     return _figures(row, out, truth, err, rate)
@@ -115,15 +160,23 @@ def _figures(row: dict, out: Path, truth: Path, live_stderr: str, rate_hz: float
     """``row`` with the figures of live's ``OUT/summary.json`` ``live`` block and sitl's ``sitl.json``."""
     summary_path = out / "summary.json"
     if not summary_path.is_file():
-        row.setdefault("error", f"live wrote no summary.json (exit {row.get('live_exit')}): {live_stderr.strip()[-300:]}")
+        row.setdefault(
+            "error", f"live wrote no summary.json (exit {row.get('live_exit')}): {live_stderr.strip()[-300:]}"
+        )
         return row
     block = json.loads(summary_path.read_text()).get("live", {})
     sitl_json = json.loads((truth / "sitl.json").read_text()) if (truth / "sitl.json").is_file() else {}
     lat = block.get("latency_ms", {})
-    row.update(frames_sent=sitl_json.get("frames_sent"), sitl_late_frames=sitl_json.get("late_frames"),
-               frames_received=block.get("frames_received"), frames_processed=block.get("frames_processed"),
-               frames_dropped=block.get("frames_dropped"), latency_p50_ms=lat.get("p50"),
-               latency_p99_ms=lat.get("p99"), latency_max_ms=lat.get("max"))
+    row.update(
+        frames_sent=sitl_json.get("frames_sent"),
+        sitl_late_frames=sitl_json.get("late_frames"),
+        frames_received=block.get("frames_received"),
+        frames_processed=block.get("frames_processed"),
+        frames_dropped=block.get("frames_dropped"),
+        latency_p50_ms=lat.get("p50"),
+        latency_p99_ms=lat.get("p99"),
+        latency_max_ms=lat.get("max"),
+    )
     processed = row["frames_processed"] or 0
     row["live_cpu_ms_per_frame"] = 1e3 * row["live_cpu_s"] / processed if processed else None
     row["target_p99_below_period"] = row["latency_p99_ms"] is not None and row["latency_p99_ms"] < 1e3 / rate_hz
@@ -147,17 +200,45 @@ def main() -> None:
         for resolution in args.cases.split(","):
             print(f"{resolution}: sitl --from + live, {seconds:g} s on loopback ...", flush=True)
             rows.append(_run_case(resolution.strip(), seconds, Path(tmp)))
-    head = ("case", "sent", "late", "recv", "proc", "drop", "p50 ms", "p99 ms", "max ms", "live CPU s", "CPU ms/frame",
-            "p99<period", "no drop")
+    head = (
+        "case",
+        "sent",
+        "late",
+        "recv",
+        "proc",
+        "drop",
+        "p50 ms",
+        "p99 ms",
+        "max ms",
+        "live CPU s",
+        "CPU ms/frame",
+        "p99<period",
+        "no drop",
+    )
     print(" | ".join(head))
     for r in rows:
         if "error" in r and r.get("frames_processed") is None:
             print(f"{r['case']}: {r['error']}")
             continue
-        print(" | ".join([r["case"], _fmt(r["frames_sent"]), _fmt(r["sitl_late_frames"]), _fmt(r["frames_received"]), _fmt(r["frames_processed"]),
-                          _fmt(r["frames_dropped"]), _fmt(r["latency_p50_ms"]), _fmt(r["latency_p99_ms"]),
-                          _fmt(r["latency_max_ms"]), _fmt(r["live_cpu_s"]), _fmt(r["live_cpu_ms_per_frame"]),
-                          "yes" if r["target_p99_below_period"] else "NO", "yes" if r["target_no_drop"] else "NO"]))
+        print(
+            " | ".join(
+                [
+                    r["case"],
+                    _fmt(r["frames_sent"]),
+                    _fmt(r["sitl_late_frames"]),
+                    _fmt(r["frames_received"]),
+                    _fmt(r["frames_processed"]),
+                    _fmt(r["frames_dropped"]),
+                    _fmt(r["latency_p50_ms"]),
+                    _fmt(r["latency_p99_ms"]),
+                    _fmt(r["latency_max_ms"]),
+                    _fmt(r["live_cpu_s"]),
+                    _fmt(r["live_cpu_ms_per_frame"]),
+                    "yes" if r["target_p99_below_period"] else "NO",
+                    "yes" if r["target_no_drop"] else "NO",
+                ]
+            )
+        )
     print(f"results: {write_json('live', {'machine': machine(), 'rows': rows})}")
 
 

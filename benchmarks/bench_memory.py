@@ -66,22 +66,37 @@ def worker(spec: dict) -> dict:
 
     def on_frame(res) -> None:
         if (res.index + 1) % step == 0 or res.index + 1 == total:
-            samples.append({"frame": res.index + 1, "rss_mib": _rss_bytes() / MIB,
-                            "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-                            "landmarks": res.n_landmarks, "map_mib": _map_bytes(holder["pipe"]) / MIB})
+            samples.append(
+                {
+                    "frame": res.index + 1,
+                    "rss_mib": _rss_bytes() / MIB,
+                    "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                    "landmarks": res.n_landmarks,
+                    "map_mib": _map_bytes(holder["pipe"]) / MIB,
+                }
+            )
 
     runner.SlamPipeline.__init__ = keep
     t0, c0 = time.perf_counter(), time.process_time()
     with tempfile.TemporaryDirectory() as tmp, source_override(src):
         s = runner.run_sequence(spec["folder"], Path(tmp) / "out", on_frame=on_frame)
-    return {"frames": s.frames, "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0, "samples": samples,
-            "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    return {
+        "frames": s.frames,
+        "wall_s": time.perf_counter() - t0,
+        "cpu_s": time.process_time() - c0,
+        "samples": samples,
+        "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
 
 
 def _spawn(spec: dict) -> dict:
     before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    proc = subprocess.run([sys.executable, "-m", "benchmarks.bench_memory", "--worker", json.dumps(spec)],
-                          stdout=subprocess.PIPE, text=True, cwd=Path(__file__).resolve().parents[1])
+    proc = subprocess.run(
+        [sys.executable, "-m", "benchmarks.bench_memory", "--worker", json.dumps(spec)],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=Path(__file__).resolve().parents[1],
+    )
     if proc.returncode != 0:
         raise SystemExit(f"memory worker failed ({spec})")
     out = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -113,8 +128,10 @@ def main() -> int:
     for times, r in results["runs"].items():
         last = r["samples"][-1]
         flat = " ".join(f"{s['rss_mib'] - s['map_mib']:.0f}" for s in r["samples"])
-        print(f"{times + ' x ' + str(args.frames):>16}{r['wall_s']:9.0f}{r.get('cpu_s', float('nan')):8.0f}{r['peak_mib']:10.0f}{last['landmarks']:11d}"
-              f"{last['map_mib']:9.1f}   {flat}")
+        print(
+            f"{times + ' x ' + str(args.frames):>16}{r['wall_s']:9.0f}{r.get('cpu_s', float('nan')):8.0f}{r['peak_mib']:10.0f}{last['landmarks']:11d}"
+            f"{last['map_mib']:9.1f}   {flat}"
+        )
     path = write_json("memory", results, args.json)
     print(f"\nwrote {path}")
     return 0

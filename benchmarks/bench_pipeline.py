@@ -58,6 +58,7 @@ PROFILE_CASES = ("360-sim-mem", "hd-sim-mem")
 
 # ----------------------------------------------------------------------------- worker side
 
+
 def _bar_factory():
     """The progress bar of ``rovslam run`` (drawn on this process's stderr)."""
     from rovslam.cli.display import ProgressBar, slam_callbacks
@@ -117,8 +118,13 @@ def _timed(fn, repeats: int) -> dict:
         frames = fn()
         walls.append(time.perf_counter() - t0)
         cpus.append(time.process_time() - c0)
-    return {"frames": frames, "wall_s": walls, "cpu_s": cpus, "median_wall_s": statistics.median(walls),
-            "median_cpu_s": statistics.median(cpus)}
+    return {
+        "frames": frames,
+        "wall_s": walls,
+        "cpu_s": cpus,
+        "median_wall_s": statistics.median(walls),
+        "median_cpu_s": statistics.median(cpus),
+    }
 
 
 def worker(spec: dict) -> dict:
@@ -172,14 +178,20 @@ def _stages(folder: Path, memory, tmp: Path) -> dict:
     Sequence.frames = frames_in_main_thread
     clock.install()
     try:
-        n, total = clock.timed_total(lambda: _run_once(folder, memory, tmp / "stages",
-                                                       lambda f: clock.wrap(PROGRESS, f, "progress callback")))
+        n, total = clock.timed_total(
+            lambda: _run_once(folder, memory, tmp / "stages", lambda f: clock.wrap(PROGRESS, f, "progress callback"))
+        )
     finally:
         clock.uninstall()
         Sequence.frames = frames_orig
     st = clock.result(total, n)
-    return {"frames": n, "total_s": total, "glue_share": st.glue_share, "uncalled": st.uncalled,
-            "stages": [{"stage": lb, "ms_per_frame": ms, "share": sh, "calls": c} for lb, ms, sh, c in st.table()]}
+    return {
+        "frames": n,
+        "total_s": total,
+        "glue_share": st.glue_share,
+        "uncalled": st.uncalled,
+        "stages": [{"stage": lb, "ms_per_frame": ms, "share": sh, "calls": c} for lb, ms, sh, c in st.table()],
+    }
 
 
 def _profile(folder: Path, memory, tmp: Path, top: int) -> dict:
@@ -205,11 +217,16 @@ def _profile(folder: Path, memory, tmp: Path, top: int) -> dict:
     rows = sorted(self_s.items(), key=lambda kv: -kv[1])[:top]
     html = tmp / "profile.html"
     html.write_text(prof.output_html())
-    return {"frames": n, "total_s": total, "html": str(html),
-            "hotspots": [{"function": k, "self_s": v, "share": v / total, "ms_per_frame": 1e3 * v / n} for k, v in rows]}
+    return {
+        "frames": n,
+        "total_s": total,
+        "html": str(html),
+        "hotspots": [{"function": k, "self_s": v, "share": v / total, "ms_per_frame": 1e3 * v / n} for k, v in rows],
+    }
 
 
 # ----------------------------------------------------------------------------- driver side
+
 
 def _spawn(spec: dict, src: Path | None = None) -> dict:
     """Run one measurement in a fresh process (stderr on a pseudo-terminal, as a user's run).
@@ -226,8 +243,14 @@ def _spawn(spec: dict, src: Path | None = None) -> dict:
     drained = threading.Thread(target=_drain, args=(master, tail), daemon=True)
     drained.start()
     try:
-        proc = subprocess.run([sys.executable, "-m", "benchmarks.bench_pipeline", "--worker", json.dumps(spec)],
-                              stdout=subprocess.PIPE, stderr=slave, text=True, cwd=Path(__file__).resolve().parents[1], env=env)
+        proc = subprocess.run(
+            [sys.executable, "-m", "benchmarks.bench_pipeline", "--worker", json.dumps(spec)],
+            stdout=subprocess.PIPE,
+            stderr=slave,
+            text=True,
+            cwd=Path(__file__).resolve().parents[1],
+            env=env,
+        )
     finally:
         os.close(slave)
     if proc.returncode != 0:
@@ -261,9 +284,14 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="one repeat, half the frames, no stages")
     ap.add_argument("--no-stages", action="store_true")
     ap.add_argument("--profile", action="store_true", help="also profile the 360x272 and HD runs from memory")
-    ap.add_argument("--against", type=Path, default=None, metavar="SRC",
-                    help="also measure the build whose package is in SRC (e.g. `git archive REV src | tar -x -C /tmp/old` "
-                         "then --against /tmp/old/src), each measurement right after the same one of this build")
+    ap.add_argument(
+        "--against",
+        type=Path,
+        default=None,
+        metavar="SRC",
+        help="also measure the build whose package is in SRC (e.g. `git archive REV src | tar -x -C /tmp/old` "
+        "then --against /tmp/old/src), each measurement right after the same one of this build",
+    )
     ap.add_argument("--json", type=Path, default=None, help="default benchmarks/results/pipeline.json")
     args = ap.parse_args()
     if args.worker:
@@ -274,15 +302,24 @@ def main() -> int:
         import importlib.util
 
         if importlib.util.find_spec("pyinstrument") is None:
-            raise SystemExit("--profile needs pyinstrument: .venv/bin/pip install -e '.[bench]' (make bench installs it)")
+            raise SystemExit(
+                "--profile needs pyinstrument: .venv/bin/pip install -e '.[bench]' (make bench installs it)"
+            )
     names = args.cases or list(CASES)
     repeats = 1 if args.quick else args.repeats
     info = machine()
-    print(f"machine: {info['cpu']}, {info['cores']} cores, {info['memory_gib']} GiB; Python {info['python']}, "
-          f"NumPy {info['numpy']}, OpenCV {info['opencv']}; load average {info['load_average'][0]:.1f}", flush=True)
+    print(
+        f"machine: {info['cpu']}, {info['cores']} cores, {info['memory_gib']} GiB; Python {info['python']}, "
+        f"NumPy {info['numpy']}, OpenCV {info['opencv']}; load average {info['load_average'][0]:.1f}",
+        flush=True,
+    )
     builds = {"this": None} | ({"against": args.against.resolve()} if args.against else {})
-    results: dict = {"machine": info, "repeats": repeats, "builds": {k: str(v or "installed") for k, v in builds.items()},
-                     "cases": {b: {} for b in builds}}
+    results: dict = {
+        "machine": info,
+        "repeats": repeats,
+        "builds": {k: str(v or "installed") for k, v in builds.items()},
+        "cases": {b: {} for b in builds},
+    }
     for name in names:
         case = CASES[name]
         if args.quick:
@@ -294,7 +331,8 @@ def main() -> int:
             results["cases"][b][name] = {"case": case.name, "source": "memory" if src == "mem" else case.image_format}
         print(f"{name}: ", end="", flush=True)
         for mode, cores in (("run", 1), ("run", 2), ("baseline", 1), ("baseline", 2)) + (
-                (("decode", 1),) if src == "file" else ()):
+            (("decode", 1),) if src == "file" else ()
+        ):
             for b, path in builds.items():
                 if mode != "run" and b != "this":
                     continue  # the baselines do not depend on the build
@@ -303,8 +341,9 @@ def main() -> int:
         print()
         for b in builds:
             if b != "this":
-                results["cases"][b][name].update({k: v for k, v in results["cases"]["this"][name].items() if "@" in k
-                                                  and not k.startswith("run")})
+                results["cases"][b][name].update(
+                    {k: v for k, v in results["cases"]["this"][name].items() if "@" in k and not k.startswith("run")}
+                )
     for b in builds:
         _print_speed(results["cases"][b], f" ({b} build: {results['builds'][b]})" if len(builds) > 1 else "")
     if len(builds) > 1:
@@ -313,8 +352,13 @@ def main() -> int:
         results["stages"] = {b: {} for b in builds}
         for name in STAGE_CASES:
             if name in names:
-                spec = {"folder": str(sequence_folder(CASES[name])), "source": "file", "repeats": 1, "mode": "stages",
-                        "cores": 1}
+                spec = {
+                    "folder": str(sequence_folder(CASES[name])),
+                    "source": "file",
+                    "repeats": 1,
+                    "mode": "stages",
+                    "cores": 1,
+                }
                 for b, path in builds.items():
                     results["stages"][b][name] = _spawn(spec, path)
         for b in builds:
@@ -323,8 +367,13 @@ def main() -> int:
         results["profile"] = {}
         for name in PROFILE_CASES:
             if name in names:
-                spec = {"folder": str(sequence_folder(CASES[name])), "source": "mem", "repeats": 1, "mode": "profile",
-                        "cores": 1}
+                spec = {
+                    "folder": str(sequence_folder(CASES[name])),
+                    "source": "mem",
+                    "repeats": 1,
+                    "mode": "profile",
+                    "cores": 1,
+                }
                 results["profile"][name] = _spawn(spec)
         _print_profile(results["profile"])
     path = write_json("pipeline", results, args.json)
@@ -342,45 +391,59 @@ def _print_speedup(cases: dict) -> None:
 
 
 def _print_speed(cases: dict, title: str = "") -> None:
-    print(f"\nframes/s (median){title}; ratio = rovslam run time / baseline time (decode + phaseCorrelate; from memory: "
-          "phaseCorrelate alone), each on the same number of cores")
-    head = (f"{'case':<16}{'source':>7}{'run 1c':>8}{'run 2c':>8}{'base 1c':>9}{'base 2c':>9}{'decode':>8}"
-            f"{'ratio 1c':>9}{'ratio 2c':>9}{'run 2c / base 1c':>18}{'CPU ms/fr':>10}")
+    print(
+        f"\nframes/s (median){title}; ratio = rovslam run time / baseline time (decode + phaseCorrelate; from memory: "
+        "phaseCorrelate alone), each on the same number of cores"
+    )
+    head = (
+        f"{'case':<16}{'source':>7}{'run 1c':>8}{'run 2c':>8}{'base 1c':>9}{'base 2c':>9}{'decode':>8}"
+        f"{'ratio 1c':>9}{'ratio 2c':>9}{'run 2c / base 1c':>18}{'CPU ms/fr':>10}"
+    )
     print(head)
     print("-" * len(head))
     for name, r in cases.items():
         run1, run2, b1, b2 = (r[k] for k in ("run@1", "run@2", "baseline@1", "baseline@2"))
         dec = f"{_fps(r['decode@1']):8.0f}" if "decode@1" in r else f"{'-':>8}"
         cpu_ms = 1e3 * run1["median_cpu_s"] / run1["frames"]
-        print(f"{name:<16}{r['source']:>7}{_fps(run1):8.0f}{_fps(run2):8.0f}{_fps(b1):9.0f}{_fps(b2):9.0f}{dec}"
-              f"{run1['median_wall_s'] / b1['median_wall_s']:9.2f}{run2['median_wall_s'] / b2['median_wall_s']:9.2f}"
-              f"{run2['median_wall_s'] / b1['median_wall_s']:18.2f}{cpu_ms:10.2f}")
+        print(
+            f"{name:<16}{r['source']:>7}{_fps(run1):8.0f}{_fps(run2):8.0f}{_fps(b1):9.0f}{_fps(b2):9.0f}{dec}"
+            f"{run1['median_wall_s'] / b1['median_wall_s']:9.2f}{run2['median_wall_s'] / b2['median_wall_s']:9.2f}"
+            f"{run2['median_wall_s'] / b1['median_wall_s']:18.2f}{cpu_ms:10.2f}"
+        )
     for name in ("360-sim-png", "360-photo-png"):
         if name in cases:
             r = cases[name]
             per = {k: r[k]["median_wall_s"] / r[k]["frames"] for k in ("run@1", "run@2")}
-            print(f"full trial ({TRIAL_FRAMES} frames) from PNG, projected from {name}: "
-                  f"{TRIAL_FRAMES * per['run@2']:.0f} s (2 cores), {TRIAL_FRAMES * per['run@1']:.0f} s (1 core)")
+            print(
+                f"full trial ({TRIAL_FRAMES} frames) from PNG, projected from {name}: "
+                f"{TRIAL_FRAMES * per['run@2']:.0f} s (2 cores), {TRIAL_FRAMES * per['run@1']:.0f} s (1 core)"
+            )
 
 
 def _print_stages(stages: dict, title: str = "") -> None:
     for name, st in stages.items():
-        print(f"\nstages of {name}{title} (one core, decoding in the main thread): {st['frames']} frames, "
-              f"{1e3 * st['total_s'] / st['frames']:.2f} ms per frame measured")
+        print(
+            f"\nstages of {name}{title} (one core, decoding in the main thread): {st['frames']} frames, "
+            f"{1e3 * st['total_s'] / st['frames']:.2f} ms per frame measured"
+        )
         print(f"{'stage':<38}{'ms/frame':>10}{'share':>8}{'calls':>8}")
         for row in st["stages"]:
             print(f"{row['stage']:<38}{row['ms_per_frame']:10.3f}{100 * row['share']:7.1f}%{row['calls']:8d}")
         named = 1.0 - st["glue_share"]
-        print(f"named stages cover {100 * named:.1f} % of the measured frame time "
-              f"({'within' if st['glue_share'] <= 0.10 else 'NOT within'} 10 %)")
+        print(
+            f"named stages cover {100 * named:.1f} % of the measured frame time "
+            f"({'within' if st['glue_share'] <= 0.10 else 'NOT within'} 10 %)"
+        )
         if st["uncalled"]:
             print(f"never called in this run: {', '.join(st['uncalled'])}")
 
 
 def _print_profile(profiles: dict) -> None:
     for name, p in profiles.items():
-        print(f"\nprofile of {name} (pyinstrument, one core): {p['frames']} frames, "
-              f"{1e3 * p['total_s'] / p['frames']:.2f} ms per frame under the profiler; HTML: {p['html']}")
+        print(
+            f"\nprofile of {name} (pyinstrument, one core): {p['frames']} frames, "
+            f"{1e3 * p['total_s'] / p['frames']:.2f} ms per frame under the profiler; HTML: {p['html']}"
+        )
         print(f"{'self time in':<70}{'ms/frame':>10}{'share':>8}")
         for h in p["hotspots"]:
             print(f"{h['function'][:69]:<70}{h['ms_per_frame']:10.3f}{100 * h['share']:7.1f}%")

@@ -34,8 +34,18 @@ from rovslam.sim import SCENARIOS, frame_pose, frame_rng, renderer_for, simulate
 from rovslam.sim.scenarios import build_world, survey_area_m
 
 TRIAL_FRAMES = SCENARIOS["portofino"].n_frames
-DEFAULT_PRESETS = ("portofino", "rough-turns", "portofino-relief", "photo-survey", "photo-turns", "hd-survey",
-                   "still-camera", "turbid-relief", "coral-repetitive", "swell")
+DEFAULT_PRESETS = (
+    "portofino",
+    "rough-turns",
+    "portofino-relief",
+    "photo-survey",
+    "photo-turns",
+    "hd-survey",
+    "still-camera",
+    "turbid-relief",
+    "coral-repetitive",
+    "swell",
+)
 
 
 def _parse() -> argparse.Namespace:
@@ -74,8 +84,14 @@ def bench_render(name: str, n: int) -> tuple[float, float]:
     renderer = renderer_for(sc.camera, sc.water, sc.sensor, sc.spots, sc.lighting)
 
     def frame(k: int) -> np.ndarray:
-        return renderer.render(world, frame_pose(traj, k), sc.lasers, frame_rng(0, k),
-                               velocity_mps=(traj.surge_mps[k], traj.sway_mps[k]), t_s=traj.t_s[k])
+        return renderer.render(
+            world,
+            frame_pose(traj, k),
+            sc.lasers,
+            frame_rng(0, k),
+            velocity_mps=(traj.surge_mps[k], traj.sway_mps[k]),
+            t_s=traj.t_s[k],
+        )
 
     for k in range(0, n, max(1, n // 10)):  # build the windows the run will use
         frame(k)
@@ -117,8 +133,14 @@ def main() -> None:
             rows.append((f"render {name}", n, _median([bench_render(name, n) for _ in range(args.repeats)]), None))
         sc = SCENARIOS["portofino"]
         const = np.full((sc.camera.height_px, sc.camera.width_px, 3), 100, np.uint8)
-        rows.append(("write const", args.frames,
-                     _median([bench_write(const, args.frames, root) for _ in range(args.repeats)]), None))
+        rows.append(
+            (
+                "write const",
+                args.frames,
+                _median([bench_write(const, args.frames, root) for _ in range(args.repeats)]),
+                None,
+            )
+        )
         for name in names:
             n = _frames_for(name, args.frames)
             sec = _median([bench_simulate(name, n, root) for _ in range(args.repeats)])
@@ -127,16 +149,20 @@ def main() -> None:
         print(f"median of {args.repeats} runs; ratios to 'render portofino'; dive s: CPU for the whole preset")
         print(f"{'':28s} {'frames':>6s} {'wall ms':>8s} {'x base':>7s} {'CPU ms':>8s} {'x base':>7s} {'dive s':>7s}")
         for label, n, (wall, cpu), dive in rows:
-            print(f"{label:28s} {n:6d} {wall * 1e3:8.2f} {wall / base[0]:7.2f} {cpu * 1e3:8.2f} {cpu / base[1]:7.2f} "
-                  f"{'' if dive is None else f'{dive:7.0f}'}")
+            print(
+                f"{label:28s} {n:6d} {wall * 1e3:8.2f} {wall / base[0]:7.2f} {cpu * 1e3:8.2f} {cpu / base[1]:7.2f} "
+                f"{'' if dive is None else f'{dive:7.0f}'}"
+            )
         if args.full:
             out = root / "full"
             t0 = time.perf_counter()
             summary = simulate("portofino", out, seed=0)
             wall = time.perf_counter() - t0
             size_mb = sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) / 1e6
-            print(f"portofino trial written: {summary.frames} frames in {wall:.1f} s "
-                  f"({wall / summary.frames * 1e3:.2f} ms/frame, {size_mb:.0f} MB)")
+            print(
+                f"portofino trial written: {summary.frames} frames in {wall:.1f} s "
+                f"({wall / summary.frames * 1e3:.2f} ms/frame, {size_mb:.0f} MB)"
+            )
     finally:
         shutil.rmtree(root, ignore_errors=True)
 

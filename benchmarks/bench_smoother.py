@@ -83,17 +83,31 @@ def sized_stream(n_frames: int, poses: int, landmarks: int, seed: int = 0) -> li
         if len(near):  # the nearest new landmark is initialised, else the nearest one tracked
             i = fresh[0] if fresh else int(near[np.argmin(d[near])])
             mn = observe_mn(lms[i], xy[k], psi[k], Z_M, F_PX)[0] + rng.normal(0.0, 0.5, 2)
-            obs = (LandmarkMeasurement(int(i), "track" if i in seen else "init", mn, observation_noise_px2(mn, 0.5, Z_M)),)
+            obs = (
+                LandmarkMeasurement(int(i), "track" if i in seen else "init", mn, observation_noise_px2(mn, 0.5, Z_M)),
+            )
             seen.add(int(i))
         v = np.zeros(2) if k == 0 else rot2(psi[k - 1]).T @ (xy[k] - xy[k - 1]) / DT_S  # (1) inverted
-        frames.append(FrameMeasurements(
-            index=k, t_s=k * DT_S, dt_s=DT_S if k else 0.0, speed_mps=v + (rng.normal(0, 2e-3, 2) if k else 0.0),
-            speed_cov_mps2=np.eye(2) * 4e-6 if k else np.zeros((2, 2)), speed_ok=k > 0, heading_rad=float(psi[k]),
-            heading_sigma_rad=NOISE.compass_sigma_rad, compass_rad=float(compass[k]),
-            compass_sigma_rad=NOISE.compass_sigma_rad, heading_step_rad=0.0 if k else np.nan,
-            heading_step_sigma_rad=NOISE.step_sigma_rad if k else np.nan, altitude_m=Z_M, altitude_sigma_m=0.0,
-            focal_px=F_PX, landmarks=obs,
-        ))
+        frames.append(
+            FrameMeasurements(
+                index=k,
+                t_s=k * DT_S,
+                dt_s=DT_S if k else 0.0,
+                speed_mps=v + (rng.normal(0, 2e-3, 2) if k else 0.0),
+                speed_cov_mps2=np.eye(2) * 4e-6 if k else np.zeros((2, 2)),
+                speed_ok=k > 0,
+                heading_rad=float(psi[k]),
+                heading_sigma_rad=NOISE.compass_sigma_rad,
+                compass_rad=float(compass[k]),
+                compass_sigma_rad=NOISE.compass_sigma_rad,
+                heading_step_rad=0.0 if k else np.nan,
+                heading_step_sigma_rad=NOISE.step_sigma_rad if k else np.nan,
+                altitude_m=Z_M,
+                altitude_sigma_m=0.0,
+                focal_px=F_PX,
+                landmarks=obs,
+            )
+        )
     return _dense_ids(frames)
 
 
@@ -123,8 +137,11 @@ class EkfRunner:
     def add_frame(self, f: FrameMeasurements) -> None:
         ekf = self.ekf
         if self.prev is not None:
-            ekf.predict(MotionInput(f.speed_mps[0], f.speed_mps[1], f.speed_cov_mps2, self.prev.heading_rad, f.dt_s,
-                                    f.heading_sigma_rad))
+            ekf.predict(
+                MotionInput(
+                    f.speed_mps[0], f.speed_mps[1], f.speed_cov_mps2, self.prev.heading_rad, f.dt_s, f.heading_sigma_rad
+                )
+            )
         for ob in f.landmarks:
             if ob.kind == "init":
                 ekf.augment(ob.mn_px, f.heading_rad, f.altitude_m, f.focal_px)
@@ -159,9 +176,15 @@ def bench_size(poses: int, landmarks: int, repeats: int) -> dict:
         t0 = time.perf_counter()
         sm.smoothed()
         finals.append(time.perf_counter() - t0)
-    return dict(poses=n_poses, landmarks=n_landmarks, build_s=build_s, median_ms=1e3 * statistics.median(ts),
-                mean_ms=1e3 * statistics.fmean(ts), ekf_ms=1e3 * statistics.median(te),
-                final_s=statistics.median(finals))
+    return dict(
+        poses=n_poses,
+        landmarks=n_landmarks,
+        build_s=build_s,
+        median_ms=1e3 * statistics.median(ts),
+        mean_ms=1e3 * statistics.fmean(ts),
+        ekf_ms=1e3 * statistics.median(te),
+        final_s=statistics.median(finals),
+    )
 
 
 def bench_trial(n_frames: int) -> dict:
@@ -180,9 +203,17 @@ def bench_trial(n_frames: int) -> dict:
     final_s = time.perf_counter() - t0
     ate_mm = 1e3 * float(np.sqrt(np.mean(np.sum((res.xy_m - sv.xy_m) ** 2, axis=1))))
     quint = [1e3 * float(np.median(c)) for c in np.array_split(per, 5)]
-    return dict(frames=n_frames, landmarks=sm.n_landmarks, observations=int(res.landmark_observations.sum()),
-                online_s=online_s, final_s=final_s, ate_mm=ate_mm, quintile_median_ms=quint,
-                mean_ms=1e3 * float(per.mean()), max_ms=1e3 * float(per.max()))
+    return dict(
+        frames=n_frames,
+        landmarks=sm.n_landmarks,
+        observations=int(res.landmark_observations.sum()),
+        online_s=online_s,
+        final_s=final_s,
+        ate_mm=ate_mm,
+        quintile_median_ms=quint,
+        mean_ms=1e3 * float(per.mean()),
+        max_ms=1e3 * float(per.max()),
+    )
 
 
 def bench_custom_factor(n_values: int, n_factors: int = 20) -> tuple[float, float]:
@@ -232,27 +263,38 @@ def main() -> None:
     if args.quick:
         args.poses, args.landmarks, args.no_trial = [500, 2000], [50, 200], True
     print("per-frame cost of add_frame (one iSAM2 update + the newest pose's marginal), one core")
-    print(f"{'poses':>7} {'landmarks':>9} | {'iSAM2 median':>12} {'mean':>8} | {'EKF median':>10} | "
-          f"{'smoothed()':>10} | {'build':>7}")
+    print(
+        f"{'poses':>7} {'landmarks':>9} | {'iSAM2 median':>12} {'mean':>8} | {'EKF median':>10} | "
+        f"{'smoothed()':>10} | {'build':>7}"
+    )
     for p in args.poses:
         for m in args.landmarks:
             r = bench_size(p, m, args.repeats)
-            print(f"{r['poses']:>7} {r['landmarks']:>9} | {r['median_ms']:>9.2f} ms {r['mean_ms']:>5.2f} ms | "
-                  f"{r['ekf_ms']:>7.3f} ms | {r['final_s']:>8.2f} s | {r['build_s']:>5.1f} s", flush=True)
+            print(
+                f"{r['poses']:>7} {r['landmarks']:>9} | {r['median_ms']:>9.2f} ms {r['mean_ms']:>5.2f} ms | "
+                f"{r['ekf_ms']:>7.3f} ms | {r['final_s']:>8.2f} s | {r['build_s']:>5.1f} s",
+                flush=True,
+            )
     print("\nGauss-Newton iteration, 20 landmark factors in a graph of N poses: CustomFactor (Python) vs DeltaFactor")
     for n in (1000, 10000):
         c, d = bench_custom_factor(n)
-        print(f"  N = {n:>6}: CustomFactor {1e3 * c:8.1f} ms, DeltaFactor {1e3 * d:7.1f} ms: "
-              f"{1e3 * (c - d) / 40:.3f} ms more per Python evaluation (20 linearisations + 20 errors)")
+        print(
+            f"  N = {n:>6}: CustomFactor {1e3 * c:8.1f} ms, DeltaFactor {1e3 * d:7.1f} ms: "
+            f"{1e3 * (c - d) / 40:.3f} ms more per Python evaluation (20 linearisations + 20 errors)"
+        )
     if not args.no_trial:
         r = bench_trial(args.trial_frames)
         print(f"\nfull trial: {r['frames']} frames, {r['landmarks']} landmarks, {r['observations']} observations")
-        print(f"  incremental pass {r['online_s']:.1f} s (budget {ONLINE_BUDGET_S:.0f} s: "
-              f"{'met' if r['online_s'] < ONLINE_BUDGET_S else 'NOT met'}), mean {r['mean_ms']:.2f} ms/frame, "
-              f"max {r['max_ms']:.0f} ms")
+        print(
+            f"  incremental pass {r['online_s']:.1f} s (budget {ONLINE_BUDGET_S:.0f} s: "
+            f"{'met' if r['online_s'] < ONLINE_BUDGET_S else 'NOT met'}), mean {r['mean_ms']:.2f} ms/frame, "
+            f"max {r['max_ms']:.0f} ms"
+        )
         print("  median ms/frame per fifth of the dive: " + ", ".join(f"{q:.2f}" for q in r["quintile_median_ms"]))
-        print(f"  final smoothing {r['final_s']:.1f} s (budget {FINAL_BUDGET_S:.0f} s: "
-              f"{'met' if r['final_s'] < FINAL_BUDGET_S else 'NOT met'}); smoothed ATE {r['ate_mm']:.2f} mm")
+        print(
+            f"  final smoothing {r['final_s']:.1f} s (budget {FINAL_BUDGET_S:.0f} s: "
+            f"{'met' if r['final_s'] < FINAL_BUDGET_S else 'NOT met'}); smoothed ATE {r['ate_mm']:.2f} mm"
+        )
 
 
 if __name__ == "__main__":

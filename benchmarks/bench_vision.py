@@ -96,8 +96,13 @@ def naive_extract(img: np.ndarray, lv: np.ndarray, cfg: SpeedTemplateConfig) -> 
         if any(abs(u - cu) < s and abs(v - cv) < s for cu, cv in chosen):
             continue
         chosen.append((u, v))
-        out.append(Template(np.array([u - half + (s - 1) / 2, v - half + (s - 1) / 2]),
-                            img[v - half : v - half + s, u - half : u - half + s].copy(), float(lv[v, u])))
+        out.append(
+            Template(
+                np.array([u - half + (s - 1) / 2, v - half + (s - 1) / 2]),
+                img[v - half : v - half + s, u - half : u - half + s].copy(),
+                float(lv[v, u]),
+            )
+        )
         if len(out) == cfg.max_count:
             break
     return out
@@ -137,9 +142,22 @@ def main(argv: list[str] | None = None) -> None:
     altimeter = LaserAltimeter(paper_camera(), paper_lasers(), laser_cfg, 1.31)
     tracker = TokenTracker(speed, track_cfg)
 
-    t: dict[str, list[float]] = {k: [] for k in (
-        "channel", "filters", "filters32", "extract", "track", "laser", "global",
-        "n_bp", "n_extract", "n_track", "n_laser")}
+    t: dict[str, list[float]] = {
+        k: []
+        for k in (
+            "channel",
+            "filters",
+            "filters32",
+            "extract",
+            "track",
+            "laser",
+            "global",
+            "n_bp",
+            "n_extract",
+            "n_track",
+            "n_laser",
+        )
+    }
     tracked = []
     # Pass 1: the front-end as the pipeline runs it, frame after frame.
     token_sets = []

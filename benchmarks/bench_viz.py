@@ -61,17 +61,17 @@ def main() -> None:
         simulate("portofino", seq, frames=args.frames, seed=0)
         t = {k: [] for k in ("results only", "run, viewer off", "run, --save-rrd", "mosaic", "report")}
         for r in range(args.repeats):
-            t["results only"].append(_time(lambda: results_only(seq, root / f"base{r}")))
-            t["run, viewer off"].append(_time(lambda: run_sequence(seq, root / f"off{r}")))
+            t["results only"].append(_time(lambda r=r: results_only(seq, root / f"base{r}")))
+            t["run, viewer off"].append(_time(lambda r=r: run_sequence(seq, root / f"off{r}")))
 
-            def with_viewer():
+            def with_viewer(r=r):
                 v = RerunViewer(save_path=root / f"on{r}.rrd")
                 run_sequence(seq, root / f"on{r}", on_frame_image=v)
                 v.close()
 
             t["run, --save-rrd"].append(_time(with_viewer))
-            t["mosaic"].append(_time(lambda: mosaic_of_run(root / f"off{r}")))
-            t["report"].append(_time(lambda: write_report(root / f"off{r}", seq / "groundtruth.csv")))
+            t["mosaic"].append(_time(lambda r=r: mosaic_of_run(root / f"off{r}")))
+            t["report"].append(_time(lambda r=r: write_report(root / f"off{r}", seq / "groundtruth.csv")))
     med = {k: statistics.median(v) for k, v in t.items()}
     n = args.frames
     base = med["results only"]

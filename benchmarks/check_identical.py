@@ -90,7 +90,9 @@ def main() -> int:
     if bad:
         print(f"results differ from {args.against}: {', '.join(bad)}")
         return 1
-    print(f"all {n} result files bit-identical to those of {args.against} ({args.frames} frames, {args.texture} seabed)")
+    print(
+        f"all {n} result files bit-identical to those of {args.against} ({args.frames} frames, {args.texture} seabed)"
+    )
     return 0
 
 

@@ -23,9 +23,25 @@ if str(SRC) not in sys.path:
     sys.path.insert(0, str(SRC))
 
 UNITS = {
-    "_px_per_m": "px/m", "_px2": "px²", "_px": "px", "_m2": "m²", "_m": "m", "_mm": "mm", "_cm": "cm", "_s": "s", "_ms": "ms",
-    "_hz": "Hz", "_mps2": "m/s²", "_mps": "m/s", "_rad2": "rad²", "_radps": "rad/s", "_rad": "rad", "_deg": "degree",
-    "_per_s2": "1/s²", "_per_s": "1/s", "_frames": "frames",
+    "_px_per_m": "px/m",
+    "_px2": "px²",
+    "_px": "px",
+    "_m2": "m²",
+    "_m": "m",
+    "_mm": "mm",
+    "_cm": "cm",
+    "_s": "s",
+    "_ms": "ms",
+    "_hz": "Hz",
+    "_mps2": "m/s²",
+    "_mps": "m/s",
+    "_rad2": "rad²",
+    "_radps": "rad/s",
+    "_rad": "rad",
+    "_deg": "degree",
+    "_per_s2": "1/s²",
+    "_per_s": "1/s",
+    "_frames": "frames",
 }
 
 
@@ -128,12 +144,18 @@ def configuration_rows() -> list[dict[str, str]]:
         for f in dataclasses.fields(cls):
             kind, allowed = _type_text(hints[f.name])
             rng = _range(f.metadata)
-            rows.append({
-                "table": cls.TABLE, "class": cls.__name__, "key": f.name, "type": kind, "unit": unit_of(f.name),
-                "default": _default_text(getattr(cls(), f.name)),
-                "range": " ; ".join(p for p in (rng, allowed) if p),
-                "meaning": comments.get((cls.__name__, f.name), ""),
-            })
+            rows.append(
+                {
+                    "table": cls.TABLE,
+                    "class": cls.__name__,
+                    "key": f.name,
+                    "type": kind,
+                    "unit": unit_of(f.name),
+                    "default": _default_text(getattr(cls(), f.name)),
+                    "range": " ; ".join(p for p in (rng, allowed) if p),
+                    "meaning": comments.get((cls.__name__, f.name), ""),
+                }
+            )
     return rows
 
 
@@ -153,8 +175,14 @@ def configuration_page() -> str:
     for table_field in dataclasses.fields(config.RunConfig):
         cls = typing.get_type_hints(config.RunConfig)[table_field.name]
         doc = (cls.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ")
-        out += [f"## `[{cls.TABLE}]`", "", doc, "", "| key | type | unit | default | allowed | meaning |",
-                "| --- | --- | --- | --- | --- | --- |"]
+        out += [
+            f"## `[{cls.TABLE}]`",
+            "",
+            doc,
+            "",
+            "| key | type | unit | default | allowed | meaning |",
+            "| --- | --- | --- | --- | --- | --- |",
+        ]
         for r in rows:
             if r["class"] == cls.__name__:
                 meaning = r["meaning"].replace("|", "\\|")

@@ -35,8 +35,8 @@ def sh(cmd: str, cwd: Path) -> None:
 def make_inputs(w: Path) -> None:
     import av
     import cv2
-
     from rosbag_writer import sequence_to_bag
+
     from rovslam.io.sequence import open_sequence
 
     sh("rovslam simulate --scenario rough-turns-short --frames 300 --out dive -q", w)
@@ -60,32 +60,39 @@ def make_inputs(w: Path) -> None:
     for r, n in zip(rows, rows[1:] + [rows[-1]]):
         for a in (0.0, 0.5) if n is not r else (0.0,):
             dh = math.atan2(math.sin(n.heading_rad - r.heading_rad), math.cos(n.heading_rad - r.heading_rad))
-            lines.append(f"{t0 + r.t_s + a * (n.t_s - r.t_s):.3f},{math.degrees(r.heading_rad + a * dh):.3f},"
-                         f"{r.sonar_altitude_m + a * (n.sonar_altitude_m - r.sonar_altitude_m):.3f},"
-                         f"{math.degrees(r.roll_rad):.3f},{math.degrees(r.pitch_rad):.3f}")
+            lines.append(
+                f"{t0 + r.t_s + a * (n.t_s - r.t_s):.3f},{math.degrees(r.heading_rad + a * dh):.3f},"
+                f"{r.sonar_altitude_m + a * (n.sonar_altitude_m - r.sonar_altitude_m):.3f},"
+                f"{math.degrees(r.roll_rad):.3f},{math.degrees(r.pitch_rad):.3f}"
+            )
     (w / "dive_nav.csv").write_text("\n".join(lines) + "\n")
-    (w / "camera_nav.toml").write_text((w / "camera.toml").read_text() + '\n[nav]\ntime = "unix_time"\n'
-                                       'heading = "heading_deg"\naltitude = "altitude"\nroll = "roll_deg"\npitch = "pitch_deg"\n')
+    (w / "camera_nav.toml").write_text(
+        (w / "camera.toml").read_text() + '\n[nav]\ntime = "unix_time"\n'
+        'heading = "heading_deg"\naltitude = "altitude"\nroll = "roll_deg"\npitch = "pitch_deg"\n'
+    )
     # A folder of JPEG images, nothing else.
     (w / "jpegs").mkdir()
     for k, f in enumerate(seq.frames(prefetch=0)):
-        cv2.imwrite(str(w / "jpegs" / f"IMG_{k + 1}.jpg"), cv2.cvtColor(f.image, cv2.COLOR_RGB2BGR),
-                    [cv2.IMWRITE_JPEG_QUALITY, 92])
+        cv2.imwrite(
+            str(w / "jpegs" / f"IMG_{k + 1}.jpg"),
+            cv2.cvtColor(f.image, cv2.COLOR_RGB2BGR),
+            [cv2.IMWRITE_JPEG_QUALITY, 92],
+        )
 
 
 OFFSET = "1717000000.0"
 COMMANDS = {
     "bag": "rovslam run dive_bag --camera camera.toml --image-topic /camera/image --heading-topic /nav/heading "
-           "--attitude-topic /nav/heading --altitude-topic /nav/altitude --out out_bag -q",
+    "--attitude-topic /nav/heading --altitude-topic /nav/altitude --out out_bag -q",
     "video_nav": f"rovslam run dive.mp4 --camera camera_nav.toml --nav dive_nav.csv --nav-time-offset {OFFSET} --out out_video -q",
     "folder": "rovslam run jpegs --camera camera.toml --fps 5 --out out_folder -q",
     "folder_nav": f"rovslam run jpegs --camera camera_nav.toml --fps 5 --nav dive_nav.csv --nav-time-offset {OFFSET} "
-                  "--out out_folder_nav -q",
+    "--out out_folder_nav -q",
     "import": "rovslam import dive_bag --camera camera.toml --image-topic /camera/image --heading-topic /nav/heading "
-              "--attitude-topic /nav/heading --altitude-topic /nav/altitude --out imported -q",
+    "--attitude-topic /nav/heading --altitude-topic /nav/altitude --out imported -q",
     "imported": "rovslam run imported --out out_imported -q",
     "sparus": f"rovslam run {SPARUS / 'sparus_snippet.mp4'} --camera {ROOT / 'examples' / 'sparus-camera.toml'} "
-              f"--nav {SPARUS / 'sparus_snippet.csv'} --out out_sparus -q",
+    f"--nav {SPARUS / 'sparus_snippet.csv'} --out out_sparus -q",
 }
 
 
@@ -118,7 +125,9 @@ def plot(panels: list[tuple[Path, str, np.ndarray | None, str]], png: Path) -> l
         if ref_xy is not None and len(ref_xy) == len(r.xy_m):
             figures["ate_rmse_m"] = float(np.sqrt(np.mean(np.sum((r.xy_m - ref_xy) ** 2, axis=1))))
             figures["dr_ate_rmse_m"] = float(np.sqrt(np.mean(np.sum((r.dr_xy_m - ref_xy) ** 2, axis=1))))
-        figures["heading_change_deg"] = math.degrees(float(r.trajectory["heading_rad"][-1] - r.trajectory["heading_rad"][0]))
+        figures["heading_change_deg"] = math.degrees(
+            float(r.trajectory["heading_rad"][-1] - r.trajectory["heading_rad"][0])
+        )
         out.append(figures)
     fig.tight_layout()
     fig.savefig(png)
@@ -157,22 +166,33 @@ def main() -> None:
         c, s_ = math.cos(-gt.heading_rad[0]), math.sin(-gt.heading_rad[0])
         turned = gt.xy_m @ np.array([[c, -s_], [s_, c]]).T  # no compass: the path's frame is the first image's
         figures = {
-            "bag": plot([(w / "out_bag", "ROS 2 bag (MCAP): Imu + Range topics", gt.xy_m, "truth")], IMG / "input_bag.png"),
-            "video_nav": plot([(w / "out_video", "H.264 video + NAV.csv (10 Hz, UNIX clock)", gt.xy_m, "truth")],
-                              IMG / "input_video_nav.png"),
-            "folder": plot([(w / "out_folder", "JPEG folder, --fps 5, nothing else", turned, "truth, turned to heading 0"),
-                            (w / "out_folder_nav", "JPEG folder, --fps 5, --nav NAV.csv", gt.xy_m, "truth")],
-                           IMG / "input_folder.png"),
+            "bag": plot(
+                [(w / "out_bag", "ROS 2 bag (MCAP): Imu + Range topics", gt.xy_m, "truth")], IMG / "input_bag.png"
+            ),
+            "video_nav": plot(
+                [(w / "out_video", "H.264 video + NAV.csv (10 Hz, UNIX clock)", gt.xy_m, "truth")],
+                IMG / "input_video_nav.png",
+            ),
+            "folder": plot(
+                [
+                    (w / "out_folder", "JPEG folder, --fps 5, nothing else", turned, "truth, turned to heading 0"),
+                    (w / "out_folder_nav", "JPEG folder, --fps 5, --nav NAV.csv", gt.xy_m, "truth"),
+                ],
+                IMG / "input_folder.png",
+            ),
         }
         same = np.abs(read_results(w / "out_imported").xy_m - read_results(w / "out_bag").xy_m).max()
         print(f"imported sequence vs the bag: largest position difference {same:.1e} m")
         if SPARUS.is_dir():
             nav = sparus_navigation(read_results(w / "out_sparus").t_s)
-            figures["sparus"] = plot([(w / "out_sparus", "Sparus AUV video + its navigation log", nav,
-                                       "navigation log (positions)")], IMG / "input_sparus.png")
+            figures["sparus"] = plot(
+                [(w / "out_sparus", "Sparus AUV video + its navigation log", nav, "navigation log (positions)")],
+                IMG / "input_sparus.png",
+            )
         for name, figs in figures.items():
             for f in figs:
                 print(name, {k: round(v, 4) if isinstance(v, float) else v for k, v in f.items()})
+
 
 if __name__ == "__main__":
     main()

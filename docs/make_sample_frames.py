@@ -25,8 +25,18 @@ import cv2
 import numpy as np
 
 from rovslam.errors import SimulationError
-from rovslam.sim import PAPER_LASERS, PORTOFINO_CAMERA, SCENARIOS, Pose, World, frame_pose, frame_rng, render_frame
-from rovslam.sim import renderer_for, simulate_trajectory
+from rovslam.sim import (
+    PAPER_LASERS,
+    PORTOFINO_CAMERA,
+    SCENARIOS,
+    Pose,
+    World,
+    frame_pose,
+    frame_rng,
+    render_frame,
+    renderer_for,
+    simulate_trajectory,
+)
 from rovslam.sim.scenarios import build_world
 
 OUT = Path(__file__).resolve().parent / "img"
@@ -45,8 +55,16 @@ def main() -> None:
     }
     for k, (name, (pose, lasers, water, vel)) in enumerate(shots.items()):
         img = render_frame(
-            world, PORTOFINO_CAMERA, pose, lasers, water, np.random.default_rng([SEED, k]),
-            sensor=plain.sensor, spots=plain.spots, velocity_mps=vel, t_s=10.0,
+            world,
+            PORTOFINO_CAMERA,
+            pose,
+            lasers,
+            water,
+            np.random.default_rng([SEED, k]),
+            sensor=plain.sensor,
+            spots=plain.spots,
+            velocity_mps=vel,
+            t_s=10.0,
         )
         cv2.imwrite(str(OUT / name), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
         print(f"wrote {OUT / name}")
@@ -74,8 +92,12 @@ def write_preset_frame(name: str, preset: str, k: int) -> None:
         print(f"skipped {name}: {exc}")
         return
     img = renderer_for(sc.camera, sc.water, sc.sensor, sc.spots, sc.lighting).render(
-        world, frame_pose(traj, k), sc.lasers, frame_rng(SEED, k),
-        velocity_mps=(float(traj.surge_mps[k]), float(traj.sway_mps[k])), t_s=float(traj.t_s[k]),
+        world,
+        frame_pose(traj, k),
+        sc.lasers,
+        frame_rng(SEED, k),
+        velocity_mps=(float(traj.surge_mps[k]), float(traj.sway_mps[k])),
+        t_s=float(traj.t_s[k]),
     )
     if img.shape[1] > 640:
         img = cv2.resize(img, (640, img.shape[0] * 640 // img.shape[1]), interpolation=cv2.INTER_AREA)

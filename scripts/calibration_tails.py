@@ -26,11 +26,17 @@ def errors() -> list[tuple[str, dict[str, float]]]:
     from rovslam.sim import CalibrationErrors
 
     one = CalibrationErrors()  # the one-sigma errors, those the configuration tells the filter of
-    sigma = {"compass": one.compass_deviation_sigma_rad, "laser": one.laser_baseline_sigma,
-             "sonar": one.sonar_offset_sigma_m}
+    sigma = {
+        "compass": one.compass_deviation_sigma_rad,
+        "laser": one.laser_baseline_sigma,
+        "sonar": one.sonar_offset_sigma_m,
+    }
     out: list[tuple[str, dict[str, float]]] = [("exact", {})]
-    for kind, key in (("compass", "compass_deviation_rad"), ("laser", "laser_baseline_error"),
-                      ("sonar", "sonar_offset_m")):
+    for kind, key in (
+        ("compass", "compass_deviation_rad"),
+        ("laser", "laser_baseline_error"),
+        ("sonar", "sonar_offset_m"),
+    ):
         for sign in (1, -1):
             out.append((f"{kind} {'+' if sign > 0 else '-'}2 sigma", {key: 2.0 * sign * sigma[kind]}))
     return out
@@ -46,24 +52,36 @@ def run_one(out: str, scenario: str, seed: int, frames: int, label: str, given: 
     seq, run_dir = Path(out) / name / "sequence", Path(out) / name / "run"
     cal = None
     if given:
-        cal = DrawnCalibration(**{"compass_deviation_rad": 0.0, "laser_baseline_error": 0.0, "sonar_offset_m": 0.0,
-                                  **given})
+        cal = DrawnCalibration(
+            **{"compass_deviation_rad": 0.0, "laser_baseline_error": 0.0, "sonar_offset_m": 0.0, **given}
+        )
     if not (seq / "groundtruth.csv").exists():
         simulate(scenario, seq, frames=frames, seed=seed, calibration=cal)
     run_sequence(seq, run_dir, RunConfig(), overwrite=True)
     ev = evaluate_run(run_dir, seq / "groundtruth.csv")
     c = ev.consistency
-    return {"scenario": scenario, "seed": seed, "error": label, "ate_cm": 100.0 * ev.slam.ate_rmse_m,
-            "max_error_cm": 100.0 * ev.slam.ate_max_m, "inside_2sigma_pct": 100.0 * c.coverage_2sigma,
-            "mean_nees": c.nees_mean, "max_jump_before_sigma": c.max_error_jump_before_sigma}
+    return {
+        "scenario": scenario,
+        "seed": seed,
+        "error": label,
+        "ate_cm": 100.0 * ev.slam.ate_rmse_m,
+        "max_error_cm": 100.0 * ev.slam.ate_max_m,
+        "inside_2sigma_pct": 100.0 * c.coverage_2sigma,
+        "mean_nees": c.nees_mean,
+        "max_jump_before_sigma": c.max_error_jump_before_sigma,
+    }
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| dive | error | ATE [cm] | max error [cm] | inside 2-sigma [%] | mean NEES | max jump [sigma before] |",
-             "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
+    lines = [
+        "| dive | error | ATE [cm] | max error [cm] | inside 2-sigma [%] | mean NEES | max jump [sigma before] |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
     for r in rows:
-        lines.append(f"| {r['scenario']} s{r['seed']} | {r['error']} | {r['ate_cm']:.2f} | {r['max_error_cm']:.2f} | "
-                     f"{r['inside_2sigma_pct']:.1f} | {r['mean_nees']:.2f} | {r['max_jump_before_sigma']:.1f} |")
+        lines.append(
+            f"| {r['scenario']} s{r['seed']} | {r['error']} | {r['ate_cm']:.2f} | {r['max_error_cm']:.2f} | "
+            f"{r['inside_2sigma_pct']:.1f} | {r['mean_nees']:.2f} | {r['max_jump_before_sigma']:.1f} |"
+        )
     return "\n".join(lines) + "\n"
 
 

@@ -49,18 +49,33 @@ def one_run(args: tuple) -> dict:
     s = navigate(preset, pois, folder, estimator, survey_s, hold_s, seed, overwrite=True, plot=True)
     rows = s.arrivals
     reached = [r for r in rows if r["reached"]]
-    return {"preset": preset, "seed": seed, "estimator": estimator, "survey_s": survey_s, "frames": s.frames,
-            "landmarks": s.landmarks, "wall_s": s.wall_s, "points": len(pois), "reached": len(reached),
-            "true_err_m": [r["true_err_m"] for r in reached], "est_err_m": [r["est_err_m"] for r in reached],
-            "hold_rms_true_m": [r["hold_rms_true_m"] for r in reached], "status": s.status}
+    return {
+        "preset": preset,
+        "seed": seed,
+        "estimator": estimator,
+        "survey_s": survey_s,
+        "frames": s.frames,
+        "landmarks": s.landmarks,
+        "wall_s": s.wall_s,
+        "points": len(pois),
+        "reached": len(reached),
+        "true_err_m": [r["true_err_m"] for r in reached],
+        "est_err_m": [r["est_err_m"] for r in reached],
+        "hold_rms_true_m": [r["hold_rms_true_m"] for r in reached],
+        "status": s.status,
+    }
 
 
 def table(runs: list[dict]) -> str:
-    lines = ["| preset | estimator | seeds | points reached | mean true arrival error | worst | mean hold RMS (true) | "
-             "mean / slam's |",
-             "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: |"]
-    slam_mean = {p: np.mean([e for r in runs if r["preset"] == p and r["estimator"] == "slam" for e in r["true_err_m"]])
-                 for p in {r["preset"] for r in runs if r["estimator"] == "slam" and r["true_err_m"]}}
+    lines = [
+        "| preset | estimator | seeds | points reached | mean true arrival error | worst | mean hold RMS (true) | "
+        "mean / slam's |",
+        "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    slam_mean = {
+        p: np.mean([e for r in runs if r["preset"] == p and r["estimator"] == "slam" for e in r["true_err_m"]])
+        for p in {r["preset"] for r in runs if r["estimator"] == "slam" and r["true_err_m"]}
+    }
     keys = sorted({(r["preset"], r["estimator"]) for r in runs}, key=lambda k: (k[0], k[1] != "slam"))
     for preset, est in keys:
         rs = [r for r in runs if r["preset"] == preset and r["estimator"] == est]
@@ -68,9 +83,11 @@ def table(runs: list[dict]) -> str:
         holds = [h for r in rs for h in r["hold_rms_true_m"] if h == h]
         seeds = ",".join(str(r["seed"]) for r in sorted(rs, key=lambda r: r["seed"]))
         ratio = f"{np.mean(errs) / slam_mean[preset]:.1f}" if preset in slam_mean and errs else ""
-        lines.append(f"| {preset} | {est} | {seeds} | {sum(r['reached'] for r in rs)}/{sum(r['points'] for r in rs)} | "
-                     f"{1e3 * np.mean(errs):.1f} mm | {1e3 * np.max(errs):.1f} mm | {1e3 * np.mean(holds):.1f} mm | "
-                     f"{ratio} |")
+        lines.append(
+            f"| {preset} | {est} | {seeds} | {sum(r['reached'] for r in rs)}/{sum(r['points'] for r in rs)} | "
+            f"{1e3 * np.mean(errs):.1f} mm | {1e3 * np.max(errs):.1f} mm | {1e3 * np.mean(holds):.1f} mm | "
+            f"{ratio} |"
+        )
     return "\n".join(lines)
 
 
@@ -91,15 +108,26 @@ def main() -> None:
     log = a.out / "runs.jsonl"
     done = [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
     have = {(r["preset"], r["seed"], r["estimator"], r["survey_s"]) for r in done}
-    todo = [(p, s, e, a.survey_s, a.hold_s, a.points, a.span_m, str(a.out)) for s in a.seeds for p in a.presets
-            for e in a.estimators if (p, s, e, a.survey_s) not in have and not a.table_only]
+    todo = [
+        (p, s, e, a.survey_s, a.hold_s, a.points, a.span_m, str(a.out))
+        for s in a.seeds
+        for p in a.presets
+        for e in a.estimators
+        if (p, s, e, a.survey_s) not in have and not a.table_only
+    ]
     with ProcessPoolExecutor(max_workers=a.workers) as pool:
         for res in pool.map(one_run, todo):
             done.append(res)
             with log.open("a") as fh:
                 fh.write(json.dumps(res) + "\n")
-            print(res["preset"], res["seed"], res["estimator"], f"{res['reached']}/{res['points']}",
-                  f"mean {1e3 * np.mean(res['true_err_m']):.1f} mm" if res["true_err_m"] else "", flush=True)
+            print(
+                res["preset"],
+                res["seed"],
+                res["estimator"],
+                f"{res['reached']}/{res['points']}",
+                f"mean {1e3 * np.mean(res['true_err_m']):.1f} mm" if res["true_err_m"] else "",
+                flush=True,
+            )
     text = table([r for r in done if r["survey_s"] == a.survey_s])
     (a.out / "table.md").write_text(text + "\n")
     print(text)

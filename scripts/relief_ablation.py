@@ -29,9 +29,9 @@ import json
 import math
 import os
 import shutil
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 DIVES = {  # the dive's variant: the preset's fields replaced (none: as the preset makes it)
     "as-simulated": {},
@@ -40,8 +40,14 @@ DIVES = {  # the dive's variant: the preset's fields replaced (none: as the pres
 }
 ODOMETRY = ("as is", "true speed", "true heading", "both")
 RUNS = [  # (dive, odometry) in the table's order
-    ("as-simulated", "as is"), ("as-simulated", "true speed"), ("as-simulated", "true heading"),
-    ("as-simulated", "both"), ("no-lamps", "as is"), ("no-lamps", "both"), ("flat", "as is"), ("flat", "both"),
+    ("as-simulated", "as is"),
+    ("as-simulated", "true speed"),
+    ("as-simulated", "true heading"),
+    ("as-simulated", "both"),
+    ("no-lamps", "as is"),
+    ("no-lamps", "both"),
+    ("flat", "as is"),
+    ("flat", "both"),
 ]
 
 
@@ -95,8 +101,13 @@ def exact_heading_config():
     from rovslam.config import RunConfig
 
     cfg = RunConfig()
-    odometry = dataclasses.replace(cfg.odometry, compass_sigma_rad=math.radians(0.001), compass_sigma_learned=False,
-                                   compass_offset_sigma_rad=0.0, compass_drift_sigma_rad=0.0)
+    odometry = dataclasses.replace(
+        cfg.odometry,
+        compass_sigma_rad=math.radians(0.001),
+        compass_sigma_learned=False,
+        compass_offset_sigma_rad=0.0,
+        compass_drift_sigma_rad=0.0,
+    )
     return dataclasses.replace(cfg, odometry=odometry, slam=dataclasses.replace(cfg.slam, heading_bias_sigma_rad=0.0))
 
 
@@ -154,7 +165,9 @@ def run_one(out: Path, seq: Path, dive: str, odometry: str) -> dict:
     ev = evaluate_run(run_dir, seq / "groundtruth.csv", sequence_dir=seq if odometry == "as is" else None)
     pc = ev.phase_correlation
     return {
-        "dive": dive, "odometry": odometry, "run": name,
+        "dive": dive,
+        "odometry": odometry,
+        "run": name,
         "ate_cm": 100.0 * ev.slam.ate_rmse_m,
         "inside_2sigma_pct": 100.0 * ev.consistency.coverage_2sigma,
         "mean_nees": ev.consistency.nees_mean,
@@ -165,12 +178,18 @@ def run_one(out: Path, seq: Path, dive: str, odometry: str) -> dict:
 
 
 def table(rows: list[dict], title: str) -> str:
-    lines = [title, "", "| dive | odometry | SLAM ATE [cm] | inside 2-sigma [%] | mean NEES | dead reckoning ATE [cm] | phase correlation ATE [cm] |",
-             "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
+    lines = [
+        title,
+        "",
+        "| dive | odometry | SLAM ATE [cm] | inside 2-sigma [%] | mean NEES | dead reckoning ATE [cm] | phase correlation ATE [cm] |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
     for r in rows:
         pc = "" if r["phase_correlation_ate_cm"] is None else f"{r['phase_correlation_ate_cm']:.3f}"
-        lines.append(f"| {r['dive']} | {r['odometry']} | {r['ate_cm']:.3f} | {r['inside_2sigma_pct']:.1f} | "
-                     f"{r['mean_nees']:.2f} | {r['dead_reckoning_ate_cm']:.3f} | {pc} |")
+        lines.append(
+            f"| {r['dive']} | {r['odometry']} | {r['ate_cm']:.3f} | {r['inside_2sigma_pct']:.1f} | "
+            f"{r['mean_nees']:.2f} | {r['dead_reckoning_ate_cm']:.3f} | {pc} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -190,7 +209,10 @@ def main() -> None:
         seq = simulate_dive(args.out, args.scenario, args.seed, args.frames, dive)
         rows.append(run_one(args.out, seq, dive, odometry))
         r = rows[-1]
-        print(f"{dive:13s} {odometry:12s} ATE {r['ate_cm']:.3f} cm, {r['inside_2sigma_pct']:.1f} % inside 2-sigma", flush=True)
+        print(
+            f"{dive:13s} {odometry:12s} ATE {r['ate_cm']:.3f} cm, {r['inside_2sigma_pct']:.1f} % inside 2-sigma",
+            flush=True,
+        )
     title = f"{args.scenario}, seed {args.seed}, {args.frames} frames"
     text = table(rows, title)
     (args.out / "table.md").write_text(text)

@@ -47,15 +47,22 @@ class VideoReader(threading.Thread):
     """Receive a stream with PyAV until ``n_frames`` frames, ``deadline_s``, or 10 s without data (then
     :attr:`error` holds the timeout): keeps (pts seconds, image)."""
 
-    def __init__(self, url: str, n_frames: int, deadline_s: float = 120.0, fmt: str | None = "mpegts",
-                 options: dict | None = None):
+    def __init__(
+        self,
+        url: str,
+        n_frames: int,
+        deadline_s: float = 120.0,
+        fmt: str | None = "mpegts",
+        options: dict | None = None,
+    ):
         super().__init__(daemon=True)
         # A small probe: the stream's first key frame tells its size (FFmpeg's default probe waits for 5 s of
         # stream; "fflags": "nobuffer" would drop the packets read while probing, the first frames). No parser:
         # sitl sends a frame as one PES of known length, which the demuxer hands on whole when it is complete
         # (FFmpeg's H.264 parser would hold each frame until the next one starts).
-        self.options = ({"probesize": "4096", "analyzeduration": "0", "fflags": "+noparse+nofillin"}
-                        if options is None else options)
+        self.options = (
+            {"probesize": "4096", "analyzeduration": "0", "fflags": "+noparse+nofillin"} if options is None else options
+        )
         self.url, self.n_frames, self.fmt = url, n_frames, fmt
         self.deadline = time.monotonic() + deadline_s
         self.frames: list[tuple[float | None, np.ndarray]] = []

@@ -17,8 +17,10 @@ SKIP_PREFIX = "needs data:"
 
 
 def skip_reason(name: str) -> str:
-    return (f"{SKIP_PREFIX} dataset '{name}' is not on this machine; set {data.DATA_ENV} to a folder holding "
-            f"{name}/ (the project's shared data), see docs/data.md")
+    return (
+        f"{SKIP_PREFIX} dataset '{name}' is not on this machine; set {data.DATA_ENV} to a folder holding "
+        f"{name}/ (the project's shared data), see docs/data.md"
+    )
 
 
 def needs(name: str) -> pytest.MarkDecorator:

@@ -89,7 +89,9 @@ altitude_m = 1.3
 CAMERA_TOML = camera_toml()
 
 
-def seabed_frames(n: int = N_FRAMES, seed: int = 0, shift_px: int = 3, size: tuple[int, int] = (W, H)) -> list[np.ndarray]:
+def seabed_frames(
+    n: int = N_FRAMES, seed: int = 0, shift_px: int = 3, size: tuple[int, int] = (W, H)
+) -> list[np.ndarray]:
     """``n`` textured ``(h, w, 3) uint8`` frames of one seabed, each moved ``shift_px`` along the image."""
     import cv2
 
@@ -205,7 +207,7 @@ def encode(img: np.ndarray, suffix: str) -> bytes:
 class Case:
     name: str
     group: str  # "sequence" | "config" | "video" | "results" | "output"
-    build: Callable[[Path, "Shared"], list[str]]  # -> the command line (after `rovslam`)
+    build: Callable[[Path, Shared], list[str]]  # -> the command line (after `rovslam`)
     expect: str  # "ok" | "error" | "either"
     needle: str = ""  # must appear in the error line
 
@@ -241,8 +243,9 @@ def build_shared(root: Path) -> Shared:
     return Shared(root, outside, base, root / "base" / "results")
 
 
-def seq_case(name: str, edit: Callable[[Path, Shared], object], expect: str, needle: str = "",
-             extra: tuple[str, ...] = ()) -> Case:
+def seq_case(
+    name: str, edit: Callable[[Path, Shared], object], expect: str, needle: str = "", extra: tuple[str, ...] = ()
+) -> Case:
     def build(d: Path, sh: Shared) -> list[str]:
         seq = d / "seq"
         shutil.copytree(sh.base_seq, seq, symlinks=True)
@@ -261,14 +264,22 @@ def config_case(name: str, text: str | bytes, expect: str, needle: str = "") -> 
     return Case(name, "config", build, expect, needle)
 
 
-def results_case(name: str, edit: Callable[[Path], object], expect: str, needle: str = "",
-                 command: str = "eval") -> Case:
+def results_case(
+    name: str, edit: Callable[[Path], object], expect: str, needle: str = "", command: str = "eval"
+) -> Case:
     def build(d: Path, sh: Shared) -> list[str]:
         res = d / "results"
         shutil.copytree(sh.base_results, res)
         edit(res)
         if command == "eval":
-            return ["eval", str(res), "--groundtruth", str(sh.base_seq / "groundtruth.csv"), "--json", str(d / "eval.json")]
+            return [
+                "eval",
+                str(res),
+                "--groundtruth",
+                str(sh.base_seq / "groundtruth.csv"),
+                "--json",
+                str(d / "eval.json"),
+            ]
         return ["report", str(res), "--groundtruth", str(sh.base_seq / "groundtruth.csv")]
 
     return Case(f"{command}-{name}", "results", build, expect, needle)
@@ -310,31 +321,86 @@ def sequence_cases() -> list[Case]:
     return [
         C("valid", lambda s, sh: None, "ok"),
         # Paths that leave the folder.
-        C("path-dotdot", lambda s, sh: set_cell(s / fr, 2, "image", "../../../outside/bait.png"), "error", "leads outside"),
-        C("path-absolute-png", lambda s, sh: set_cell(s / fr, 2, "image", str(sh.outside / "bait.png")), "error", "absolute"),
+        C(
+            "path-dotdot",
+            lambda s, sh: set_cell(s / fr, 2, "image", "../../../outside/bait.png"),
+            "error",
+            "leads outside",
+        ),
+        C(
+            "path-absolute-png",
+            lambda s, sh: set_cell(s / fr, 2, "image", str(sh.outside / "bait.png")),
+            "error",
+            "absolute",
+        ),
         C("path-etc-passwd", lambda s, sh: set_cell(s / fr, 1, "image", "/etc/passwd"), "error", "absolute"),
-        C("path-dotdot-passwd", lambda s, sh: set_cell(s / fr, 1, "image", "../" * 30 + "etc/passwd"), "error", "outside"),
-        C("path-images-dir-symlink", lambda s, sh: _link(sh.outside / "images", s / "images"), "error", "leads outside"),
-        C("path-image-symlink", lambda s, sh: _link(sh.outside / "bait.png", s / "images" / "000003.png"), "error", "line 5"),
+        C(
+            "path-dotdot-passwd",
+            lambda s, sh: set_cell(s / fr, 1, "image", "../" * 30 + "etc/passwd"),
+            "error",
+            "outside",
+        ),
+        C(
+            "path-images-dir-symlink",
+            lambda s, sh: _link(sh.outside / "images", s / "images"),
+            "error",
+            "leads outside",
+        ),
+        C(
+            "path-image-symlink",
+            lambda s, sh: _link(sh.outside / "bait.png", s / "images" / "000003.png"),
+            "error",
+            "line 5",
+        ),
         C("path-frames-symlink", lambda s, sh: _link(sh.outside / "frames.csv", s / fr), "error", "outside"),
         C("path-toml-symlink", lambda s, sh: _link(sh.outside / "sequence.toml", s / st), "error", "outside"),
         C("path-groundtruth-symlink", lambda s, sh: _link(sh.outside / "groundtruth.csv", s / gt), "error", "outside"),
         C("path-inside-symlink", lambda s, sh: _link(Path("000001.png"), s / "images" / "000002.png"), "ok"),
         C("path-nul", lambda s, sh: set_cell(s / fr, 1, "image", "images/a\x00b.png"), "error", "frames.csv"),
-        C("path-is-folder", lambda s, sh: set_cell(s / fr, 1, "image", "images"), "error", "is a folder, not an image file"),
+        C(
+            "path-is-folder",
+            lambda s, sh: set_cell(s / fr, 1, "image", "images"),
+            "error",
+            "is a folder, not an image file",
+        ),
         C("path-missing-image", lambda s, sh: (s / "images" / "000004.png").unlink(), "error", "line 6"),
         # Encodings and CSV structure.
-        C("frames-latin1", lambda s, sh: _bytes(s / fr, (s / fr).read_bytes().replace(b"images/000002", b"images/\xe9002")), "error", "not UTF-8"),
+        C(
+            "frames-latin1",
+            lambda s, sh: _bytes(s / fr, (s / fr).read_bytes().replace(b"images/000002", b"images/\xe9002")),
+            "error",
+            "not UTF-8",
+        ),
         C("frames-utf16", lambda s, sh: _bytes(s / fr, (s / fr).read_text().encode("utf-16")), "error", "UTF-16"),
         C("frames-bom", lambda s, sh: _bytes(s / fr, b"\xef\xbb\xbf" + (s / fr).read_bytes()), "ok"),
         C("frames-crlf", lambda s, sh: _bytes(s / fr, (s / fr).read_bytes().replace(b"\n", b"\r\n")), "ok"),
         C("frames-empty-file", lambda s, sh: _bytes(s / fr, b""), "error", "empty file"),
         C("frames-header-only", lambda s, sh: edit_lines(s / fr, lambda ls: ls[:1]), "error", "no frames"),
         C("frames-missing-column", lambda s, sh: replace_in(s / fr, "heading_rad", "heading"), "error", "heading_rad"),
-        C("frames-duplicate-column", lambda s, sh: replace_in(s / fr, "sonar_altitude_m", "t_s"), "error", "more than once"),
-        C("frames-extra-field", lambda s, sh: edit_lines(s / fr, lambda ls: ls[:3] + [ls[3] + ",9"] + ls[4:]), "error", "line 4"),
-        C("frames-short-row", lambda s, sh: edit_lines(s / fr, lambda ls: ls[:3] + [ls[3].rsplit(",", 1)[0]] + ls[4:]), "error", "line 4"),
-        C("frames-nul-byte", lambda s, sh: _bytes(s / fr, (s / fr).read_bytes().replace(b"0.0,", b"0.0\x00,", 1)), "error", "frames.csv"),
+        C(
+            "frames-duplicate-column",
+            lambda s, sh: replace_in(s / fr, "sonar_altitude_m", "t_s"),
+            "error",
+            "more than once",
+        ),
+        C(
+            "frames-extra-field",
+            lambda s, sh: edit_lines(s / fr, lambda ls: ls[:3] + [ls[3] + ",9"] + ls[4:]),
+            "error",
+            "line 4",
+        ),
+        C(
+            "frames-short-row",
+            lambda s, sh: edit_lines(s / fr, lambda ls: ls[:3] + [ls[3].rsplit(",", 1)[0]] + ls[4:]),
+            "error",
+            "line 4",
+        ),
+        C(
+            "frames-nul-byte",
+            lambda s, sh: _bytes(s / fr, (s / fr).read_bytes().replace(b"0.0,", b"0.0\x00,", 1)),
+            "error",
+            "frames.csv",
+        ),
         C("frames-huge-field", lambda s, sh: set_cell(s / fr, 1, "image", "a" * 300_000), "error", "frames.csv"),
         C("frames-missing", lambda s, sh: (s / fr).unlink(), "error", "frames.csv: missing"),
         C("frames-is-folder", lambda s, sh: ((s / fr).unlink(), (s / fr).mkdir()), "error", "frames.csv"),
@@ -346,12 +412,26 @@ def sequence_cases() -> list[Case]:
         C("heading-text", lambda s, sh: set_cell(s / fr, 2, "heading_rad", "north"), "error", "'north'"),
         C("heading-1e308", lambda s, sh: set_cell(s / fr, 2, "heading_rad", "1e308"), "error", "not a heading"),
         # an extra column the format does not read is ignored (a navigation log's depth) ...
-        C("frames-extra-column", lambda s, sh: edit_lines(s / fr, lambda ls: [ls[0] + ",depth_m"] + [x + ",12.5" for x in ls[1:]]), "ok"),
+        C(
+            "frames-extra-column",
+            lambda s, sh: edit_lines(s / fr, lambda ls: [ls[0] + ",depth_m"] + [x + ",12.5" for x in ls[1:]]),
+            "ok",
+        ),
         # ... but one that looks like a column it reads is refused: a misspelt roll_rad was ignored without a word (audit D4)
-        C("frames-misspelt-column", lambda s, sh: edit_lines(s / fr, lambda ls: [ls[0] + ",rol_rad,pitch_rad"] + [x + ",0.1,0.1" for x in ls[1:]]),
-          "error", "unknown column(s) 'rol_rad'"),
+        C(
+            "frames-misspelt-column",
+            lambda s, sh: edit_lines(
+                s / fr, lambda ls: [ls[0] + ",rol_rad,pitch_rad"] + [x + ",0.1,0.1" for x in ls[1:]]
+            ),
+            "error",
+            "unknown column(s) 'rol_rad'",
+        ),
         C("frames-blank-lines", lambda s, sh: edit_lines(s / fr, lambda ls: ls[:3] + ["", "  "] + ls[3:] + [""]), "ok"),
-        C("frames-quoted", lambda s, sh: edit_lines(s / fr, lambda ls: ls[:1] + ['"' + x.replace(",", '","') + '"' for x in ls[1:]]), "ok"),
+        C(
+            "frames-quoted",
+            lambda s, sh: edit_lines(s / fr, lambda ls: ls[:1] + ['"' + x.replace(",", '","') + '"' for x in ls[1:]]),
+            "ok",
+        ),
         C("heading-large", lambda s, sh: set_column(s / fr, "heading_rad", "62.83185307179586"), "ok"),
         C("sonar-1e6", lambda s, sh: set_column(s / fr, "sonar_altitude_m", "1e6"), "ok"),
         C("sonar-negative", lambda s, sh: set_column(s / fr, "sonar_altitude_m", "-3"), "ok"),
@@ -361,18 +441,38 @@ def sequence_cases() -> list[Case]:
         C("sonar-inf", lambda s, sh: set_cell(s / fr, 2, "sonar_altitude_m", "inf"), "error", "not finite"),
         C("sonar-text", lambda s, sh: set_cell(s / fr, 2, "sonar_altitude_m", "1,3m"), "error", "line 3"),
         C("time-backwards", lambda s, sh: set_cell(s / fr, 5, "t_s", "0.1"), "error", "strictly increasing"),
-        C("time-duplicate", lambda s, sh: set_cell(s / fr, 5, "t_s", "0.6000000000000001"), "error", "strictly increasing"),
+        C(
+            "time-duplicate",
+            lambda s, sh: set_cell(s / fr, 5, "t_s", "0.6000000000000001"),
+            "error",
+            "strictly increasing",
+        ),
         C("time-nan", lambda s, sh: set_cell(s / fr, 3, "t_s", "nan"), "error", "not finite"),
         C("time-jump-1e12", lambda s, sh: set_cell(s / fr, N_FRAMES, "t_s", "1e12"), "error", "time gap"),
         C("attitude-roll-10rad", lambda s, sh: _add_attitude(s, roll="10"), "error", "roll_rad"),
         C("attitude-ok", lambda s, sh: _add_attitude(s, roll="0.01"), "ok"),
-        C("attitude-roll-only", lambda s, sh: edit_lines(s / fr, lambda ls: [ls[0] + ",roll_rad"] + [x + ",0" for x in ls[1:]]), "error", "both roll_rad"),
+        C(
+            "attitude-roll-only",
+            lambda s, sh: edit_lines(s / fr, lambda ls: [ls[0] + ",roll_rad"] + [x + ",0" for x in ls[1:]]),
+            "error",
+            "both roll_rad",
+        ),
         # sequence.toml
         C("toml-missing", lambda s, sh: (s / st).unlink(), "error", "sequence.toml: missing"),
         C("toml-not-toml", lambda s, sh: _bytes(s / st, b"[camera\nwidth_px = "), "error", "not valid TOML"),
-        C("toml-latin1", lambda s, sh: _bytes(s / st, (s / st).read_bytes().replace(b"fuzz base", b"fuzz \xe9")), "error", "not UTF-8"),
+        C(
+            "toml-latin1",
+            lambda s, sh: _bytes(s / st, (s / st).read_bytes().replace(b"fuzz base", b"fuzz \xe9")),
+            "error",
+            "not UTF-8",
+        ),
         C("toml-bom", lambda s, sh: _bytes(s / st, b"\xef\xbb\xbf" + (s / st).read_bytes()), "ok"),
-        C("toml-wrong-format", lambda s, sh: replace_in(s / st, "rovslam-sequence/1", "rovslam-sequence/2"), "error", "format"),
+        C(
+            "toml-wrong-format",
+            lambda s, sh: replace_in(s / st, "rovslam-sequence/1", "rovslam-sequence/2"),
+            "error",
+            "format",
+        ),
         C("toml-no-camera-table", lambda s, sh: replace_in(s / st, "[camera]", "[metadata]"), "error", "[camera]"),
         C("toml-camera-unknown-key", lambda s, sh: replace_in(s / st, "fy_px", "fyy_px"), "error", "camera.fyy_px"),
         C("focal-1e-3", lambda s, sh: replace_in(s / st, "fx_px = 200.0", "fx_px = 1e-3"), "error", "focal"),
@@ -382,57 +482,192 @@ def sequence_cases() -> list[Case]:
         C("focal-nan", lambda s, sh: replace_in(s / st, "fx_px = 200.0", "fx_px = nan"), "error", "fx_px"),
         C("focal-1e9", lambda s, sh: replace_in(s / st, "fx_px = 200.0", "fx_px = 1e9"), "error", "focal"),
         C("width-zero", lambda s, sh: replace_in(s / st, f"width_px = {W}", "width_px = 0"), "error", "width_px"),
-        C("width-1e9", lambda s, sh: replace_in(s / st, f"width_px = {W}", "width_px = 1000000000"), "error", "camera size"),
-        C("width-fraction", lambda s, sh: replace_in(s / st, f"width_px = {W}", "width_px = 127.5"), "error", "whole numbers"),
-        C("principal-point-outside", lambda s, sh: replace_in(s / st, f"cx_px = {(W - 1) / 2}", "cx_px = 5000.0"), "error", "principal point"),
-        C("distortion-3", lambda s, sh: replace_in(s / st, "fy_px = 200.0", "fy_px = 200.0\ndistortion = [0.1, 0.0, 0.0]"), "error", "distortion"),
-        C("distortion-inf", lambda s, sh: replace_in(s / st, "fy_px = 200.0", "fy_px = 200.0\ndistortion = [inf, 0.0, 0.0, 0.0]"), "error", "distortion"),
-        C("distortion-1e308", lambda s, sh: replace_in(s / st, "fy_px = 200.0", "fy_px = 200.0\ndistortion = [1e308, 0.0, 0.0, 0.0]"), "error", "within +-10000"),
-        C("yaw-offset-degrees", lambda s, sh: replace_in(s / st, "fy_px = 200.0", "fy_px = 200.0\nyaw_offset_rad = 90.0"), "error", "not degrees"),
-        C("bit-depth-20", lambda s, sh: replace_in(s / st, "fy_px = 200.0", "fy_px = 200.0\nbit_depth = 20"), "error", "bit_depth"),
+        C(
+            "width-1e9",
+            lambda s, sh: replace_in(s / st, f"width_px = {W}", "width_px = 1000000000"),
+            "error",
+            "camera size",
+        ),
+        C(
+            "width-fraction",
+            lambda s, sh: replace_in(s / st, f"width_px = {W}", "width_px = 127.5"),
+            "error",
+            "whole numbers",
+        ),
+        C(
+            "principal-point-outside",
+            lambda s, sh: replace_in(s / st, f"cx_px = {(W - 1) / 2}", "cx_px = 5000.0"),
+            "error",
+            "principal point",
+        ),
+        C(
+            "distortion-3",
+            lambda s, sh: replace_in(s / st, "fy_px = 200.0", "fy_px = 200.0\ndistortion = [0.1, 0.0, 0.0]"),
+            "error",
+            "distortion",
+        ),
+        C(
+            "distortion-inf",
+            lambda s, sh: replace_in(s / st, "fy_px = 200.0", "fy_px = 200.0\ndistortion = [inf, 0.0, 0.0, 0.0]"),
+            "error",
+            "distortion",
+        ),
+        C(
+            "distortion-1e308",
+            lambda s, sh: replace_in(s / st, "fy_px = 200.0", "fy_px = 200.0\ndistortion = [1e308, 0.0, 0.0, 0.0]"),
+            "error",
+            "within +-10000",
+        ),
+        C(
+            "yaw-offset-degrees",
+            lambda s, sh: replace_in(s / st, "fy_px = 200.0", "fy_px = 200.0\nyaw_offset_rad = 90.0"),
+            "error",
+            "not degrees",
+        ),
+        C(
+            "bit-depth-20",
+            lambda s, sh: replace_in(s / st, "fy_px = 200.0", "fy_px = 200.0\nbit_depth = 20"),
+            "error",
+            "bit_depth",
+        ),
         C("laser-up", lambda s, sh: _add_laser(s, "[0.05, 0.05, 0.0]", "[0.0, 0.0, -1.0]"), "error", "direction"),
-        C("laser-sideways-1e308", lambda s, sh: _add_laser(s, "[0.05, 0.05, 0.0]", "[0.0, 1e308, 1.0]"), "error", "never reaches the seabed"),
-        C("laser-origin-1km", lambda s, sh: _add_laser(s, "[1000.0, 0.0, 0.0]", "[0.0, 0.0, 1.0]"), "error", "origin_m"),
+        C(
+            "laser-sideways-1e308",
+            lambda s, sh: _add_laser(s, "[0.05, 0.05, 0.0]", "[0.0, 1e308, 1.0]"),
+            "error",
+            "never reaches the seabed",
+        ),
+        C(
+            "laser-origin-1km",
+            lambda s, sh: _add_laser(s, "[1000.0, 0.0, 0.0]", "[0.0, 0.0, 1.0]"),
+            "error",
+            "origin_m",
+        ),
         C("laser-origin-text", lambda s, sh: _add_laser(s, '["a", 0.0, 0.0]', "[0.0, 0.0, 1.0]"), "error", "origin_m"),
         C("laser-ok", lambda s, sh: _add_laser(s, "[0.05, 0.05, 0.0]", "[0.0, 0.0, 1.0]"), "ok"),
-        C("altitude-1e6", lambda s, sh: replace_in(s / st, "altitude_m = 1.3", "altitude_m = 1e6"), "error", "plausible altitude range"),
-        C("altitude-negative", lambda s, sh: replace_in(s / st, "altitude_m = 1.3", "altitude_m = -1.0"), "error", "vehicle.altitude_m"),
+        C(
+            "altitude-1e6",
+            lambda s, sh: replace_in(s / st, "altitude_m = 1.3", "altitude_m = 1e6"),
+            "error",
+            "plausible altitude range",
+        ),
+        C(
+            "altitude-negative",
+            lambda s, sh: replace_in(s / st, "altitude_m = 1.3", "altitude_m = -1.0"),
+            "error",
+            "vehicle.altitude_m",
+        ),
         C("camera-too-small", lambda s, sh: _shrink(s, 20, 20), "error", "too small"),
         # Images: every frame unusable -> exit 2 with the reason; a few bad ones are skipped.
-        C("images-all-black", _all_images(lambda k, rgb: (".png", encode(np.zeros_like(rgb), ".png"))), "error", "usable"),
-        C("images-all-white", _all_images(lambda k, rgb: (".png", encode(np.full_like(rgb, 255), ".png"))), "error", "no texture"),
+        C(
+            "images-all-black",
+            _all_images(lambda k, rgb: (".png", encode(np.zeros_like(rgb), ".png"))),
+            "error",
+            "usable",
+        ),
+        C(
+            "images-all-white",
+            _all_images(lambda k, rgb: (".png", encode(np.full_like(rgb, 255), ".png"))),
+            "error",
+            "no texture",
+        ),
         C("images-all-1x1", _all_images(lambda k, rgb: (".png", encode(rgb[:1, :1], ".png"))), "error", "usable"),
         C("images-all-wrong-size", _all_images(lambda k, rgb: (".png", encode(rgb[:50], ".png"))), "error", "usable"),
-        C("images-all-garbage", _all_images(lambda k, rgb: (".png", b"\x89PNG garbage" * 10)), "error", "not a readable"),
+        C(
+            "images-all-garbage",
+            _all_images(lambda k, rgb: (".png", b"\x89PNG garbage" * 10)),
+            "error",
+            "not a readable",
+        ),
         C("images-all-empty", _all_images(lambda k, rgb: (".png", b"")), "error", "usable"),
-        C("images-all-float-tiff", _all_images(lambda k, rgb: (".tif", encode(rgb.astype(np.float32), ".tif"))), "error", "usable"),
+        C(
+            "images-all-float-tiff",
+            _all_images(lambda k, rgb: (".tif", encode(rgb.astype(np.float32), ".tif"))),
+            "error",
+            "usable",
+        ),
         C("images-all-bomb", _all_images(_bomb_png), "error", "usable"),
-        C("images-most-black", _all_images(lambda k, rgb: (".png", encode(rgb if k < 2 else np.zeros_like(rgb), ".png"))), "error", "min_usable_fraction"),
-        C("images-most-black-allowed", _all_images(lambda k, rgb: (".png", encode(rgb if k < 2 else np.zeros_like(rgb), ".png"))),
-          "ok", extra=("--min-usable-fraction", "0.2")),
+        C(
+            "images-most-black",
+            _all_images(lambda k, rgb: (".png", encode(rgb if k < 2 else np.zeros_like(rgb), ".png"))),
+            "error",
+            "min_usable_fraction",
+        ),
+        C(
+            "images-most-black-allowed",
+            _all_images(lambda k, rgb: (".png", encode(rgb if k < 2 else np.zeros_like(rgb), ".png"))),
+            "ok",
+            extra=("--min-usable-fraction", "0.2"),
+        ),
         C("images-one-corrupt", lambda s, sh: _bytes(s / "images" / "000003.png", b"\x89PNG\r\n\x1a\n broken"), "ok"),
-        C("images-one-truncated", lambda s, sh: _bytes(s / "images" / "000003.png", (s / "images" / "000003.png").read_bytes()[:200]), "ok"),
-        C("images-one-bomb", lambda s, sh: _bytes(s / "images" / "000003.png", _bomb_png(0, seabed_frames(1)[0])[1]), "ok"),
+        C(
+            "images-one-truncated",
+            lambda s, sh: _bytes(s / "images" / "000003.png", (s / "images" / "000003.png").read_bytes()[:200]),
+            "ok",
+        ),
+        C(
+            "images-one-bomb",
+            lambda s, sh: _bytes(s / "images" / "000003.png", _bomb_png(0, seabed_frames(1)[0])[1]),
+            "ok",
+        ),
         C("images-png16", _all_images(lambda k, rgb: (".png", encode(rgb.astype(np.uint16) * 257, ".png"))), "ok"),
         C("images-tiff16", _all_images(_tiff16), "ok"),
-        C("images-png16-12bit", lambda s, sh: (_all_images(_png16_12bit)(s, sh),
-                                                replace_in(s / st, "fy_px = 200.0", "fy_px = 200.0\nbit_depth = 12")), "ok"),
+        C(
+            "images-png16-12bit",
+            lambda s, sh: (
+                _all_images(_png16_12bit)(s, sh),
+                replace_in(s / st, "fy_px = 200.0", "fy_px = 200.0\nbit_depth = 12"),
+            ),
+            "ok",
+        ),
         C("images-grey", _all_images(lambda k, rgb: (".png", encode(rgb[:, :, 1].copy(), ".png"))), "ok"),
-        C("images-rgba", _all_images(lambda k, rgb: (".png", encode(np.dstack([rgb, np.full(rgb.shape[:2], 255, np.uint8)]), ".png"))), "ok"),
+        C(
+            "images-rgba",
+            _all_images(
+                lambda k, rgb: (".png", encode(np.dstack([rgb, np.full(rgb.shape[:2], 255, np.uint8)]), ".png"))
+            ),
+            "ok",
+        ),
         C("images-jpeg", _all_images(lambda k, rgb: (".jpg", encode(rgb, ".jpg"))), "ok"),
         # Command-line limits.
         C("max-frames-0", lambda s, sh: None, "error", "--max-frames", extra=("--max-frames", "0")),
         C("max-frames-negative", lambda s, sh: None, "error", "--max-frames", extra=("--max-frames", "-1")),
         C("max-frames-3", lambda s, sh: None, "ok", extra=("--max-frames", "3")),
-        C("min-usable-fraction-2", lambda s, sh: None, "error", "--min-usable-fraction", extra=("--min-usable-fraction", "2")),
+        C(
+            "min-usable-fraction-2",
+            lambda s, sh: None,
+            "error",
+            "--min-usable-fraction",
+            extra=("--min-usable-fraction", "2"),
+        ),
         C("max-distance-tiny", lambda s, sh: None, "error", "max_distance_m", extra=("--max-distance-m", "1e-4")),
         C("max-distance-negative", lambda s, sh: None, "error", "--max-distance-m", extra=("--max-distance-m", "-5")),
-        C("one-frame", lambda s, sh: (edit_lines(s / fr, lambda ls: ls[:2]), edit_lines(s / gt, lambda ls: ls[:2])), "ok"),
-        Case("not-found", "sequence", lambda d, sh: ["run", str(d / "nope"), "--out", str(d / "out")], "error", "not found"),
-        Case("markup-in-name", "sequence", lambda d, sh: ["run", str(d / "[bold]dive[/bold]"), "--out", str(d / "out")],
-             "error", "[bold]dive[/bold]"),
-        Case("sequence-is-a-file", "sequence", lambda d, sh: ["run", str(_touch(d / "dive.csv")), "--out", str(d / "out")],
-             "error", "neither a sequence folder"),
+        C(
+            "one-frame",
+            lambda s, sh: (edit_lines(s / fr, lambda ls: ls[:2]), edit_lines(s / gt, lambda ls: ls[:2])),
+            "ok",
+        ),
+        Case(
+            "not-found",
+            "sequence",
+            lambda d, sh: ["run", str(d / "nope"), "--out", str(d / "out")],
+            "error",
+            "not found",
+        ),
+        Case(
+            "markup-in-name",
+            "sequence",
+            lambda d, sh: ["run", str(d / "[bold]dive[/bold]"), "--out", str(d / "out")],
+            "error",
+            "[bold]dive[/bold]",
+        ),
+        Case(
+            "sequence-is-a-file",
+            "sequence",
+            lambda d, sh: ["run", str(_touch(d / "dive.csv")), "--out", str(d / "out")],
+            "error",
+            "neither a sequence folder",
+        ),
     ]
 
 
@@ -465,21 +700,36 @@ def config_cases() -> list[Case]:
         C("not-toml", "[tracker\nmin_correlation = ", "error", "not valid TOML"),
         C("unknown-key", "[tracker]\nmin_corelation = 0.9\n", "error", "tracker.min_corelation"),
         C("unknown-table", "[trakcer]\nmin_correlation = 0.9\n", "error", "trakcer"),
-        C("wrong-type", "[tracker]\nmin_correlation = \"high\"\n", "error", "min_correlation"),
+        C("wrong-type", '[tracker]\nmin_correlation = "high"\n', "error", "min_correlation"),
         C("latin1", b"# \xe9\n[tracker]\nmin_correlation = 0.9\n", "error", "c.toml"),
         C("bool-for-int", "[speed_templates]\nsize_px = true\n", "error", "size_px"),
-        C("channel-red", "[bandpass]\nchannel = \"red\"\n", "error", "red"),
+        C("channel-red", '[bandpass]\nchannel = "red"\n', "error", "red"),
         C("window-zero", "[speed_templates]\nsize_px = 0\n", "error", ">= 4"),
         C("sigma-1e308", "[odometry]\ncommon_sigma_px = 1e308\n", "error", "check the exponent"),
         C("angle-half-a-radian", "[odometry]\ncompass_sigma_rad = 0.5\n", "ok"),
         C("angle-beyond-half-a-turn", "[slam]\nheading_bias_sigma_rad = 10.0\n", "error", "not degrees"),
         C("blur-1e6-px", "[bandpass]\nsigma_coarse_px = 1e6\n", "error", "<= 100"),
-        C("laser-range-excludes-altitude", "[laser]\nmin_altitude_m = 5.0\nmax_altitude_m = 30.0\n", "error", "plausible altitude range"),
+        C(
+            "laser-range-excludes-altitude",
+            "[laser]\nmin_altitude_m = 5.0\nmax_altitude_m = 30.0\n",
+            "error",
+            "plausible altitude range",
+        ),
         C("laser-min-above-max", "[laser]\nmin_altitude_m = 5.0\nmax_altitude_m = 1.0\n", "error", "min_altitude_m"),
-        Case("missing", "config", lambda d, sh: ["run", str(sh.base_seq), "--out", str(d / "out"), "-c", str(d / "none.toml")],
-             "error", "not found"),
-        Case("is-folder", "config", lambda d, sh: ["run", str(sh.base_seq), "--out", str(d / "out"), "-c", str(d)],
-             "error", "is a folder; -c needs a TOML file"),
+        Case(
+            "missing",
+            "config",
+            lambda d, sh: ["run", str(sh.base_seq), "--out", str(d / "out"), "-c", str(d / "none.toml")],
+            "error",
+            "not found",
+        ),
+        Case(
+            "is-folder",
+            "config",
+            lambda d, sh: ["run", str(sh.base_seq), "--out", str(d / "out"), "-c", str(d)],
+            "error",
+            "is a folder; -c needs a TOML file",
+        ),
     ]
 
 
@@ -495,8 +745,14 @@ RANGE_CONFIGS = {
 
 
 def video_cases() -> list[Case]:
-    def V(name: str, make: Callable[[Path], Path], expect: str, needle: str = "", camera: bool = True,
-          cam_edit: Callable[[str], str] = lambda t: t) -> Case:
+    def V(
+        name: str,
+        make: Callable[[Path], Path],
+        expect: str,
+        needle: str = "",
+        camera: bool = True,
+        cam_edit: Callable[[str], str] = lambda t: t,
+    ) -> Case:
         def build(d: Path, sh: Shared) -> list[str]:
             video = make(d)
             cam = d / "cam.toml"
@@ -533,9 +789,20 @@ def video_cases() -> list[Case]:
         V("text-file", lambda d: _touch(d / "dive.mp4", b"not a video\n" * 100), "error", "not a readable video"),
         V("wrong-size", lambda d: write_video(d / "dive.mp4", size=(160, 120)), "error", "160x120"),
         V("all-black", lambda d: write_video(d / "dive.mp4", black=True), "error", "usable"),
-        V("camera-focal-1e-3", lambda d: write_video(d / "dive.mp4"), "error", "focal",
-          cam_edit=lambda t: t.replace("fx_px = 200.0", "fx_px = 1e-3")),
-        V("camera-not-toml", lambda d: write_video(d / "dive.mp4"), "error", "not valid TOML", cam_edit=lambda t: t + "[[["),
+        V(
+            "camera-focal-1e-3",
+            lambda d: write_video(d / "dive.mp4"),
+            "error",
+            "focal",
+            cam_edit=lambda t: t.replace("fx_px = 200.0", "fx_px = 1e-3"),
+        ),
+        V(
+            "camera-not-toml",
+            lambda d: write_video(d / "dive.mp4"),
+            "error",
+            "not valid TOML",
+            cam_edit=lambda t: t + "[[[",
+        ),
         V("wrong-suffix", lambda d: _touch(d / "dive.txt", b"x"), "error", "neither a sequence folder"),
         V("folder-named-mp4", lambda d: (d / "dive.mp4").mkdir() or d / "dive.mp4", "error", "sequence.toml"),
     ]
@@ -554,7 +821,9 @@ def nav_csv_text(n: int = 24, start_s: float = 0.0, step_s: float = 0.1) -> str:
     for k in range(n):
         t = NAV_OFFSET_S + start_s + k * step_s
         yaw = np.radians(90.0 - (10.0 + k))  # ENU yaw of the same heading
-        lines.append(f"{t!r},{10.0 + k},{1.3 + 0.001 * k},0.0,0.0,{float(np.sin(yaw / 2))!r},{float(np.cos(yaw / 2))!r}")
+        lines.append(
+            f"{t!r},{10.0 + k},{1.3 + 0.001 * k},0.0,0.0,{float(np.sin(yaw / 2))!r},{float(np.cos(yaw / 2))!r}"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -563,15 +832,31 @@ NAV_MAP_QUAT = '\n[nav]\ntime = "unix_s"\nquaternion = ["qx", "qy", "qz", "qw"]\
 
 
 def nav_cases() -> list[Case]:
-    def N(name: str, nav: Callable[[Path], object], expect: str, needle: str = "", mapping: str = NAV_MAP,
-          extra: tuple[str, ...] = ("--nav-time-offset", repr(NAV_OFFSET_S))) -> Case:
+    def N(
+        name: str,
+        nav: Callable[[Path], object],
+        expect: str,
+        needle: str = "",
+        mapping: str = NAV_MAP,
+        extra: tuple[str, ...] = ("--nav-time-offset", repr(NAV_OFFSET_S)),
+    ) -> Case:
         def build(d: Path, sh: Shared) -> list[str]:
             video = write_video(d / "dive.mp4")
             (d / "cam.toml").write_text(CAMERA_FILE + mapping)
             (d / "nav.csv").write_text(nav_csv_text())
             nav(d / "nav.csv")
-            return ["run", str(video), "--camera", str(d / "cam.toml"), "--nav", str(d / "nav.csv"), "--out", str(d / "out"),
-                    "--quiet", *extra]
+            return [
+                "run",
+                str(video),
+                "--camera",
+                str(d / "cam.toml"),
+                "--nav",
+                str(d / "nav.csv"),
+                "--out",
+                str(d / "out"),
+                "--quiet",
+                *extra,
+            ]
 
         return Case(name, "navigation", build, expect, needle)
 
@@ -582,8 +867,13 @@ def nav_cases() -> list[Case]:
     return [
         N("valid-heading-deg", nothing, "ok"),
         N("valid-quaternion", nothing, "ok", mapping=NAV_MAP_QUAT),
-        N("valid-nav-map-options", nothing, "ok", mapping="",
-          extra=("--nav-time-offset", repr(NAV_OFFSET_S), "--nav-map", "time=unix_s", "--nav-map", "heading=hdg_deg")),
+        N(
+            "valid-nav-map-options",
+            nothing,
+            "ok",
+            mapping="",
+            extra=("--nav-time-offset", repr(NAV_OFFSET_S), "--nav-map", "time=unix_s", "--nav-map", "heading=hdg_deg"),
+        ),
         N("bom", lambda p: _bytes(p, b"\xef\xbb\xbf" + p.read_bytes()), "ok"),
         N("crlf", lambda p: _bytes(p, p.read_bytes().replace(b"\n", b"\r\n")), "ok"),
         N("partly-overlapping", lambda p: _bytes(p, nav_csv_text(start_s=1.0).encode()), "ok"),
@@ -607,27 +897,78 @@ def nav_cases() -> list[Case]:
         N("altitude-1e6", lambda p: set_column(p, "alt_m", "1e6"), "ok"),  # each reading rejected, the fixed one used
         N("short-row", lines(lambda ls: ls[:3] + [ls[3].rsplit(",", 1)[0]] + ls[4:]), "error", "line 4"),
         N("quaternion-zero", lambda p: set_column(p, "qw", "0.0"), "error", "length", mapping=NAV_MAP_QUAT),
-        N("quaternion-upside-down", nothing, "error", "away from straight down",
-          mapping=NAV_MAP_QUAT + 'quaternion_body = "frd"\n'),
+        N(
+            "quaternion-upside-down",
+            nothing,
+            "error",
+            "away from straight down",
+            mapping=NAV_MAP_QUAT + 'quaternion_body = "frd"\n',
+        ),
         N("mapping-unknown-key", nothing, "error", "unknown key", mapping=NAV_MAP + "colour = 1\n"),
         N("mapping-bad-unit", nothing, "error", "'grad' is not one of", mapping=NAV_MAP + 'angle_unit = "grad"\n'),
         N("mapping-not-table", nothing, "error", "must be a table", mapping='\n[[nav]]\ntime = "t"\n'),
         N("nav-map-no-equals", nothing, "error", "KEY=VALUE", extra=("--nav-time-offset", "0", "--nav-map", "heading")),
         N("nav-map-unknown", nothing, "error", "unknown key", extra=("--nav-time-offset", "0", "--nav-map", "x=1")),
         N("offset-nan", nothing, "error", "--nav-time-offset", extra=("--nav-time-offset", "nan")),
-        Case("nav-map-without-nav", "navigation",
-             lambda d, sh: ["run", str(write_video(d / "dive.mp4")), "--camera", str(_touch(d / "c.toml", CAMERA_FILE.encode())),
-                            "--nav-map", "time=t", "--out", str(d / "out")], "error", "--nav NAV.csv"),
-        Case("nav-with-sequence", "navigation",
-             lambda d, sh: ["run", str(sh.base_seq), "--nav", str(_touch(d / "n.csv", nav_csv_text().encode())),
-                            "--out", str(d / "out")], "error", "--nav cannot be used with a sequence folder"),
-        Case("camera-file-without-format", "navigation",
-             lambda d, sh: ["run", str(write_video(d / "dive.mp4")), "--camera", str(_touch(d / "c.toml", CAMERA_FILE.encode())),
-                            "--out", str(d / "out"), "-q"], "ok"),
-        Case("camera-file-wrong-format", "navigation",
-             lambda d, sh: ["run", str(write_video(d / "dive.mp4")), "--camera",
-                            str(_touch(d / "c.toml", CAMERA_TOML.replace("sequence/1", "sequence/9").encode())),
-                            "--out", str(d / "out"), "-q"], "error", "key 'format'"),
+        Case(
+            "nav-map-without-nav",
+            "navigation",
+            lambda d, sh: [
+                "run",
+                str(write_video(d / "dive.mp4")),
+                "--camera",
+                str(_touch(d / "c.toml", CAMERA_FILE.encode())),
+                "--nav-map",
+                "time=t",
+                "--out",
+                str(d / "out"),
+            ],
+            "error",
+            "--nav NAV.csv",
+        ),
+        Case(
+            "nav-with-sequence",
+            "navigation",
+            lambda d, sh: [
+                "run",
+                str(sh.base_seq),
+                "--nav",
+                str(_touch(d / "n.csv", nav_csv_text().encode())),
+                "--out",
+                str(d / "out"),
+            ],
+            "error",
+            "--nav cannot be used with a sequence folder",
+        ),
+        Case(
+            "camera-file-without-format",
+            "navigation",
+            lambda d, sh: [
+                "run",
+                str(write_video(d / "dive.mp4")),
+                "--camera",
+                str(_touch(d / "c.toml", CAMERA_FILE.encode())),
+                "--out",
+                str(d / "out"),
+                "-q",
+            ],
+            "ok",
+        ),
+        Case(
+            "camera-file-wrong-format",
+            "navigation",
+            lambda d, sh: [
+                "run",
+                str(write_video(d / "dive.mp4")),
+                "--camera",
+                str(_touch(d / "c.toml", CAMERA_TOML.replace("sequence/1", "sequence/9").encode())),
+                "--out",
+                str(d / "out"),
+                "-q",
+            ],
+            "error",
+            "key 'format'",
+        ),
     ]
 
 
@@ -639,49 +980,119 @@ def write_image_folder(d: Path, n: int = N_FRAMES) -> Path:
 
 
 def folder_cases() -> list[Case]:
-    def F(name: str, edit: Callable[[Path, Path], object], expect: str, needle: str = "",
-          extra: tuple[str, ...] = ("--fps", "5"), camera: bool = True) -> Case:
+    def F(
+        name: str,
+        edit: Callable[[Path, Path], object],
+        expect: str,
+        needle: str = "",
+        extra: tuple[str, ...] = ("--fps", "5"),
+        camera: bool = True,
+    ) -> Case:
         def build(d: Path, sh: Shared) -> list[str]:
             folder = write_image_folder(d / "images")
             (d / "cam.toml").write_text(CAMERA_FILE)
             edit(folder, d)
             args = [a.replace("{times}", str(d / "t.csv")) for a in extra]
-            return ["run", str(folder), "--out", str(d / "out"), "--quiet", *args] + (["--camera", str(d / "cam.toml")] if camera else [])
+            return ["run", str(folder), "--out", str(d / "out"), "--quiet", *args] + (
+                ["--camera", str(d / "cam.toml")] if camera else []
+            )
 
         return Case(name, "folder", build, expect, needle)
 
     T = ("--times", "{times}")
     return [
         F("valid-fps", lambda f, d: None, "ok"),
-        F("valid-times", lambda f, d: (d / "t.csv").write_text("image,t_s\n" + "".join(f"frame{k + 1}.png,{0.2 * k}\n" for k in range(N_FRAMES))),
-          "ok", extra=T),
+        F(
+            "valid-times",
+            lambda f, d: (d / "t.csv").write_text(
+                "image,t_s\n" + "".join(f"frame{k + 1}.png,{0.2 * k}\n" for k in range(N_FRAMES))
+            ),
+            "ok",
+            extra=T,
+        ),
         F("valid-16bit", lambda f, d: _to_16bit(f), "ok"),
         F("no-camera", lambda f, d: None, "error", "--camera CAMERA.toml", camera=False),
         F("no-times", lambda f, d: None, "error", "--fps F or --times FILE", extra=()),
         F("fps-negative", lambda f, d: None, "error", "--fps must be", extra=("--fps", "-5")),
         F("fps-huge", lambda f, d: None, "error", "--fps must be", extra=("--fps", "1e9")),
-        F("empty", lambda f, d: [p.unlink() for p in f.iterdir()], "error", "no sequence.toml, frames.csv or image files"),
-        F("only-text", lambda f, d: [p.rename(p.with_suffix(".txt")) for p in f.iterdir()], "error", "no sequence.toml"),
+        F(
+            "empty",
+            lambda f, d: [p.unlink() for p in f.iterdir()],
+            "error",
+            "no sequence.toml, frames.csv or image files",
+        ),
+        F(
+            "only-text",
+            lambda f, d: [p.rename(p.with_suffix(".txt")) for p in f.iterdir()],
+            "error",
+            "no sequence.toml",
+        ),
         F("all-garbage", lambda f, d: [p.write_bytes(b"\x89PNG garbage") for p in f.iterdir()], "error", "usable"),
-        F("all-wrong-size", lambda f, d: [p.write_bytes(encode(seabed_frames(1, size=(64, 48))[0], ".png")) for p in f.iterdir()],
-          "error", "usable"),
+        F(
+            "all-wrong-size",
+            lambda f, d: [p.write_bytes(encode(seabed_frames(1, size=(64, 48))[0], ".png")) for p in f.iterdir()],
+            "error",
+            "usable",
+        ),
         F("one-corrupt", lambda f, d: (f / "frame3.png").write_bytes(b"\x89PNG\r\n\x1a\n broken"), "ok"),
-        F("symlink-outside", lambda f, d: ((f / "frame2.png").unlink(), (f / "frame2.png").symlink_to(d.parent.parent / "outside" / "bait.png")),
-          "error", "leads outside"),
-        F("times-outside", lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\n../../../outside/bait.png,0.2\n"),
-          "error", "leads outside", extra=T),
-        F("times-absolute", lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\n/etc/passwd,0.2\n"),
-          "error", "absolute", extra=T),
-        F("times-latin1", lambda f, d: (d / "t.csv").write_bytes(b"image,t_s\nframe\xe91.png,0\n"), "error", "not UTF-8",
-          extra=T),
-        F("times-duplicate", lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\nframe2.png,0\n"),
-          "error", "repeats another image's time", extra=T),
-        F("times-missing-image", lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\nframe99.png,1\n"),
-          "error", "not found", extra=T),
-        F("times-text", lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,soon\n"), "error", "not a number",
-          extra=T),
-        F("times-and-fps", lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\n"), "error", "one of the two",
-          extra=("--fps", "5", *T)),
+        F(
+            "symlink-outside",
+            lambda f, d: (
+                (f / "frame2.png").unlink(),
+                (f / "frame2.png").symlink_to(d.parent.parent / "outside" / "bait.png"),
+            ),
+            "error",
+            "leads outside",
+        ),
+        F(
+            "times-outside",
+            lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\n../../../outside/bait.png,0.2\n"),
+            "error",
+            "leads outside",
+            extra=T,
+        ),
+        F(
+            "times-absolute",
+            lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\n/etc/passwd,0.2\n"),
+            "error",
+            "absolute",
+            extra=T,
+        ),
+        F(
+            "times-latin1",
+            lambda f, d: (d / "t.csv").write_bytes(b"image,t_s\nframe\xe91.png,0\n"),
+            "error",
+            "not UTF-8",
+            extra=T,
+        ),
+        F(
+            "times-duplicate",
+            lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\nframe2.png,0\n"),
+            "error",
+            "repeats another image's time",
+            extra=T,
+        ),
+        F(
+            "times-missing-image",
+            lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\nframe99.png,1\n"),
+            "error",
+            "not found",
+            extra=T,
+        ),
+        F(
+            "times-text",
+            lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,soon\n"),
+            "error",
+            "not a number",
+            extra=T,
+        ),
+        F(
+            "times-and-fps",
+            lambda f, d: (d / "t.csv").write_text("image,t_s\nframe1.png,0\n"),
+            "error",
+            "one of the two",
+            extra=("--fps", "5", *T),
+        ),
     ]
 
 
@@ -692,15 +1103,27 @@ def _to_16bit(folder: Path) -> None:
         p.write_bytes(encode(cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB).astype(np.uint16) * 257, ".png"))
 
 
-def write_bag(path: Path, flavour: str = "ros1", n: int = N_FRAMES, encoding: str = "rgb8", size: tuple[int, int] = (W, H),
-              heading: bool = True, imu_orientation: bool = True, info_size: tuple[int, int] | None = None) -> Path:
+def write_bag(
+    path: Path,
+    flavour: str = "ros1",
+    n: int = N_FRAMES,
+    encoding: str = "rgb8",
+    size: tuple[int, int] = (W, H),
+    heading: bool = True,
+    imu_orientation: bool = True,
+    info_size: tuple[int, int] | None = None,
+) -> Path:
     """A small bag: images on /cam/image, an Imu heading on /nav/imu, a Range altitude on /nav/range."""
     from rosbag_writer import T0_NS, BagWriter, orientation_xyzw
 
     with BagWriter(path, flavour) as bag:
         if info_size is not None:
-            bag.write("/cam/info", "sensor_msgs/msg/CameraInfo",
-                      bag.camera_info(T0_NS, *info_size, [200.0, 0, 63.5, 0, 200.0, 47.5, 0, 0, 1], []), T0_NS)
+            bag.write(
+                "/cam/info",
+                "sensor_msgs/msg/CameraInfo",
+                bag.camera_info(T0_NS, *info_size, [200.0, 0, 63.5, 0, 200.0, 47.5, 0, 0, 1], []),
+                T0_NS,
+            )
         for k, img in enumerate(seabed_frames(n, size=size)):
             ns = T0_NS + k * 200_000_000
             if encoding == "32FC1":
@@ -710,8 +1133,12 @@ def write_bag(path: Path, flavour: str = "ros1", n: int = N_FRAMES, encoding: st
                 msg = bag.image(ns, img, encoding)
             bag.write("/cam/image", "sensor_msgs/msg/Image", msg, ns)
             if heading:
-                bag.write("/nav/imu", "sensor_msgs/msg/Imu",
-                          bag.imu(ns, orientation_xyzw(0.1 * k, 0, 0), no_orientation=not imu_orientation), ns)
+                bag.write(
+                    "/nav/imu",
+                    "sensor_msgs/msg/Imu",
+                    bag.imu(ns, orientation_xyzw(0.1 * k, 0, 0), no_orientation=not imu_orientation),
+                    ns,
+                )
                 bag.write("/nav/range", "sensor_msgs/msg/Range", bag.range(ns, 1.3), ns)
     return path
 
@@ -719,12 +1146,20 @@ def write_bag(path: Path, flavour: str = "ros1", n: int = N_FRAMES, encoding: st
 def bag_cases() -> list[Case]:
     topics = ("--image-topic", "/cam/image", "--heading-topic", "/nav/imu", "--altitude-topic", "/nav/range")
 
-    def B(name: str, make: Callable[[Path], Path], expect: str, needle: str = "", extra: tuple[str, ...] = topics,
-          camera: bool = True) -> Case:
+    def B(
+        name: str,
+        make: Callable[[Path], Path],
+        expect: str,
+        needle: str = "",
+        extra: tuple[str, ...] = topics,
+        camera: bool = True,
+    ) -> Case:
         def build(d: Path, sh: Shared) -> list[str]:
             bag = make(d)
             (d / "cam.toml").write_text(CAMERA_FILE)
-            return ["run", str(bag), "--out", str(d / "out"), "--quiet", *extra] + (["--camera", str(d / "cam.toml")] if camera else [])
+            return ["run", str(bag), "--out", str(d / "out"), "--quiet", *extra] + (
+                ["--camera", str(d / "cam.toml")] if camera else []
+            )
 
         return Case(name, "bag", build, expect, needle)
 
@@ -761,48 +1196,139 @@ def bag_cases() -> list[Case]:
         B("valid-mcap-file-given", lambda d: storage(write_bag(d / "bag2", "mcap")), "ok"),
         B("valid-mono16", lambda d: write_bag(d / "dive.bag", encoding="mono16"), "ok"),
         B("valid-bayer", lambda d: write_bag(d / "dive.bag", encoding="bayer_grbg8"), "ok"),
-        B("images-only", lambda d: write_bag(d / "dive.bag", heading=False), "ok", extra=("--image-topic", "/cam/image")),
+        B(
+            "images-only",
+            lambda d: write_bag(d / "dive.bag", heading=False),
+            "ok",
+            extra=("--image-topic", "/cam/image"),
+        ),
         B("no-image-topic", lambda d: write_bag(d / "dive.bag"), "error", "Its image topics: /cam/image", extra=()),
         B("no-camera", lambda d: write_bag(d / "dive.bag"), "error", "--camera CAMERA.toml", camera=False),
-        B("topic-missing", lambda d: write_bag(d / "dive.bag"), "error", "no topic '/camera/raw'",
-          extra=("--image-topic", "/camera/raw")),
-        B("topic-wrong-type", lambda d: write_bag(d / "dive.bag"), "error", "--image-topic takes",
-          extra=("--image-topic", "/nav/imu")),
-        B("heading-without-orientation", lambda d: write_bag(d / "dive.bag", imu_orientation=False), "error",
-          "gives no orientation"),
-        B("encoding-float", lambda d: write_bag(d / "dive.bag", encoding="32FC1"), "error", "'32FC1' is not read by rovslam"),
+        B(
+            "topic-missing",
+            lambda d: write_bag(d / "dive.bag"),
+            "error",
+            "no topic '/camera/raw'",
+            extra=("--image-topic", "/camera/raw"),
+        ),
+        B(
+            "topic-wrong-type",
+            lambda d: write_bag(d / "dive.bag"),
+            "error",
+            "--image-topic takes",
+            extra=("--image-topic", "/nav/imu"),
+        ),
+        B(
+            "heading-without-orientation",
+            lambda d: write_bag(d / "dive.bag", imu_orientation=False),
+            "error",
+            "gives no orientation",
+        ),
+        B(
+            "encoding-float",
+            lambda d: write_bag(d / "dive.bag", encoding="32FC1"),
+            "error",
+            "'32FC1' is not read by rovslam",
+        ),
         B("images-wrong-size", lambda d: write_bag(d / "dive.bag", size=(160, 120)), "error", "usable"),
-        B("camera-info-mismatch", lambda d: write_bag(d / "dive.bag", info_size=(64, 48)), "error", "CameraInfo is 64x48",
-          extra=(*topics, "--camera-info-topic", "/cam/info")),
-        B("camera-info-ok", lambda d: write_bag(d / "dive.bag", info_size=(W, H)), "ok",
-          extra=(*topics, "--camera-info-topic", "/cam/info")),
+        B(
+            "camera-info-mismatch",
+            lambda d: write_bag(d / "dive.bag", info_size=(64, 48)),
+            "error",
+            "CameraInfo is 64x48",
+            extra=(*topics, "--camera-info-topic", "/cam/info"),
+        ),
+        B(
+            "camera-info-ok",
+            lambda d: write_bag(d / "dive.bag", info_size=(W, H)),
+            "ok",
+            extra=(*topics, "--camera-info-topic", "/cam/info"),
+        ),
         B("truncated-ros1", damaged("truncate"), "either"),
         B("garbled-ros1", damaged("garble"), "either"),
         B("empty-bag-file", lambda d: _touch(d / "dive.bag", b""), "error", "not a readable ROS 1 bag"),
         B("text-bag-file", lambda d: _touch(d / "dive.bag", b"not a bag\n" * 50), "error", "not a readable ROS 1 bag"),
-        B("ros2-metadata-garbage", ros2(lambda p: (p / "metadata.yaml").write_bytes(b"\x00\xff[[[")), "error",
-          "not a readable ROS 2 bag"),
-        B("ros2-metadata-latin1", ros2(lambda p: (p / "metadata.yaml").write_bytes((p / "metadata.yaml").read_bytes() + b"# \xe9\n")),
-          "either"),
+        B(
+            "ros2-metadata-garbage",
+            ros2(lambda p: (p / "metadata.yaml").write_bytes(b"\x00\xff[[[")),
+            "error",
+            "not a readable ROS 2 bag",
+        ),
+        B(
+            "ros2-metadata-latin1",
+            ros2(lambda p: (p / "metadata.yaml").write_bytes((p / "metadata.yaml").read_bytes() + b"# \xe9\n")),
+            "either",
+        ),
         B("ros2-storage-missing", ros2(lambda p: storage(p).unlink()), "error", "not a readable ROS 2 bag"),
-        B("ros2-storage-garbage", ros2(lambda p: storage(p).write_bytes(b"SQLite format 3\x00" + b"\x00" * 200)), "either"),
-        B("ros2-mcap-truncated", ros2(lambda p: storage(p).write_bytes(storage(p).read_bytes()[:5000]), "mcap"), "either"),
-        B("ros2-storage-symlink-outside", ros2(lambda p: _link(p.parent.parent.parent / "outside" / "bait.png", storage(p))),
-          "error", "leads outside the bag folder"),
-        B("lone-mcap", lambda d: (storage(write_bag(d / "bag2", "mcap")).rename(d / "lone.mcap"), d / "lone.mcap")[1],
-          "error", "has no metadata.yaml"),
-        B("nav-with-bag", lambda d: write_bag(d / "dive.bag"), "error", "--nav cannot be used",
-          extra=(*topics, "--nav", "nav.csv")),
+        B(
+            "ros2-storage-garbage",
+            ros2(lambda p: storage(p).write_bytes(b"SQLite format 3\x00" + b"\x00" * 200)),
+            "either",
+        ),
+        B(
+            "ros2-mcap-truncated",
+            ros2(lambda p: storage(p).write_bytes(storage(p).read_bytes()[:5000]), "mcap"),
+            "either",
+        ),
+        B(
+            "ros2-storage-symlink-outside",
+            ros2(lambda p: _link(p.parent.parent.parent / "outside" / "bait.png", storage(p))),
+            "error",
+            "leads outside the bag folder",
+        ),
+        B(
+            "lone-mcap",
+            lambda d: (storage(write_bag(d / "bag2", "mcap")).rename(d / "lone.mcap"), d / "lone.mcap")[1],
+            "error",
+            "has no metadata.yaml",
+        ),
+        B(
+            "nav-with-bag",
+            lambda d: write_bag(d / "dive.bag"),
+            "error",
+            "--nav cannot be used",
+            extra=(*topics, "--nav", "nav.csv"),
+        ),
         Case("topics-valid", "bag", lambda d, sh: ["topics", str(write_bag(d / "dive.bag"))], "ok"),
         Case("topics-not-a-bag", "bag", lambda d, sh: ["topics", str(_touch(d / "x.txt"))], "error", "not a ROS bag"),
-        Case("topics-garbage", "bag", lambda d, sh: ["topics", str(_touch(d / "x.bag", b"#ROSBAG V2.0\n" + b"\x07" * 500))],
-             "error", "not a readable ROS 1 bag"),
-        Case("import-valid", "bag", lambda d, sh: ["import", str(write_bag(d / "dive.bag")), "--camera",
-                                                   str(_touch(d / "c.toml", CAMERA_FILE.encode())), *topics,
-                                                   "--out", str(d / "seq"), "-q"], "ok"),
-        Case("import-into-a-file", "bag", lambda d, sh: ["import", str(write_bag(d / "dive.bag")), "--camera",
-                                                         str(_touch(d / "c.toml", CAMERA_FILE.encode())), *topics,
-                                                         "--out", str(_touch(d / "seq")), "-q"], "error", "is a file"),
+        Case(
+            "topics-garbage",
+            "bag",
+            lambda d, sh: ["topics", str(_touch(d / "x.bag", b"#ROSBAG V2.0\n" + b"\x07" * 500))],
+            "error",
+            "not a readable ROS 1 bag",
+        ),
+        Case(
+            "import-valid",
+            "bag",
+            lambda d, sh: [
+                "import",
+                str(write_bag(d / "dive.bag")),
+                "--camera",
+                str(_touch(d / "c.toml", CAMERA_FILE.encode())),
+                *topics,
+                "--out",
+                str(d / "seq"),
+                "-q",
+            ],
+            "ok",
+        ),
+        Case(
+            "import-into-a-file",
+            "bag",
+            lambda d, sh: [
+                "import",
+                str(write_bag(d / "dive.bag")),
+                "--camera",
+                str(_touch(d / "c.toml", CAMERA_FILE.encode())),
+                *topics,
+                "--out",
+                str(_touch(d / "seq")),
+                "-q",
+            ],
+            "error",
+            "is a file",
+        ),
     ]
 
 
@@ -818,15 +1344,27 @@ def results_cases() -> list[Case]:
     tr, ob, lm, su = "trajectory.csv", "observations.csv", "landmarks.csv", "summary.json"
     cases = []
     for cmd in ("eval", "report"):
-        R = lambda name, edit, expect, needle="": results_case(name, edit, expect, needle, cmd)  # noqa: E731
+        R = lambda name, edit, expect, needle="", cmd=cmd: results_case(name, edit, expect, needle, cmd)  # noqa: E731
         if cmd == "eval":  # readable variants: the reader is shared, the report's plots are slow (one-row plots)
             cases += [
                 R("valid", lambda r: None, "ok"),
                 # a line torn by a crash (SIGKILL, power loss): summary.json still says "running"
-                R("torn-last-line", lambda r: (_bytes(r / tr, (r / tr).read_bytes()[:-7]), _status(r / su, "running")), "ok"),
-                R("torn-last-line-of-complete-run", lambda r: _bytes(r / tr, (r / tr).read_bytes()[:-7]), "error",
-                  "the file was cut short"),
-                R("extra-column", _results_table_edit(tr, lambda ls: [ls[0] + ",note"] + [x + ",hello" for x in ls[1:]]), "ok"),
+                R(
+                    "torn-last-line",
+                    lambda r: (_bytes(r / tr, (r / tr).read_bytes()[:-7]), _status(r / su, "running")),
+                    "ok",
+                ),
+                R(
+                    "torn-last-line-of-complete-run",
+                    lambda r: _bytes(r / tr, (r / tr).read_bytes()[:-7]),
+                    "error",
+                    "the file was cut short",
+                ),
+                R(
+                    "extra-column",
+                    _results_table_edit(tr, lambda ls: [ls[0] + ",note"] + [x + ",hello" for x in ls[1:]]),
+                    "ok",
+                ),
             ]
         cases += [
             R("header-only", _results_table_edit(tr, lambda ls: ls[:1]), "error", "no rows"),
@@ -835,9 +1373,19 @@ def results_cases() -> list[Case]:
             R("nan-position", lambda r: set_cell(r / tr, 3, "y_m", "nan"), "error", "column 'y_m'"),
             R("missing-column", lambda r: replace_in(r / tr, "var_y_m2", "var_z_m2"), "error", "var_y_m2"),
             R("time-backwards", lambda r: set_cell(r / tr, 4, "t_s", "0"), "error", "not after"),
-            R("latin1", lambda r: _bytes(r / tr, (r / tr).read_bytes().replace(b"t_s", b"t_\xe9", 1)), "error", "not UTF-8"),
+            R(
+                "latin1",
+                lambda r: _bytes(r / tr, (r / tr).read_bytes().replace(b"t_s", b"t_\xe9", 1)),
+                "error",
+                "not UTF-8",
+            ),
             R("trajectory-missing", lambda r: (r / tr).unlink(), "error", "trajectory.csv: missing"),
-            R("summary-corrupt", lambda r: _bytes(r / su, (r / su).read_bytes()[:40]), "error", "summary.json: not valid JSON"),
+            R(
+                "summary-corrupt",
+                lambda r: _bytes(r / su, (r / su).read_bytes()[:40]),
+                "error",
+                "summary.json: not valid JSON",
+            ),
             R("summary-list", lambda r: _bytes(r / su, b"[1, 2]"), "error", "JSON object"),
             R("summary-binary", lambda r: _bytes(r / su, b"\xff\xfe\x00garbage"), "error", "summary.json"),
             R("landmarks-text", lambda r: set_cell(r / lm, 1, "x_m", "abc"), "error", "landmarks.csv, line 2"),
@@ -845,24 +1393,85 @@ def results_cases() -> list[Case]:
             R("one-row", _results_table_edit(tr, lambda ls: ls[:2]), "either"),
         ]
     cases += [
-        Case("not-a-folder", "results", lambda d, sh: ["eval", str(_touch(d / "r")), "-g", str(sh.base_seq / "groundtruth.csv")],
-             "error", "not a folder"),
-        Case("json-is-folder", "results", lambda d, sh: ["eval", str(_copy_results(d, sh)), "-g", str(sh.base_seq / "groundtruth.csv"),
-                                                          "--json", str(d)], "error", "is a folder"),
-        Case("json-parent-missing", "results", lambda d, sh: ["eval", str(_copy_results(d, sh)), "-g",
-                                                               str(sh.base_seq / "groundtruth.csv"), "--json", str(d / "no" / "e.json")],
-             "error", "does not exist"),
-        Case("groundtruth-latin1", "results", lambda d, sh: ["eval", str(_copy_results(d, sh)), "-g",
-                                                              str(_touch(d / "gt.csv", b"t_s,x_m,y_m,altitude_m,heading_rad\n0,\xe9,0,1,0\n"))],
-             "error", "not UTF-8"),
-        Case("groundtruth-bom", "results", lambda d, sh: ["eval", str(_copy_results(d, sh)), "-g",
-                                                           str(_touch(d / "gt.csv", b"\xef\xbb\xbf" + (sh.base_seq / "groundtruth.csv").read_bytes())),
-                                                           "--json", str(d / "e.json")], "ok"),
-        Case("groundtruth-missing", "results", lambda d, sh: ["eval", str(_copy_results(d, sh)), "-g", str(d / "gt.csv")],
-             "error", "gt.csv: missing"),
-        Case("groundtruth-other-run", "results", lambda d, sh: ["eval", str(_copy_results(d, sh)), "-g",
-                                                                 str(_touch(d / "gt.csv", b"t_s,x_m,y_m,altitude_m,heading_rad\n50,0,0,1,0\n"))],
-             "error", "ground truth"),
+        Case(
+            "not-a-folder",
+            "results",
+            lambda d, sh: ["eval", str(_touch(d / "r")), "-g", str(sh.base_seq / "groundtruth.csv")],
+            "error",
+            "not a folder",
+        ),
+        Case(
+            "json-is-folder",
+            "results",
+            lambda d, sh: [
+                "eval",
+                str(_copy_results(d, sh)),
+                "-g",
+                str(sh.base_seq / "groundtruth.csv"),
+                "--json",
+                str(d),
+            ],
+            "error",
+            "is a folder",
+        ),
+        Case(
+            "json-parent-missing",
+            "results",
+            lambda d, sh: [
+                "eval",
+                str(_copy_results(d, sh)),
+                "-g",
+                str(sh.base_seq / "groundtruth.csv"),
+                "--json",
+                str(d / "no" / "e.json"),
+            ],
+            "error",
+            "does not exist",
+        ),
+        Case(
+            "groundtruth-latin1",
+            "results",
+            lambda d, sh: [
+                "eval",
+                str(_copy_results(d, sh)),
+                "-g",
+                str(_touch(d / "gt.csv", b"t_s,x_m,y_m,altitude_m,heading_rad\n0,\xe9,0,1,0\n")),
+            ],
+            "error",
+            "not UTF-8",
+        ),
+        Case(
+            "groundtruth-bom",
+            "results",
+            lambda d, sh: [
+                "eval",
+                str(_copy_results(d, sh)),
+                "-g",
+                str(_touch(d / "gt.csv", b"\xef\xbb\xbf" + (sh.base_seq / "groundtruth.csv").read_bytes())),
+                "--json",
+                str(d / "e.json"),
+            ],
+            "ok",
+        ),
+        Case(
+            "groundtruth-missing",
+            "results",
+            lambda d, sh: ["eval", str(_copy_results(d, sh)), "-g", str(d / "gt.csv")],
+            "error",
+            "gt.csv: missing",
+        ),
+        Case(
+            "groundtruth-other-run",
+            "results",
+            lambda d, sh: [
+                "eval",
+                str(_copy_results(d, sh)),
+                "-g",
+                str(_touch(d / "gt.csv", b"t_s,x_m,y_m,altitude_m,heading_rad\n50,0,0,1,0\n")),
+            ],
+            "error",
+            "ground truth",
+        ),
     ]
     return cases
 
@@ -873,9 +1482,16 @@ def _copy_results(d: Path, sh: Shared) -> Path:
 
 
 def output_cases() -> list[Case]:
-    def O(name: str, prepare: Callable[[Path], Path], expect: str, needle: str = "", extra: tuple[str, ...] = ()) -> Case:
-        return Case(name, "output", lambda d, sh: ["run", str(sh.base_seq), "--out", str(prepare(d)), "--quiet", *extra],
-                    expect, needle)
+    def O(  # noqa: E743 (short: one call per case below)
+        name: str, prepare: Callable[[Path], Path], expect: str, needle: str = "", extra: tuple[str, ...] = ()
+    ) -> Case:
+        return Case(
+            name,
+            "output",
+            lambda d, sh: ["run", str(sh.base_seq), "--out", str(prepare(d)), "--quiet", *extra],
+            expect,
+            needle,
+        )
 
     def earlier_run(d: Path) -> Path:
         out = d / "out"
@@ -894,22 +1510,51 @@ def output_cases() -> list[Case]:
         O("empty-folder", lambda d: (d / "out").mkdir() or d / "out", "ok"),
         O("is-a-file", lambda d: _touch(d / "out"), "error", "not a folder"),
         O("parent-is-a-file", lambda d: _touch(d / "f") / "out", "error", "not a folder"),
-        O("foreign-files", lambda d: ((d / "out").mkdir(), _touch(d / "out" / "notes.txt"))[1].parent, "error", "notes.txt"),
+        O(
+            "foreign-files",
+            lambda d: ((d / "out").mkdir(), _touch(d / "out" / "notes.txt"))[1].parent,
+            "error",
+            "notes.txt",
+        ),
         O("earlier-run", earlier_run, "error", "--overwrite"),
         O("earlier-run-overwrite", earlier_run, "ok", extra=("--overwrite",)),
         O("earlier-run-and-notes-overwrite", earlier_run_and_notes, "error", "notes.txt", extra=("--overwrite",)),
-        O("out-is-the-sequence", lambda d: shutil.copytree(d.parent.parent / "base" / "seq", d / "seq") and d / "seq",
-          "error", "did not write", extra=("--overwrite",)),
+        O(
+            "out-is-the-sequence",
+            lambda d: shutil.copytree(d.parent.parent / "base" / "seq", d / "seq") and d / "seq",
+            "error",
+            "did not write",
+            extra=("--overwrite",),
+        ),
         Case("config-into-folder", "output", lambda d, sh: ["config", str(d)], "error", "is a folder"),
         Case("config-exists", "output", lambda d, sh: ["config", str(_touch(d / "c.toml"))], "error", "--overwrite"),
-        Case("config-exists-overwrite", "output", lambda d, sh: ["config", str(_touch(d / "c.toml")), "--overwrite"], "ok"),
-        Case("config-parent-missing", "output", lambda d, sh: ["config", str(d / "no" / "c.toml")], "error", "does not exist"),
+        Case(
+            "config-exists-overwrite",
+            "output",
+            lambda d, sh: ["config", str(_touch(d / "c.toml")), "--overwrite"],
+            "ok",
+        ),
+        Case(
+            "config-parent-missing",
+            "output",
+            lambda d, sh: ["config", str(d / "no" / "c.toml")],
+            "error",
+            "does not exist",
+        ),
     ]
 
 
 def all_cases() -> list[Case]:
-    return (sequence_cases() + config_cases() + video_cases() + results_cases() + output_cases() + nav_cases()
-            + folder_cases() + bag_cases())
+    return (
+        sequence_cases()
+        + config_cases()
+        + video_cases()
+        + results_cases()
+        + output_cases()
+        + nav_cases()
+        + folder_cases()
+        + bag_cases()
+    )
 
 
 # --------------------------------------------------------------------------- running a case
@@ -941,8 +1586,11 @@ def run_case(case: Case, shared: Shared) -> Outcome:
     with recording_opens() as opened:
         res = CliRunner().invoke(app, argv)
     # What a run legitimately reads outside its case folder: the shared base sequence and results.
-    outside = [p for p in opened_outside(opened, d, shared.root)
-               if not (Path(os.path.realpath(p)).is_relative_to(os.path.realpath(shared.root / "base")))]
+    outside = [
+        p
+        for p in opened_outside(opened, d, shared.root)
+        if not (Path(os.path.realpath(p)).is_relative_to(os.path.realpath(shared.root / "base")))
+    ]
     problems = check_outcome(case, res.exit_code, res.stdout, res.stderr, argv)
     if res.exception is not None and not isinstance(res.exception, SystemExit):
         problems.append(f"exception escaped: {res.exception!r}")

@@ -31,9 +31,7 @@ def paper_camera() -> Camera:
 
 
 def paper_lasers() -> tuple[LaserPointer, ...]:
-    return tuple(
-        LaserPointer(origin_m=(sx * 0.05, sy * 0.05, 0.0)) for sx in (1, -1) for sy in (1, -1)
-    )
+    return tuple(LaserPointer(origin_m=(sx * 0.05, sy * 0.05, 0.0)) for sx in (1, -1) for sy in (1, -1))
 
 
 def seabed_spectrum(
@@ -115,17 +113,13 @@ def laser_hit_pixels(
     for las in lasers:
         o = np.asarray(las.origin_m, float)
         d = las.unit_direction
-        t = (altitude_m + slope_fwd * o[0] + slope_stbd * o[1] - o[2]) / (
-            d[2] - slope_fwd * d[0] - slope_stbd * d[1]
-        )
+        t = (altitude_m + slope_fwd * o[0] + slope_stbd * o[1] - o[2]) / (d[2] - slope_fwd * d[0] - slope_stbd * d[1])
         p = o + t * d
         out.append(ground_to_pixels(camera, p[None, :2], p[2])[0])
     return np.array(out)
 
 
-def draw_laser_spots(
-    rgb: np.ndarray, spots_uv_px: np.ndarray, seed: int = 0, radius_px: float = 2.5
-) -> np.ndarray:
+def draw_laser_spots(rgb: np.ndarray, spots_uv_px: np.ndarray, seed: int = 0, radius_px: float = 2.5) -> np.ndarray:
     """Paint saturated red, speckled, anti-aliased discs at ``(L, 2)`` sub-pixel centres (copy)."""
     rng = np.random.default_rng(seed)
     out = rgb.astype(np.float64)
@@ -159,8 +153,7 @@ def seabed_frame(
     vignetting: float = 0.0,
 ) -> np.ndarray:
     """Convenience: rendered, tinted, noisy ``(272, 360, 3) uint8`` frame without lasers."""
-    return colourise(render_grey(spectrum, offset_uv_px), seed=seed, noise_sigma=noise_sigma,
-                     vignetting=vignetting)
+    return colourise(render_grey(spectrum, offset_uv_px), seed=seed, noise_sigma=noise_sigma, vignetting=vignetting)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -241,7 +234,14 @@ def _integrate(heading_rad, v_body_mps, dt_s):
 
 
 def survey_measurements(
-    seed, xy_m, heading_rad, landmarks_xy_m, noise=SurveyNoise(), dt_s=0.2, spacing_m=0.15, max_observations=8,
+    seed,
+    xy_m,
+    heading_rad,
+    landmarks_xy_m,
+    noise=SurveyNoise(),
+    dt_s=0.2,
+    spacing_m=0.15,
+    max_observations=8,
 ):
     """Noisy per-frame records of a true track over a landmark field (seeded).
 
@@ -298,13 +298,29 @@ def survey_measurements(
                 id_of[t] = len(order)
                 order.append(t)
                 mn = mn_all[t] + rng.normal(0.0, noise.pixel_sigma_px, 2)
-                obs.append(LandmarkMeasurement(id_of[t], "init", mn, observation_noise_px2(mn, noise.pixel_sigma_px, z)))
-        frames.append(FrameMeasurements(
-            index=k, t_s=k * dt_s, dt_s=dt, speed_mps=speed, speed_cov_mps2=q, speed_ok=k > 0,
-            heading_rad=psi, heading_sigma_rad=heading_filter.sigma_rad, compass_rad=float(compass[k]),
-            compass_sigma_rad=noise.compass_sigma_rad, heading_step_rad=step, heading_step_sigma_rad=step_sigma,
-            altitude_m=z, altitude_sigma_m=0.0, focal_px=f, landmarks=tuple(obs),
-        ))
+                obs.append(
+                    LandmarkMeasurement(id_of[t], "init", mn, observation_noise_px2(mn, noise.pixel_sigma_px, z))
+                )
+        frames.append(
+            FrameMeasurements(
+                index=k,
+                t_s=k * dt_s,
+                dt_s=dt,
+                speed_mps=speed,
+                speed_cov_mps2=q,
+                speed_ok=k > 0,
+                heading_rad=psi,
+                heading_sigma_rad=heading_filter.sigma_rad,
+                compass_rad=float(compass[k]),
+                compass_sigma_rad=noise.compass_sigma_rad,
+                heading_step_rad=step,
+                heading_step_sigma_rad=step_sigma,
+                altitude_m=z,
+                altitude_sigma_m=0.0,
+                focal_px=f,
+                landmarks=tuple(obs),
+            )
+        )
     return Survey(np.asarray(xy_m), np.asarray(heading_rad), landmarks_xy_m[order].reshape(-1, 2), frames)
 
 

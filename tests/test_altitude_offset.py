@@ -42,7 +42,9 @@ def test_the_pipeline_widens_b_with_the_depth():
     """Held at 1.31 m and at 2.6 m the stationary sigma of b is the offset and the rig's share in quadrature."""
     info = SequenceInfo(name="t", camera=PORTOFINO_CAMERA, lasers=PAPER_LASERS)
     cfg = RunConfig()  # no relief prior: the relief under the spots would be the larger sigma before any token
-    pipe = SlamPipeline(info, dataclasses.replace(cfg, odometry=dataclasses.replace(cfg.odometry, relief_prior_sigma=0.0)))
+    pipe = SlamPipeline(
+        info, dataclasses.replace(cfg, odometry=dataclasses.replace(cfg.odometry, relief_prior_sigma=0.0))
+    )
     assert pipe.ekf.altitude_bias_sigma_m == pytest.approx(math.hypot(0.01, 0.0076 * pipe.altimeter_fallback))
 
     class _Alt:  # what _altitude_bias_process reads of an altitude estimate (a flat seabed: no relief)

@@ -56,8 +56,13 @@ def test_processing_config_is_auto_by_default_and_validated_at_load():
     assert ProcessingConfig().scale == "auto"
     assert from_dict(RunConfig, {"processing": {"scale": 1}}).processing.scale == 1.0
     assert from_dict(RunConfig, {"processing": {"scale": "auto", "max_side_px": 640}}).processing.max_side_px == 640
-    for bad, says in [({"scale": 0.0}, "(0, 1]"), ({"scale": 1.5}, "(0, 1]"), ({"scale": "half"}, "'auto'"),
-                      ({"scale": True}, "number"), ({"max_side_px": 10}, ">= 64")]:
+    for bad, says in [
+        ({"scale": 0.0}, "(0, 1]"),
+        ({"scale": 1.5}, "(0, 1]"),
+        ({"scale": "half"}, "'auto'"),
+        ({"scale": True}, "number"),
+        ({"max_side_px": 10}, ">= 64"),
+    ]:
         with pytest.raises(ConfigError, match=re.escape(says)) as exc:
             from_dict(RunConfig, {"processing": bad}, "run.toml")
         assert "run.toml" in str(exc.value) and "[processing]" in str(exc.value)
@@ -208,8 +213,12 @@ def test_sparus_decimated_gives_the_full_rate_path():
     from rovslam.io.source import InputOptions
     from rovslam.runner import open_source
 
-    src = open_source(SPARUS / "sparus_snippet.mp4", options=InputOptions(
-        camera_file=ROOT / "examples" / "sparus-camera.toml", nav_file=SPARUS / "sparus_snippet.csv"))
+    src = open_source(
+        SPARUS / "sparus_snippet.mp4",
+        options=InputOptions(
+            camera_file=ROOT / "examples" / "sparus-camera.toml", nav_file=SPARUS / "sparus_snippet.csv"
+        ),
+    )
     frames = list(src.frames())
 
     def path(step: int) -> tuple[np.ndarray, list]:
@@ -271,9 +280,15 @@ def _groundtruth_xy(seq: Path) -> np.ndarray:
 
 def _upscaled(info: SequenceInfo, factor: int) -> SequenceInfo:
     cam = info.camera
-    big = dataclasses.replace(cam, width_px=cam.width_px * factor, height_px=cam.height_px * factor,
-                              fx_px=cam.fx_px * factor, fy_px=cam.fy_px * factor,
-                              cx_px=(cam.cx_px + 0.5) * factor - 0.5, cy_px=(cam.cy_px + 0.5) * factor - 0.5)
+    big = dataclasses.replace(
+        cam,
+        width_px=cam.width_px * factor,
+        height_px=cam.height_px * factor,
+        fx_px=cam.fx_px * factor,
+        fy_px=cam.fy_px * factor,
+        cx_px=(cam.cx_px + 0.5) * factor - 0.5,
+        cy_px=(cam.cy_px + 0.5) * factor - 0.5,
+    )
     return dataclasses.replace(info, camera=big)
 
 
@@ -290,8 +305,10 @@ def test_upscaled_frames_run_as_well_as_the_papers_and_report_full_resolution_pi
     big_info = _upscaled(seq.info, 4)
     big = SlamPipeline(big_info, RunConfig())
     assert (big.camera.width_px, big.camera.height_px) == (480, 363)
-    hd = [big.process(dataclasses.replace(f, image=cv2.resize(f.image, (1440, 1088), interpolation=cv2.INTER_CUBIC)))
-          for f in frames]
+    hd = [
+        big.process(dataclasses.replace(f, image=cv2.resize(f.image, (1440, 1088), interpolation=cv2.INTER_CUBIC)))
+        for f in frames
+    ]
     ate_ref, ate_hd = _ate_m(ref, gt), _ate_m(hd, gt)
     assert ate_hd <= 1.5 * max(ate_ref, 0.5e-3), (ate_hd, ate_ref)
     assert sum(r.speed_ok for r in hd) >= sum(r.speed_ok for r in ref) - 2
@@ -317,8 +334,12 @@ def test_hd_survey_runs_as_well_as_the_same_dive_at_the_papers_resolution(tmp_pa
 
     hd = scenarios.SCENARIOS["hd-survey"]
     f = hd.camera.fx_px * 360 / 1920  # the same 52 cm wide footprint
-    low = dataclasses.replace(hd, name="hd-survey-360", camera=Camera(360, 272, f, f, 179.5, 135.5),
-                              sensor=dataclasses.replace(hd.sensor, psf_sigma_px=hd.sensor.psf_sigma_px * 360 / 1920))
+    low = dataclasses.replace(
+        hd,
+        name="hd-survey-360",
+        camera=Camera(360, 272, f, f, 179.5, 135.5),
+        sensor=dataclasses.replace(hd.sensor, psf_sigma_px=hd.sensor.psf_sigma_px * 360 / 1920),
+    )
     monkeypatch.setitem(scenarios.SCENARIOS, "hd-survey-360", low)
     n = 500
     out = {}
@@ -328,4 +349,3 @@ def test_hd_survey_runs_as_well_as_the_same_dive_at_the_papers_resolution(tmp_pa
         pipe = SlamPipeline(seq.info, RunConfig())
         out[name] = _ate_m([pipe.process(fr) for fr in seq.frames()], _groundtruth_xy(tmp_path / name))
     assert out["hd-survey"] <= 1.5 * out["hd-survey-360"], out
-

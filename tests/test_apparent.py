@@ -74,12 +74,16 @@ def test_each_back_end_adds_what_it_does_not_hold():
     # The EKF estimates the drift (eps) and holds the altimeter's lasting error (b): the offset alone.
     assert apparent_sigmas(cfg, graph=False) == (cfg.odometry.compass_offset_sigma_rad, 0.0, 0.0)
     # The graph estimates the drift too, but holds no altimeter error: that scales its whole dive.
-    assert apparent_sigmas(cfg, graph=True) == (cfg.odometry.compass_offset_sigma_rad, cfg.slam.altitude_bias_sigma_m,
-                                                cfg.slam.altitude_scale_sigma)
+    assert apparent_sigmas(cfg, graph=True) == (
+        cfg.odometry.compass_offset_sigma_rad,
+        cfg.slam.altitude_bias_sigma_m,
+        cfg.slam.altitude_scale_sigma,
+    )
     # no lasting altitude error configured (no b in the EKF): the graph adds no scale either, the rig's share included
     no_b = dataclasses.replace(cfg, slam=dataclasses.replace(cfg.slam, altitude_bias_sigma_m=0.0))
     assert apparent_sigmas(no_b, graph=True) == (cfg.odometry.compass_offset_sigma_rad, 0.0, 0.0)
     no_drift = dataclasses.replace(cfg, slam=dataclasses.replace(cfg.slam, heading_bias_sigma_rad=0.0))
     assert apparent_sigmas(no_drift, graph=False)[0] == pytest.approx(
-        math.hypot(cfg.odometry.compass_offset_sigma_rad, cfg.odometry.compass_drift_sigma_rad))
+        math.hypot(cfg.odometry.compass_offset_sigma_rad, cfg.odometry.compass_drift_sigma_rad)
+    )
     assert apparent_sigmas(no_drift, graph=True)[0] == cfg.odometry.compass_offset_sigma_rad  # the graph's own model

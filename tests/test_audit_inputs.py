@@ -32,7 +32,9 @@ def _one_error_line(res, *needles: str) -> str:
 def dive(tmp_path_factory):
     """A 60-frame simulated dive and its run (6 landmarks): (sequence folder, results folder)."""
     root = tmp_path_factory.mktemp("audit")
-    res = runner.invoke(app, ["simulate", "--scenario", "portofino-short", "--frames", "60", "--out", str(root / "seq"), "-q"])
+    res = runner.invoke(
+        app, ["simulate", "--scenario", "portofino-short", "--frames", "60", "--out", str(root / "seq"), "-q"]
+    )
     assert res.exit_code == 0, res.output
     res = runner.invoke(app, ["run", str(root / "seq"), "--out", str(root / "out"), "-q"])
     assert res.exit_code == 0, res.output
@@ -162,8 +164,16 @@ def _add_columns(seq: Path, names: str, value: str) -> None:
     p.write_text("\n".join([lines[0] + "," + names] + [x + "," + value for x in lines[1:]]) + "\n")
 
 
-@pytest.mark.parametrize("names,value", [("roll_deg,pitch_deg", "5,0"), ("rol_rad,pich_rad", "0.2,0.2"), ("roll_rad,pich_rad", "0.2,0.2"),
-                                         ("heading_deg", "12"), ("sonar_alt_m", "1.3")])
+@pytest.mark.parametrize(
+    "names,value",
+    [
+        ("roll_deg,pitch_deg", "5,0"),
+        ("rol_rad,pich_rad", "0.2,0.2"),
+        ("roll_rad,pich_rad", "0.2,0.2"),
+        ("heading_deg", "12"),
+        ("sonar_alt_m", "1.3"),
+    ],
+)
 def test_unknown_frames_columns_are_refused_with_the_known_ones_listed(tmp_path, names, value):
     import shutil
 
@@ -173,8 +183,9 @@ def test_unknown_frames_columns_are_refused_with_the_known_ones_listed(tmp_path,
     _add_columns(seq, names, value)
     res = runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"])
     unknown = [n for n in names.split(",") if n not in ("roll_rad", "pitch_rad")]
-    _one_error_line(res, str(seq / "frames.csv"), *(f"'{n}'" for n in unknown), "optional roll_rad,pitch_rad",
-                    "rename or remove")
+    _one_error_line(
+        res, str(seq / "frames.csv"), *(f"'{n}'" for n in unknown), "optional roll_rad,pitch_rad", "rename or remove"
+    )
     assert not (tmp_path / "o").exists()
     shutil.rmtree(seq)
 
@@ -218,8 +229,13 @@ def test_a_cut_trajectory_of_a_complete_run_is_refused(dive, tmp_path):
     r = _copy_run(dive[1], tmp_path / "r")
     (r / "trajectory.csv").write_bytes((dive[1] / "trajectory.csv").read_bytes()[:3000])
     res = runner.invoke(app, ["eval", str(r), "-g", str(dive[0] / "groundtruth.csv")])
-    _one_error_line(res, str(r / "trajectory.csv"), "rows, but summary.json says the run (complete) processed 60 frames",
-                    "cut short", "--overwrite")
+    _one_error_line(
+        res,
+        str(r / "trajectory.csv"),
+        "rows, but summary.json says the run (complete) processed 60 frames",
+        "cut short",
+        "--overwrite",
+    )
 
 
 def test_a_missing_landmarks_file_is_refused_when_the_run_mapped_some(dive, tmp_path):
@@ -227,8 +243,12 @@ def test_a_missing_landmarks_file_is_refused_when_the_run_mapped_some(dive, tmp_
     (r / "landmarks.csv").unlink()
     for args in (["eval", str(r), "-g", str(dive[0] / "groundtruth.csv")], ["report", str(r), "-q"]):
         res = runner.invoke(app, args)
-        _one_error_line(res, str(r / "landmarks.csv"), "missing, but summary.json says the run mapped 6 landmarks",
-                        "copy the file back")
+        _one_error_line(
+            res,
+            str(r / "landmarks.csv"),
+            "missing, but summary.json says the run mapped 6 landmarks",
+            "copy the file back",
+        )
 
 
 def test_eval_of_an_interrupted_run_says_it_was_partial(dive, tmp_path):
@@ -240,8 +260,10 @@ def test_eval_of_an_interrupted_run_says_it_was_partial(dive, tmp_path):
     (r / "summary.json").write_text(json.dumps(summary))
     res = runner.invoke(app, ["eval", str(r), "-g", str(dive[0] / "groundtruth.csv")])
     assert res.exit_code == 0, res.output
-    assert ("note: the run was interrupted by SIGINT after 30 of 60 frames: these figures cover those 30 frames only"
-            in " ".join(res.output.split()))  # rich wraps the line at the terminal's width
+    assert (
+        "note: the run was interrupted by SIGINT after 30 of 60 frames: these figures cover those 30 frames only"
+        in " ".join(res.output.split())
+    )  # rich wraps the line at the terminal's width
     figures = json.loads((r / "eval.json").read_text())
     assert figures["frames"] == 30 and "interrupted by SIGINT after 30 of 60 frames" in figures["partial_run"]
 
@@ -252,8 +274,21 @@ def test_eval_of_an_interrupted_run_says_it_was_partial(dive, tmp_path):
 @pytest.fixture(scope="module")
 def other_dive(tmp_path_factory):
     root = tmp_path_factory.mktemp("other")
-    res = runner.invoke(app, ["simulate", "--scenario", "rough-turns-short", "--frames", "60", "--seed", "1",
-                              "--out", str(root / "seq"), "-q"])
+    res = runner.invoke(
+        app,
+        [
+            "simulate",
+            "--scenario",
+            "rough-turns-short",
+            "--frames",
+            "60",
+            "--seed",
+            "1",
+            "--out",
+            str(root / "seq"),
+            "-q",
+        ],
+    )
     assert res.exit_code == 0, res.output
     return root / "seq"
 
@@ -271,18 +306,34 @@ def _fewer_frames(seq: Path, dest: Path, n: int) -> Path:
 def test_another_dives_sequence_is_refused_naming_both(dive, other_dive, tmp_path, command):
     seq, out = dive
     option = "--sequence" if command == "eval" else "--seq"
-    args = {"mosaic": ["mosaic", str(out), "--seq", str(other_dive), "--out", str(tmp_path / "m.png"), "-q"],
-            "report": ["report", str(out), "--seq", str(other_dive), "-q"],
-            "eval": ["eval", str(out), "-g", str(seq / "groundtruth.csv"), "-s", str(other_dive),
-                     "--json", str(tmp_path / "e.json")]}[command]
-    _one_error_line(runner.invoke(app, args), f"{option} {other_dive}: not the sequence of the run in {out}",
-                    "named 'rovslam simulate rough-turns-short (seed 1)'",
-                    "the run's sequence 'rovslam simulate portofino-short (seed 0)'", f"summary.json names {seq}",
-                    "give that run's own sequence folder")
+    args = {
+        "mosaic": ["mosaic", str(out), "--seq", str(other_dive), "--out", str(tmp_path / "m.png"), "-q"],
+        "report": ["report", str(out), "--seq", str(other_dive), "-q"],
+        "eval": [
+            "eval",
+            str(out),
+            "-g",
+            str(seq / "groundtruth.csv"),
+            "-s",
+            str(other_dive),
+            "--json",
+            str(tmp_path / "e.json"),
+        ],
+    }[command]
+    _one_error_line(
+        runner.invoke(app, args),
+        f"{option} {other_dive}: not the sequence of the run in {out}",
+        "named 'rovslam simulate rough-turns-short (seed 1)'",
+        "the run's sequence 'rovslam simulate portofino-short (seed 0)'",
+        f"summary.json names {seq}",
+        "give that run's own sequence folder",
+    )
     assert not (tmp_path / "m.png").exists() and not (tmp_path / "e.json").exists()
     short = _fewer_frames(seq, tmp_path / "short", 40)  # the same dive's name, 40 of its 60 frames
-    line = _one_error_line(runner.invoke(app, [a if a != str(other_dive) else str(short) for a in args]),
-                           "it has 40 frames, the run's sequence 60")
+    line = _one_error_line(
+        runner.invoke(app, [a if a != str(other_dive) else str(short) for a in args]),
+        "it has 40 frames, the run's sequence 60",
+    )
     assert "named" not in line
 
 
@@ -307,14 +358,18 @@ def test_a_ground_truth_in_other_coordinates_is_shifted_to_the_runs_origin_with_
     with open(moved, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]), lineterminator="\n")
         w.writeheader()
-        w.writerows({**r, "x_m": repr(float(r["x_m"]) + 4_900_000.0), "y_m": repr(float(r["y_m"]) + 500_000.5)} for r in rows)
+        w.writerows(
+            {**r, "x_m": repr(float(r["x_m"]) + 4_900_000.0), "y_m": repr(float(r["y_m"]) + 500_000.5)} for r in rows
+        )
     res = runner.invoke(app, ["eval", str(out), "-g", str(seq / "groundtruth.csv"), "--json", str(tmp_path / "a.json")])
     assert res.exit_code == 0, res.output
     assert "shifted" not in res.output
     res = runner.invoke(app, ["eval", str(out), "-g", str(moved), "--json", str(tmp_path / "b.json")])
     assert res.exit_code == 0, res.output
-    assert ("note: the ground truth's first row is at x = 4900000.000 m, y = 500000.500 m, not at the origin where the "
-            "run starts: it was shifted by (-4900000.000, -500000.500) m to start there") in " ".join(res.output.split())
+    assert (
+        "note: the ground truth's first row is at x = 4900000.000 m, y = 500000.500 m, not at the origin where the "
+        "run starts: it was shifted by (-4900000.000, -500000.500) m to start there"
+    ) in " ".join(res.output.split())
     a, b = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
     assert b["groundtruth_shift_m"] == [-4_900_000.0, -500_000.5] and a["groundtruth_shift_m"] == [0.0, 0.0]
     assert a["slam"]["ate_rmse_m"] < 0.01
@@ -376,8 +431,11 @@ def _run_folder(folder, cam, out, *extra):
 def test_d9a_a_times_file_with_only_a_header_is_named(image_folder, tmp_path):
     times = tmp_path / "t.csv"
     times.write_text("image,t_s\n")
-    _one_error_line(_run_folder(*image_folder, tmp_path / "o", "--times", str(times)),
-                    f"{times}: lists no images (only a header)", "add one row image,t_s per image")
+    _one_error_line(
+        _run_folder(*image_folder, tmp_path / "o", "--times", str(times)),
+        f"{times}: lists no images (only a header)",
+        "add one row image,t_s per image",
+    )
 
 
 @pytest.mark.parametrize("fps", ["0", "-5"])
@@ -388,15 +446,19 @@ def test_d9i_fps_must_be_above_zero(image_folder, tmp_path, fps):
 def test_d9j_fps_and_times_together_are_told_apart_from_neither(image_folder, tmp_path):
     times = tmp_path / "t.csv"
     times.write_text("image,t_s\nframe1.png,0\n")
-    _one_error_line(_run_folder(*image_folder, tmp_path / "o", "--fps", "5", "--times", str(times)),
-                    "give --fps or --times, one of the two, not both")
+    _one_error_line(
+        _run_folder(*image_folder, tmp_path / "o", "--fps", "5", "--times", str(times)),
+        "give --fps or --times, one of the two, not both",
+    )
     line = _one_error_line(_run_folder(*image_folder, tmp_path / "o"), "--fps F or --times FILE")
     assert "not both" not in line
 
 
 def test_d9b_the_coarser_scale_suggested_is_one_the_mosaic_accepts(dive, tmp_path):
-    line = _one_error_line(runner.invoke(app, ["mosaic", str(dive[1]), "--mm-per-px", "0.0001",
-                                               "--out", str(tmp_path / "m.png"), "-q"]), "give a coarser --mm-per-px")
+    line = _one_error_line(
+        runner.invoke(app, ["mosaic", str(dive[1]), "--mm-per-px", "0.0001", "--out", str(tmp_path / "m.png"), "-q"]),
+        "give a coarser --mm-per-px",
+    )
     suggested = float(line.rsplit("(e.g. ", 1)[1].rstrip(")"))  # was "0.0", itself refused
     side_px = max(int(v) for v in line.split("would be ", 1)[1].split(" px", 1)[0].split("x"))
     assert 0.0001 * side_px / 40_000 < suggested < 0.0001 * side_px / 30_000  # fits, and not much coarser
@@ -408,11 +470,14 @@ def test_d9c_a_file_where_the_report_folder_goes_is_named(dive, tmp_path):
     _one_error_line(runner.invoke(app, ["report", str(r), "-q"]), f"{r / 'report'}: is a file", "move or delete it")
 
 
-@pytest.mark.parametrize("header,needle", [
-    ("t_s;image;heading_rad;sonar_altitude_m", "separated by ';': use commas"),
-    ("t_s\timage\theading_rad\tsonar_altitude_m", "separated by tabs: use commas"),
-    ("T_S,IMAGE,HEADING_RAD,SONAR_ALTITUDE_M", "Column names are lower case"),
-])
+@pytest.mark.parametrize(
+    "header,needle",
+    [
+        ("t_s;image;heading_rad;sonar_altitude_m", "separated by ';': use commas"),
+        ("t_s\timage\theading_rad\tsonar_altitude_m", "separated by tabs: use commas"),
+        ("T_S,IMAGE,HEADING_RAD,SONAR_ALTITUDE_M", "Column names are lower case"),
+    ],
+)
 def test_d9d_a_header_of_another_dialect_is_quoted_with_a_hint(tmp_path, header, needle):
     import fuzz_corpus as fc
 
@@ -420,16 +485,22 @@ def test_d9d_a_header_of_another_dialect_is_quoted_with_a_hint(tmp_path, header,
     lines = (seq / "frames.csv").read_text().splitlines()
     sep = ";" if ";" in header else "\t" if "\t" in header else ","
     (seq / "frames.csv").write_text("\n".join([header] + [x.replace(",", sep) for x in lines[1:]]) + "\n")
-    _one_error_line(runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]),
-                    f"{seq / 'frames.csv'}: header is missing column(s)", "it reads 'T_S" if "T_S" in header else "it reads 't_s",
-                    needle)
+    _one_error_line(
+        runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]),
+        f"{seq / 'frames.csv'}: header is missing column(s)",
+        "it reads 'T_S" if "T_S" in header else "it reads 't_s",
+        needle,
+    )
 
 
 def test_d9e_a_ground_truth_that_does_not_cover_the_run_is_named(dive, tmp_path):
     gt = tmp_path / "gt.csv"
     gt.write_text("\n".join((dive[0] / "groundtruth.csv").read_text().splitlines()[:30]) + "\n")
-    _one_error_line(runner.invoke(app, ["eval", str(dive[1]), "-g", str(gt), "--json", str(tmp_path / "e.json")]),
-                    f"{gt}: ground truth has no row at t_s=", "give the groundtruth.csv of the sequence that was run")
+    _one_error_line(
+        runner.invoke(app, ["eval", str(dive[1]), "-g", str(gt), "--json", str(tmp_path / "e.json")]),
+        f"{gt}: ground truth has no row at t_s=",
+        "give the groundtruth.csv of the sequence that was run",
+    )
 
 
 def test_d9f_an_image_cell_naming_a_folder_says_so(tmp_path):
@@ -437,17 +508,25 @@ def test_d9f_an_image_cell_naming_a_folder_says_so(tmp_path):
 
     seq = fc.write_sequence(tmp_path / "seq")
     fc.set_cell(seq / "frames.csv", 3, "image", "images")
-    _one_error_line(runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]),
-                    "line 4: image file 'images' is a folder, not an image file")
+    _one_error_line(
+        runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]),
+        "line 4: image file 'images' is a folder, not an image file",
+    )
 
 
 def test_d9g_smooth_tells_a_sequence_folder_and_a_cut_file_from_an_old_run(dive, tmp_path):
-    _one_error_line(runner.invoke(app, ["smooth", str(dive[0]), "-q"]),
-                    f"{dive[0]}: not the --out folder of a `rovslam run` (no trajectory.csv, no summary.json)")
+    _one_error_line(
+        runner.invoke(app, ["smooth", str(dive[0]), "-q"]),
+        f"{dive[0]}: not the --out folder of a `rovslam run` (no trajectory.csv, no summary.json)",
+    )
     r = _copy_run(dive[1], tmp_path / "r")
     (r / "measurements.csv").write_bytes(b"")
-    _one_error_line(runner.invoke(app, ["smooth", str(r), "-q"]), f"{r / 'measurements.csv'}: empty file",
-                    "cut short", "--overwrite")
+    _one_error_line(
+        runner.invoke(app, ["smooth", str(r), "-q"]),
+        f"{r / 'measurements.csv'}: empty file",
+        "cut short",
+        "--overwrite",
+    )
     (r / "measurements.csv").unlink()  # a run folder without the file: made by an older rovslam
     _one_error_line(runner.invoke(app, ["smooth", str(r), "-q"]), "does not write measurements")
 
@@ -455,13 +534,18 @@ def test_d9g_smooth_tells_a_sequence_folder_and_a_cut_file_from_an_old_run(dive,
 def test_d9h_a_missing_summary_is_not_called_a_summary_naming_no_sequence(dive, tmp_path):
     r = _copy_run(dive[1], tmp_path / "r")
     (r / "summary.json").unlink()
-    _one_error_line(runner.invoke(app, ["mosaic", str(r), "-q"]),
-                    f"{r / 'summary.json'} is missing (or empty), so the run's sequence is unknown", "--seq")
+    _one_error_line(
+        runner.invoke(app, ["mosaic", str(r), "-q"]),
+        f"{r / 'summary.json'} is missing (or empty), so the run's sequence is unknown",
+        "--seq",
+    )
 
 
 def test_d9k_a_folder_given_as_configuration_is_called_a_folder(dive, tmp_path):
-    _one_error_line(runner.invoke(app, ["run", str(dive[0]), "-c", str(tmp_path), "--out", str(tmp_path / "o"), "-q"]),
-                    f"{tmp_path}: is a folder; -c needs a TOML file")
+    _one_error_line(
+        runner.invoke(app, ["run", str(dive[0]), "-c", str(tmp_path), "--out", str(tmp_path / "o"), "-q"]),
+        f"{tmp_path}: is a folder; -c needs a TOML file",
+    )
 
 
 # --------------------------------------------------------------------------- D10: a gap in the frame times
@@ -498,7 +582,7 @@ def test_a_laser_whose_spot_is_never_in_the_image_is_named(dive, tmp_path):
     toml = (moved / "sequence.toml").read_text()
     first = toml.index("origin_m = [")
     start = toml.index("0.05", first)
-    (moved / "sequence.toml").write_text(toml[:start] + "5.0" + toml[start + 4:])  # 5 m forward: millimetres meant?
+    (moved / "sequence.toml").write_text(toml[:start] + "5.0" + toml[start + 4 :])  # 5 m forward: millimetres meant?
     res = runner.invoke(app, ["run", str(moved), "--out", str(tmp_path / "out"), "-q"])
     assert res.exit_code == 0, res.output
     text = " ".join(res.output.split())
@@ -549,12 +633,18 @@ def test_a_frame_rate_or_time_no_clock_gives_is_named_not_an_overflow(image_fold
     _one_error_line(_run_folder(folder, cam, tmp_path / "a", "--fps", "1e-300"), "--fps 1e-300", "frames per second")
     names = sorted(p.name for p in folder.iterdir())
     times = tmp_path / "times.csv"
-    times.write_text("image,t_s\n" + "".join(f"{n},{0 if k == 0 else 1e308 * k / len(names)}\n" for k, n in enumerate(names)))
-    _one_error_line(_run_folder(folder, cam, tmp_path / "b", "--times", str(times)), str(times), "line 3", "no clock's time")
+    times.write_text(
+        "image,t_s\n" + "".join(f"{n},{0 if k == 0 else 1e308 * k / len(names)}\n" for k, n in enumerate(names))
+    )
+    _one_error_line(
+        _run_folder(folder, cam, tmp_path / "b", "--times", str(times)), str(times), "line 3", "no clock's time"
+    )
 
 
 def test_simulate_refuses_more_frames_than_a_dive_holds(tmp_path):
-    res = runner.invoke(app, ["simulate", "--scenario", "portofino-short", "--frames", "10000000000", "--out", str(tmp_path / "s")])
+    res = runner.invoke(
+        app, ["simulate", "--scenario", "portofino-short", "--frames", "10000000000", "--out", str(tmp_path / "s")]
+    )
     _one_error_line(res, "at most 1,000,000")
     assert not (tmp_path / "s").exists()
 
@@ -587,7 +677,9 @@ def test_a_landmark_id_given_many_times_is_one_figure():
     assert _landmark_ids(",".join(["3", "0"] * 1000)) == [3, 0]
 
 
-@pytest.mark.parametrize("path,needle", [("/dev/null", "is not a regular file"), ("no-such.toml", "configuration file not found")])
+@pytest.mark.parametrize(
+    "path,needle", [("/dev/null", "is not a regular file"), ("no-such.toml", "configuration file not found")]
+)
 def test_a_config_that_is_a_device_is_not_called_missing(dive, tmp_path, path, needle):
     seq, _ = dive
     res = runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "out"), "--config", path, "-q"])
@@ -610,5 +702,7 @@ def test_a_laser_direction_of_extreme_numbers_is_the_same_ray_without_warnings(z
         assert las.unit_direction.tolist() == [0.0, 0.0, 1.0]
         tilted = LaserPointer((0.05, 0.05, 0.0), (0.1 * z, 0.0, z)).unit_direction
     # 0.1 z is a subnormal number for z = 1e-320: three digits, no more
-    assert np.allclose(tilted, np.array([0.1, 0.0, 1.0]) / np.linalg.norm([0.1, 0.0, 1.0]), rtol=1e-15 if z > 1 else 1e-2)
+    assert np.allclose(
+        tilted, np.array([0.1, 0.0, 1.0]) / np.linalg.norm([0.1, 0.0, 1.0]), rtol=1e-15 if z > 1 else 1e-2
+    )
     assert LaserPointer((0.0, 0.0, 0.0), (0.0, 0.0, 2.0)).unit_direction.tolist() == [0.0, 0.0, 1.0]

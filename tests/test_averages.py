@@ -46,9 +46,13 @@ def test_weights_count_as_given():
 
 # ---------------------------------------------------------------- median0: np.median(axis=0), bit for bit
 @settings(max_examples=300, deadline=None)
-@given(hnp.arrays(st.sampled_from([np.float64, np.float32]),
-                  st.one_of(st.tuples(st.integers(1, 40)), st.tuples(st.integers(1, 40), st.integers(1, 3))),
-                  elements=st.floats(-1e6, 1e6, width=32)))
+@given(
+    hnp.arrays(
+        st.sampled_from([np.float64, np.float32]),
+        st.one_of(st.tuples(st.integers(1, 40)), st.tuples(st.integers(1, 40), st.integers(1, 3))),
+        elements=st.floats(-1e6, 1e6, width=32),
+    )
+)
 def test_median0_is_numpys_median_bit_for_bit(values):
     expected = np.median(values, axis=0)
     got = median0(values)

@@ -45,8 +45,14 @@ def test_smoothing_an_ekf_run_from_its_files_is_accurate_and_consistent(dive):
     assert summary.frames == FRAMES
     ev = evaluate_run(dive / "ekf", dive / "seq" / "groundtruth.csv")
     assert ev.smoothed is not None and ev.smoothed_consistency is not None
-    print("online", ev.slam.ate_rmse_m, ev.consistency.coverage_2sigma,
-          "smoothed", ev.smoothed.ate_rmse_m, ev.smoothed_consistency.coverage_2sigma)
+    print(
+        "online",
+        ev.slam.ate_rmse_m,
+        ev.consistency.coverage_2sigma,
+        "smoothed",
+        ev.smoothed.ate_rmse_m,
+        ev.smoothed_consistency.coverage_2sigma,
+    )
     # Measured (this fixture's dive, portofino-short seed 4, 150 frames; smooth_run then evaluate_run):
     # smoothed ATE RMSE 0.0643 cm against the online filter's 0.0769 cm (ratio 0.84), both 100 % inside
     # 2-sigma. Bounds: 2.5 times the measured ATE, above a third of it (about 0 would mean the
@@ -86,7 +92,11 @@ def test_a_smoothed_dive_with_a_lasting_altimeter_error_stays_inside_its_bounds(
 
     simulate("turbid-relief", tmp_path / "seq", frames=400, seed=0)
     cfg = RunConfig()
-    run_sequence(tmp_path / "seq", tmp_path / "run", dataclasses.replace(cfg, laser=dataclasses.replace(cfg.laser, spot_skirt_px=0.0)))
+    run_sequence(
+        tmp_path / "seq",
+        tmp_path / "run",
+        dataclasses.replace(cfg, laser=dataclasses.replace(cfg.laser, spot_skirt_px=0.0)),
+    )
     smooth_run(tmp_path / "run")
     ev = evaluate_run(tmp_path / "run", tmp_path / "seq" / "groundtruth.csv")
     assert ev.smoothed_consistency.coverage_2sigma >= 0.95

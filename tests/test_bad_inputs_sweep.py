@@ -79,7 +79,9 @@ def test_summary_nested_thousands_deep_is_one_line(base, tmp_path):
     refused(["eval", str(res), "-g", str(seq / "groundtruth.csv")], "summary.json: JSON nested too deep")
 
 
-@pytest.mark.parametrize("key, value", [("software", "x"), ("sources", [1, 2]), ("sequence", 5), ("camera_file", {"a": 1})])
+@pytest.mark.parametrize(
+    "key, value", [("software", "x"), ("sources", [1, 2]), ("sequence", 5), ("camera_file", {"a": 1})]
+)
 def test_summary_key_of_the_wrong_type_is_named(base, tmp_path, key, value):
     """A summary.json whose 'software' was a string crashed the report (AttributeError, exit 1)."""
     _, results = base
@@ -111,10 +113,13 @@ def test_tokens_csv_that_is_not_utf8_is_named(base, tmp_path):
         read_tokens(res)
 
 
-@pytest.mark.parametrize("damage, needle", [
-    (lambda p: p.write_bytes(bytes(range(256)) * 4), "measurements.csv, line 2: not UTF-8"),
-    (lambda p: p.write_text(p.read_text() + "1," + "9" * 200_000 + "\n"), "not a readable CSV line"),
-])
+@pytest.mark.parametrize(
+    "damage, needle",
+    [
+        (lambda p: p.write_bytes(bytes(range(256)) * 4), "measurements.csv, line 2: not UTF-8"),
+        (lambda p: p.write_text(p.read_text() + "1," + "9" * 200_000 + "\n"), "not a readable CSV line"),
+    ],
+)
 def test_damaged_measurement_file_stops_smooth_with_one_line(base, tmp_path, damage, needle):
     """smooth read measurements.csv with read_text(): binary bytes were a UnicodeDecodeError (exit 1)."""
     res = _copy(base[1], tmp_path / "res")
@@ -141,7 +146,10 @@ def test_mosaic_of_a_sequence_whose_images_are_gone_is_refused(base, tmp_path):
     for p in (moved / "images").iterdir():
         p.unlink()
     out = tmp_path / "m.png"
-    refused(["mosaic", str(results), "--seq", str(moved), "--out", str(out), "-q"], "none of the 8 frames to lay could be read")
+    refused(
+        ["mosaic", str(results), "--seq", str(moved), "--out", str(out), "-q"],
+        "none of the 8 frames to lay could be read",
+    )
     assert not out.exists()
 
 
@@ -154,8 +162,11 @@ def test_csv_without_its_header_line_says_so(tmp_path):
 
     p = tmp_path / "gt.csv"
     p.write_text("0.0,0,0,1.3,0\n0.2,0,0.01,1.3,0\n0.4,0,0.02,1.3,0\n")
-    with pytest.raises(SequenceFormatError, match=r"gt\.csv, line 1: holds values .* not the header; add the header "
-                                                  r"line t_s,x_m,y_m,altitude_m,heading_rad"):
+    with pytest.raises(
+        SequenceFormatError,
+        match=r"gt\.csv, line 1: holds values .* not the header; add the header "
+        r"line t_s,x_m,y_m,altitude_m,heading_rad",
+    ):
         read_groundtruth(p)
 
 
@@ -188,8 +199,12 @@ def test_an_image_folder_holding_a_named_pipe_runs(tmp_path):
     os.mkfifo(folder / "frame9.png")
     (tmp_path / "cam.toml").write_text(fc.CAMERA_FILE)
     out = tmp_path / "out"
-    res = _done_within(lambda: CliRunner().invoke(app, ["run", str(folder), "--camera", str(tmp_path / "cam.toml"),
-                                                        "--fps", "5", "--out", str(out), "-q"]), 60.0)
+    res = _done_within(
+        lambda: CliRunner().invoke(
+            app, ["run", str(folder), "--camera", str(tmp_path / "cam.toml"), "--fps", "5", "--out", str(out), "-q"]
+        ),
+        60.0,
+    )
     assert res is None
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "complete" and summary["frames_usable"] == 8
@@ -210,18 +225,24 @@ def test_a_template_larger_than_the_image_names_the_configuration_key(base, tmp_
             SpeedTemplateConfig(size_px=size_px)
         return
     cfg = RunConfig(speed_templates=SpeedTemplateConfig(size_px=size_px))
-    with pytest.raises(ConfigError, match=rf"\[speed_templates\] size_px = {size_px} of the configuration: .*128x96 px"):
+    with pytest.raises(
+        ConfigError, match=rf"\[speed_templates\] size_px = {size_px} of the configuration: .*128x96 px"
+    ):
         run_sequence(base[0], tmp_path / "out", cfg)
     assert not (tmp_path / "out").exists()  # refused before anything was written
 
 
 def test_a_template_larger_than_the_image_from_a_config_file(base, tmp_path):
     (tmp_path / "c.toml").write_text("[speed_templates]\nsize_px = 200\n")
-    refused(["run", str(base[0]), "-c", str(tmp_path / "c.toml"), "--out", str(tmp_path / "out"), "-q"],
-            "[speed_templates] size_px = 200 of the configuration")
+    refused(
+        ["run", str(base[0]), "-c", str(tmp_path / "c.toml"), "--out", str(tmp_path / "out"), "-q"],
+        "[speed_templates] size_px = 200 of the configuration",
+    )
     (tmp_path / "c.toml").write_text("[speed_templates]\nsize_px = 99999999999999999999\n")
-    refused(["run", str(base[0]), "-c", str(tmp_path / "c.toml"), "--out", str(tmp_path / "out"), "-q"],
-            "[speed_templates] size_px = 99999999999999999999: out of range")
+    refused(
+        ["run", str(base[0]), "-c", str(tmp_path / "c.toml"), "--out", str(tmp_path / "out"), "-q"],
+        "[speed_templates] size_px = 99999999999999999999: out of range",
+    )
 
 
 # ------------------------------------------------------------------ bags
@@ -239,8 +260,19 @@ def test_a_heading_topic_without_a_usable_value_names_the_topic(tmp_path, value)
             bag.write("/cam/image", "sensor_msgs/msg/Image", bag.image(ns, img), ns)
             bag.write("/nav/hdg", "std_msgs/msg/Float64", bag.float64(value), ns)
     (tmp_path / "cam.toml").write_text(fc.CAMERA_FILE)
-    argv = ["run", str(bag_path), "--camera", str(tmp_path / "cam.toml"), "--image-topic", "/cam/image",
-            "--heading-topic", "/nav/hdg", "--out", str(tmp_path / "out"), "-q"]
+    argv = [
+        "run",
+        str(bag_path),
+        "--camera",
+        str(tmp_path / "cam.toml"),
+        "--image-topic",
+        "/cam/image",
+        "--heading-topic",
+        "/nav/hdg",
+        "--out",
+        str(tmp_path / "out"),
+        "-q",
+    ]
     line = refused(argv, "dive.bag: topic /nav/hdg (std_msgs/msg/Float64) holds no usable heading")
     assert "leave the option out" in line
 
@@ -260,8 +292,11 @@ def test_an_image_folder_that_cannot_be_searched_is_named_as_an_input(base, tmp_
         return real_is_file(self)
 
     monkeypatch.setattr(Path, "is_file", is_file)
-    with pytest.raises(SequenceFormatError, match=r"frames\.csv, line 2: image file 'images/000000\.png' cannot be "
-                                                  r"reached \(Permission denied\); give read access"):
+    with pytest.raises(
+        SequenceFormatError,
+        match=r"frames\.csv, line 2: image file 'images/000000\.png' cannot be "
+        r"reached \(Permission denied\); give read access",
+    ):
         open_sequence(seq)
     line = refused(["run", str(seq), "--out", str(tmp_path / "out"), "-q"], "cannot be reached (Permission denied)")
     assert "write to" not in line
@@ -269,8 +304,10 @@ def test_an_image_folder_that_cannot_be_searched_is_named_as_an_input(base, tmp_
 
 def test_save_rrd_that_is_a_folder_is_refused(base, tmp_path):
     """--save-rrd FOLDER reached rerun: 'internal error (RuntimeError: Failed to create file: Is a directory)'."""
-    refused(["run", str(base[0]), "--out", str(tmp_path / "out"), "-q", "--save-rrd", str(tmp_path)],
-            "is a folder; --save-rrd needs a file name")
+    refused(
+        ["run", str(base[0]), "--out", str(tmp_path / "out"), "-q", "--save-rrd", str(tmp_path)],
+        "is a folder; --save-rrd needs a file name",
+    )
     assert not (tmp_path / "out").exists()
 
 
@@ -322,7 +359,9 @@ def test_ground_truth_beyond_the_earth_is_refused(base, tmp_path, column):
     gt = tmp_path / "gt.csv"
     shutil.copy(base[0] / "groundtruth.csv", gt)
     fc.set_cell(gt, 3, column, "1e300")
-    with pytest.raises(SequenceFormatError, match=rf"gt\.csv, line 4: column '{column}' is 1e\+300 m, beyond any place"):
+    with pytest.raises(
+        SequenceFormatError, match=rf"gt\.csv, line 4: column '{column}' is 1e\+300 m, beyond any place"
+    ):
         read_groundtruth(gt)
     refused(["eval", str(_copy(base[1], tmp_path / "res")), "-g", str(gt)], "beyond any place on Earth")
     fc.set_cell(gt, 3, column, "5500000.0")  # a UTM northing is a place

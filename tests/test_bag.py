@@ -43,10 +43,18 @@ def bags(tmp_path_factory):
     paths = {}
     for flavour, name in (("ros1", "all.bag"), ("mcap", "all_mcap")):
         with BagWriter(d / name, flavour) as bag:
-            bag.write("/info", "sensor_msgs/msg/CameraInfo",
-                      bag.camera_info(T0_NS, W, H, [210.0, 0, 30.0, 0, 205.0, 22.0, 0, 0, 1], [0.01, -0.002, 0, 0, 0]), T0_NS)
-            bag.write("/info_wrong", "sensor_msgs/msg/CameraInfo",
-                      bag.camera_info(T0_NS, 2 * W, H, [210.0, 0, 30.0, 0, 205.0, 22.0, 0, 0, 1], []), T0_NS)
+            bag.write(
+                "/info",
+                "sensor_msgs/msg/CameraInfo",
+                bag.camera_info(T0_NS, W, H, [210.0, 0, 30.0, 0, 205.0, 22.0, 0, 0, 1], [0.01, -0.002, 0, 0, 0]),
+                T0_NS,
+            )
+            bag.write(
+                "/info_wrong",
+                "sensor_msgs/msg/CameraInfo",
+                bag.camera_info(T0_NS, 2 * W, H, [210.0, 0, 30.0, 0, 205.0, 22.0, 0, 0, 1], []),
+                T0_NS,
+            )
             for k, img in enumerate(frames):
                 ns = T0_NS + k * 200_000_000
                 for enc in ENCODINGS:
@@ -56,7 +64,9 @@ def bags(tmp_path_factory):
                 h = HEADINGS[k]
                 bag.write("/h/imu_enu", "sensor_msgs/msg/Imu", bag.imu(ns, orientation_xyzw(h, 0.02, -0.03, "enu")), ns)
                 bag.write("/h/imu_ned", "sensor_msgs/msg/Imu", bag.imu(ns, orientation_xyzw(h, 0.02, -0.03, "ned")), ns)
-                bag.write("/h/odom", "nav_msgs/msg/Odometry", bag.odometry(ns, orientation_xyzw(h, 0.0, 0.0, "enu")), ns)
+                bag.write(
+                    "/h/odom", "nav_msgs/msg/Odometry", bag.odometry(ns, orientation_xyzw(h, 0.0, 0.0, "enu")), ns
+                )
                 bag.write("/h/deg", "std_msgs/msg/Float64", bag.float64(math.degrees(h)), ns)
                 bag.write("/h/none", "sensor_msgs/msg/Imu", bag.imu(ns, (0.0, 0.0, 0.0, 1.0), no_orientation=True), ns)
                 bag.write("/alt/range", "sensor_msgs/msg/Range", bag.range(ns, 1.3 + 0.01 * k if k != 2 else 50.0), ns)
@@ -68,7 +78,9 @@ def bags(tmp_path_factory):
 
 
 def _source(bags, flavour: str = "ros1", **options):
-    return open_bag(bags[flavour], read_camera_file(bags["camera"]), InputOptions(camera_file=bags["camera"], **options))
+    return open_bag(
+        bags[flavour], read_camera_file(bags["camera"]), InputOptions(camera_file=bags["camera"], **options)
+    )
 
 
 @pytest.mark.parametrize("flavour", ["ros1", "mcap"])
@@ -113,15 +125,30 @@ def test_frames_are_streamed_one_message_at_a_time(bags, monkeypatch):
 
 
 @pytest.mark.parametrize("flavour", ["ros1", "mcap"])
-@pytest.mark.parametrize("topic, convention, degrees, attitude",
-                         [("/h/imu_enu", "enu", False, True), ("/h/imu_ned", "ned", False, True),
-                          ("/h/odom", "enu", False, False), ("/h/deg", "enu", True, False)])
+@pytest.mark.parametrize(
+    "topic, convention, degrees, attitude",
+    [
+        ("/h/imu_enu", "enu", False, True),
+        ("/h/imu_ned", "ned", False, True),
+        ("/h/odom", "enu", False, False),
+        ("/h/deg", "enu", True, False),
+    ],
+)
 def test_heading_topics_and_conventions(bags, flavour, topic, convention, degrees, attitude):
-    src = _source(bags, flavour, image_topic="/img/rgb8", heading_topic=topic, heading_convention=convention,
-                  heading_degrees=degrees, attitude_topic=topic if attitude else None, altitude_topic="/alt/range")
+    src = _source(
+        bags,
+        flavour,
+        image_topic="/img/rgb8",
+        heading_topic=topic,
+        heading_convention=convention,
+        heading_degrees=degrees,
+        attitude_topic=topic if attitude else None,
+        altitude_topic="/alt/range",
+    )
     frames = list(src.frames())
-    np.testing.assert_allclose([math.remainder(f.heading_rad - h, 2 * math.pi) for f, h in zip(frames, HEADINGS)], 0,
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        [math.remainder(f.heading_rad - h, 2 * math.pi) for f, h in zip(frames, HEADINGS)], 0, atol=1e-9
+    )
     if attitude:
         assert all(f.has_attitude for f in frames)
         np.testing.assert_allclose([f.roll_rad for f in frames], 0.02, atol=1e-9)
@@ -164,13 +191,27 @@ def test_topics_command_lists_types_counts_rates_and_options(bags):
 def _cli_error(args: list[str]) -> str:
     res = CliRunner().invoke(app, [str(a) for a in args])
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
-    assert res.exit_code == 2 and len(lines) == 1 and lines[0].startswith("rovslam: error: "), (res.exit_code, res.stderr)
+    assert res.exit_code == 2 and len(lines) == 1 and lines[0].startswith("rovslam: error: "), (
+        res.exit_code,
+        res.stderr,
+    )
     return lines[0]
 
 
 def test_a_topic_that_does_not_exist_lists_those_that_do(bags, tmp_path):
-    line = _cli_error(["run", bags["ros1"], "--camera", bags["camera"], "--image-topic", "/camera/image_raw", "--out",
-                       tmp_path / "o", "-q"])
+    line = _cli_error(
+        [
+            "run",
+            bags["ros1"],
+            "--camera",
+            bags["camera"],
+            "--image-topic",
+            "/camera/image_raw",
+            "--out",
+            tmp_path / "o",
+            "-q",
+        ]
+    )
     assert "no topic '/camera/image_raw' (--image-topic). The bag has: /alt/f64 (std_msgs/msg/Float64, 5);" in line
     assert "/img/rgb8 (sensor_msgs/msg/Image, 5)" in line
 
@@ -187,8 +228,20 @@ def test_a_topic_that_does_not_exist_lists_those_that_do(bags, tmp_path):
     ],
 )
 def test_bad_bag_options(bags, tmp_path, extra, needle):
-    line = _cli_error(["run", bags["ros1"], "--camera", bags["camera"], "--image-topic", "/img/rgb8", *extra, "--out",
-                       tmp_path / "o", "-q"])
+    line = _cli_error(
+        [
+            "run",
+            bags["ros1"],
+            "--camera",
+            bags["camera"],
+            "--image-topic",
+            "/img/rgb8",
+            *extra,
+            "--out",
+            tmp_path / "o",
+            "-q",
+        ]
+    )
     assert needle in line
 
 

@@ -24,7 +24,9 @@ def _matrix(tmp_path, text, name="m.toml"):
 
 def test_matrix_cells_seeds_frames_and_relative_paths(tmp_path):
     (tmp_path / "fast.toml").write_text("[tracker]\nmin_correlation = 0.8\n")
-    p = _matrix(tmp_path, """
+    p = _matrix(
+        tmp_path,
+        """
 name = "demo"
 seeds = 3
 [[scenario]]
@@ -41,11 +43,17 @@ label = "rough-fast"
 name = "my-dive"
 path = "dives/d1"
 frames = 50
-""")
+""",
+    )
     m = load_matrix(p)
     assert m.name == "demo"
     assert [c.cell_id for c in m.cells] == [
-        "portofino-short_s0", "portofino-short_s1", "portofino-short_s2", "rough-fast_s7", "my-dive"]
+        "portofino-short_s0",
+        "portofino-short_s1",
+        "portofino-short_s2",
+        "rough-fast_s7",
+        "my-dive",
+    ]
     assert m.groups == ("portofino-short", "rough-fast", "my-dive")
     assert m.cells[0].frames == 120 and m.cells[0].config.tracker.min_correlation == 0.89
     rough = m.cells[3]
@@ -67,7 +75,10 @@ frames = 50
         ('[[scenario]]\nname = "portofino-short"\nformat = "tiff"\n', 'format must be "png" or "jpg"'),
         ('[[scenario]]\nname = "portofino-short"\nframes = 5\nduration_s = 3\n', "frames or duration_s, not both"),
         # 1e308 s was an OverflowError ("internal error"); 1e12 frames asked 149 GiB in the worker
-        ('[[scenario]]\nname = "portofino-short"\nduration_s = 1e308\n', "inf frames to simulate, more than the 1,000,000"),
+        (
+            '[[scenario]]\nname = "portofino-short"\nduration_s = 1e308\n',
+            "inf frames to simulate, more than the 1,000,000",
+        ),
         ('[[scenario]]\nname = "portofino-short"\nframes = 1000000000000\n', "1e+12 frames to simulate"),
         ('[[scenario]]\nname = "portofino-short"\nduration_s = 1e9\n', "give a shorter duration_s"),
         ('seeds = [1, 1]\n[[scenario]]\nname = "portofino-short"\n', "a seed appears twice"),
@@ -113,14 +124,26 @@ def test_shipped_matrices_load():
 
 
 def _row(group, seed, ate_cm, coverage, status="ok"):
-    return {"cell": f"{group}_s{seed}", "group": group, "status": status, "error": "" if status == "ok" else "boom",
-            "ate_rmse_m": ate_cm / 100, "coverage_2sigma": coverage, "pc_over_slam": 10.0 / ate_cm,
-            "final_error_pct": None}
+    return {
+        "cell": f"{group}_s{seed}",
+        "group": group,
+        "status": status,
+        "error": "" if status == "ok" else "boom",
+        "ate_rmse_m": ate_cm / 100,
+        "coverage_2sigma": coverage,
+        "pc_over_slam": 10.0 / ate_cm,
+        "final_error_pct": None,
+    }
 
 
 def test_summary_is_median_and_worst_over_seeds():
-    rows = [_row("a", 0, 1.0, 0.9), _row("a", 1, 3.0, 0.5), _row("a", 2, 2.0, 0.7), _row("a", 3, 99.0, 0, "failed"),
-            _row("b", 0, 0.5, 1.0)]
+    rows = [
+        _row("a", 0, 1.0, 0.9),
+        _row("a", 1, 3.0, 0.5),
+        _row("a", 2, 2.0, 0.7),
+        _row("a", 3, 99.0, 0, "failed"),
+        _row("b", 0, 0.5, 1.0),
+    ]
     a, b = summarise(rows)
     assert (a.group, a.cells, a.ok) == ("a", 4, 3)
     assert a.median["ate_rmse_m"] == pytest.approx(0.02) and a.worst["ate_rmse_m"] == pytest.approx(0.03)
@@ -138,7 +161,9 @@ def test_summary_is_median_and_worst_over_seeds():
 
 
 def test_matrix_runs_on_a_local_dask_cluster_resumes_and_survives_a_failing_cell(tmp_path):
-    p = _matrix(tmp_path, """
+    p = _matrix(
+        tmp_path,
+        """
 seeds = [0, 1]
 [[scenario]]
 name = "portofino-short"
@@ -146,7 +171,8 @@ frames = 60
 [[sequence]]
 name = "missing"
 path = "no/such/sequence"
-""")
+""",
+    )
     out = tmp_path / "batch"
     seen = []
     report = run_matrix(load_matrix(p), out, workers=2, on_cell=seen.append)
@@ -158,7 +184,9 @@ path = "no/such/sequence"
     for r in ok.values():
         assert r["frames"] == 60 and 0 < r["ate_rmse_m"] < 0.01
         assert r["pc_ate_rmse_m"] > 0 and r["dr_ate_rmse_m"] > 0 and r["max_error_jump_sigma"] > 0
-        assert 0 < r["max_error_jump_before_sigma"] <= r["max_error_jump_sigma"] * (1 + 1e-9)  # the ellipse before is never smaller
+        assert (
+            0 < r["max_error_jump_before_sigma"] <= r["max_error_jump_sigma"] * (1 + 1e-9)
+        )  # the ellipse before is never smaller
         assert 0.5 < r["landmarks_found"] <= 1.0  # the paper's seabed: landmarks in view are found again
     (bad,) = report.failed
     assert bad["cell"] == "missing" and "not found" in bad["error"]

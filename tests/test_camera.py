@@ -86,8 +86,10 @@ def test_bad_camera_and_laser_are_typed_errors():
 @pytest.mark.parametrize(
     "make,needle",
     [
-        (lambda: Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5, distortion=(1e308, 0.0, 0.0, 0.0, 0.0)),
-         "distortion coefficients must be within"),
+        (
+            lambda: Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5, distortion=(1e308, 0.0, 0.0, 0.0, 0.0)),
+            "distortion coefficients must be within",
+        ),
         (lambda: Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5, yaw_offset_rad=90.0), "give radians, not degrees"),
         (lambda: LaserPointer((0.05, 0.05, 0.0), (0.0, 1e308, 1.0)), "90.0 degrees from the optical axis"),
         (lambda: LaserPointer((0.05, 0.05, 0.0), (1.0, 0.0, 0.1)), "never reaches the seabed"),

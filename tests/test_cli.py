@@ -5,6 +5,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -22,8 +23,9 @@ runner = CliRunner()
 @pytest.fixture(scope="module")
 def tiny_seq(tmp_path_factory):
     root = tmp_path_factory.mktemp("cli")
-    res = runner.invoke(app, ["simulate", "--scenario", "portofino-short", "--frames", "60", "--out",
-                              str(root / "seq"), "--quiet"])
+    res = runner.invoke(
+        app, ["simulate", "--scenario", "portofino-short", "--frames", "60", "--out", str(root / "seq"), "--quiet"]
+    )
     assert res.exit_code == 0, res.output
     return root
 
@@ -290,7 +292,9 @@ def test_output_folder_that_cannot_be_created(small_seq, tmp_path, monkeypatch):
 
     monkeypatch.setattr(Path, "mkdir", mkdir)
     res = runner.invoke(app, ["run", str(small_seq), "--out", str(tmp_path / "ro" / "o"), "-q"])
-    _one_error_line(res, "cannot create the folder: Permission denied (permission denied; choose a folder you can write to)")
+    _one_error_line(
+        res, "cannot create the folder: Permission denied (permission denied; choose a folder you can write to)"
+    )
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
@@ -338,7 +342,33 @@ def test_a_bug_is_one_line_and_exit_1(small_seq, tmp_path, monkeypatch):
 
 
 def test_usage_errors_are_one_line_in_the_console_script(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "rovslam", "run", "--bogus"], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "rovslam", "run", "--bogus"], capture_output=True, text=True, timeout=120
+    )
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert proc.returncode == 2 and len(lines) == 1, proc.stderr
     assert lines[0].startswith("rovslam: error: No such option: --bogus")
+
+
+def test_help_lists_the_commands_in_the_order_of_the_workflow():
+    from typer.testing import CliRunner
+
+    from rovslam.cli import app
+
+    out = CliRunner().invoke(app, ["--help"], env={"COLUMNS": "120"}).output
+    commands = [m.group(1) for line in out.splitlines() if (m := re.match(r"^│ ([a-z]+) {2,}\S", line))]
+    assert commands == [
+        "simulate",
+        "run",
+        "import",
+        "topics",
+        "eval",
+        "batch",
+        "demo",
+        "report",
+        "mosaic",
+        "config",
+        "smooth",
+        "navigate",
+        "sitl",
+    ]

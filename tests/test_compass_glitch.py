@@ -76,7 +76,7 @@ def test_the_tokens_prior_ignores_a_glitch_and_the_next_step_starts_from_the_hea
     tracker = HeadingTracker()
     heading = 0.2
     tracker.update(tracker.prior(heading, 0.2), None, math.inf, 0.2)
-    for k in range(20):
+    for _k in range(20):
         heading += 0.002
         tracker.update(tracker.prior(heading, 0.2), 0.002, 0.0005, 0.2)
     glitch = tracker.prior(heading + 1.0, 0.2)

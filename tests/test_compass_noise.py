@@ -20,7 +20,8 @@ def noisy_compass_runs(tmp_path_factory):
     """60 s over the relief preset with a 1 degree compass, configured (by default) as 0.5 degree."""
     base = SCENARIOS["portofino-relief"]
     SCENARIOS["relief-compass1"] = dataclasses.replace(
-        base, name="relief-compass1", nav=dataclasses.replace(base.nav, compass_sigma_rad=float(np.deg2rad(1.0))))
+        base, name="relief-compass1", nav=dataclasses.replace(base.nav, compass_sigma_rad=float(np.deg2rad(1.0)))
+    )
     root = tmp_path_factory.mktemp("compass")
     try:
         simulate("relief-compass1", root / "seq", frames=300, seed=6)
@@ -33,11 +34,15 @@ def noisy_compass_runs(tmp_path_factory):
     # And b the offset alone (altitude_scale_sigma = 0): with the laser rig's share of the depth in b the
     # wider ellipse covers this dive's compass error either way (97.7 % learned, 98.7 % fixed).
     slam = dataclasses.replace(RunConfig().slam, altitude_bias_relief=False, altitude_scale_sigma=0.0)
-    for key, cfg in (("learned", RunConfig(slam=slam)),
-                     ("fixed", RunConfig(odometry=OdometryConfig(compass_sigma_learned=False), slam=slam))):
+    for key, cfg in (
+        ("learned", RunConfig(slam=slam)),
+        ("fixed", RunConfig(odometry=OdometryConfig(compass_sigma_learned=False), slam=slam)),
+    ):
         run_sequence(root / "seq", root / key, cfg)
-        runs[key] = (json.loads((root / key / "summary.json").read_text()),
-                     evaluate_run(root / key, root / "seq" / "groundtruth.csv"))
+        runs[key] = (
+            json.loads((root / key / "summary.json").read_text()),
+            evaluate_run(root / key, root / "seq" / "groundtruth.csv"),
+        )
     return runs
 
 
@@ -47,7 +52,11 @@ def test_the_compass_noise_is_learned_and_said(noisy_compass_runs):
     assert c["sigma_configured_deg"] == pytest.approx(0.4985, abs=1e-3)
     assert c["sigma_learned_deg"] == pytest.approx(1.0, rel=0.2)
     assert c["sigma_used_deg"] == c["sigma_learned_deg"] and c["learning"] is True
-    assert len(c["warnings"]) == 1 and "compass_sigma_rad" in c["warnings"][0] and "learned value was used" in c["warnings"][0]
+    assert (
+        len(c["warnings"]) == 1
+        and "compass_sigma_rad" in c["warnings"][0]
+        and "learned value was used" in c["warnings"][0]
+    )
     # Not learning, the run still says what to set.
     fixed = noisy_compass_runs["fixed"][0]["compass"]
     assert fixed["sigma_used_deg"] == fixed["sigma_configured_deg"] and "set compass_sigma_rad" in fixed["warnings"][0]

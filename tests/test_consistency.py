@@ -168,8 +168,12 @@ def _pasted_elsewhere(uv_px: np.ndarray, offset_px: tuple[int, int], half: int =
         u, v = np.round(uv_px).astype(int)
         du, dv = offset_px
         other = 50 if v < img.shape[0] / 2 else -50
-        img[v - half : v + half, u - half : u + half] = frame.image[v - half + other : v + half + other, u - half : u + half]
-        img[v - half + dv : v + half + dv, u - half + du : u + half + du] = frame.image[v - half : v + half, u - half : u + half]
+        img[v - half : v + half, u - half : u + half] = frame.image[
+            v - half + other : v + half + other, u - half : u + half
+        ]
+        img[v - half + dv : v + half + dv, u - half + du : u + half + du] = frame.image[
+            v - half : v + half, u - half : u + half
+        ]
         return dataclasses.replace(frame, image=img)
 
     return alter
@@ -336,8 +340,9 @@ def test_a_compass_deviation_stays_inside_the_bounds_it_is_given(tmp_path):
     # b as it was when this was measured: the relief under the tokens in b (altitude_bias_relief) widens the
     # ellipse along the lanes, which on a grid covers the deviation's turn too (99.5 % without the term);
     # so does the laser rig's share of the depth in b (altitude_scale_sigma: 92.7 % without the term).
-    cfg = dataclasses.replace(cfg, slam=dataclasses.replace(cfg.slam, altitude_bias_relief=False,
-                                                            altitude_scale_sigma=0.0))
+    cfg = dataclasses.replace(
+        cfg, slam=dataclasses.replace(cfg.slam, altitude_bias_relief=False, altitude_scale_sigma=0.0)
+    )
 
     def offset(sigma_rad: float) -> RunConfig:
         return dataclasses.replace(cfg, odometry=dataclasses.replace(cfg.odometry, compass_offset_sigma_rad=sigma_rad))
@@ -381,8 +386,9 @@ def _earlier_filter() -> RunConfig:
     cfg = RunConfig()
     return dataclasses.replace(
         cfg,
-        slam=dataclasses.replace(cfg.slam, altitude_bias_consider=False, altitude_bias_tau_s=1.0,
-                                 heading_bias_sigma_rad=0.0087),
+        slam=dataclasses.replace(
+            cfg.slam, altitude_bias_consider=False, altitude_bias_tau_s=1.0, heading_bias_sigma_rad=0.0087
+        ),
         odometry=dataclasses.replace(cfg.odometry, compass_drift_sigma_rad=0.0087),
     )
 

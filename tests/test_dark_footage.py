@@ -53,8 +53,14 @@ def test_a_negative_or_missing_floor_is_refused(bad):
 @pytest.fixture(scope="module")
 def dark_dive(tmp_path_factory):
     """150 frames of the paper's trial with the lamps at an eighth of their power (a frame's band-passed std ~0.7)."""
-    return simulate_variant(tmp_path_factory.mktemp("dark") / "seq", "portofino-short", "test-dark", seed=0,
-                            n_frames=150, sensor=dataclasses.replace(SensorParams(), exposure_gain=0.12))
+    return simulate_variant(
+        tmp_path_factory.mktemp("dark") / "seq",
+        "portofino-short",
+        "test-dark",
+        seed=0,
+        n_frames=150,
+        sensor=dataclasses.replace(SensorParams(), exposure_gain=0.12),
+    )
 
 
 def _run(seq, out, config):
@@ -62,8 +68,9 @@ def _run(seq, out, config):
     tr = np.genfromtxt(out / "trajectory.csv", delimiter=",", names=True)
     gt = read_groundtruth(seq / "groundtruth.csv")
     err = np.column_stack([tr["x_m"] - gt.x_m, tr["y_m"] - gt.y_m])
-    cov = np.stack([np.column_stack([tr["var_x_m2"], tr["cov_xy_m2"]]),
-                    np.column_stack([tr["cov_xy_m2"], tr["var_y_m2"]])], axis=1)
+    cov = np.stack(
+        [np.column_stack([tr["var_x_m2"], tr["cov_xy_m2"]]), np.column_stack([tr["cov_xy_m2"], tr["var_y_m2"]])], axis=1
+    )
     n_landmarks = sum(1 for _ in open(out / "landmarks.csv")) - 1
     return float(np.sqrt(np.mean(np.sum(err**2, axis=1)))), consistency(err, cov), np.mean(tr["speed_ok"]), n_landmarks
 

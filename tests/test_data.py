@@ -78,14 +78,18 @@ def test_a_dataset_with_an_upstream_is_downloaded_and_checked(toy, tmp_path, mon
     server = _serve(tmp_path / "upstream")
     try:
         url = f"http://127.0.0.1:{server.server_address[1]}/"
-        monkeypatch.setitem(data.DATASETS, "toy", data.Dataset(name="toy", description="t", files={"a.bin": SHA}, base_url=url))
+        monkeypatch.setitem(
+            data.DATASETS, "toy", data.Dataset(name="toy", description="t", files={"a.bin": SHA}, base_url=url)
+        )
         assert not data.available("toy")  # available() never downloads
         got = data.file_path("toy", "a.bin")
         assert got.read_bytes() == PAYLOAD and got.parent == tmp_path / "cache" / "toy"
         assert data.available("toy")
         # An upstream file that changed is refused by its checksum.
         (tmp_path / "upstream" / "b.bin").write_bytes(b"not the file")
-        monkeypatch.setitem(data.DATASETS, "bad", data.Dataset(name="bad", description="t", files={"b.bin": SHA}, base_url=url))
+        monkeypatch.setitem(
+            data.DATASETS, "bad", data.Dataset(name="bad", description="t", files={"b.bin": SHA}, base_url=url)
+        )
         with pytest.raises(DataNotFoundError, match="could not be downloaded"):
             data.file_path("bad", "b.bin")
         assert not (tmp_path / "cache" / "bad" / "b.bin").exists()

@@ -37,7 +37,13 @@ def dense_update(x, p, k, mn, psi, z, f, r_m):
     return x + gain @ (mn - h), i_kh @ p @ i_kh.T + gain @ r_m @ gain.T
 
 
-def random_filter(rng, n_landmarks, config=SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0)):
+def random_filter(
+    rng,
+    n_landmarks,
+    config=SlamConfig(
+        landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0
+    ),
+):
     ekf = EkfSlam(config, initial_capacity=2)
     for _ in range(n_landmarks):
         ekf.predict(MotionInput(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT))
@@ -51,7 +57,17 @@ def snapshot(ekf):
 
 # ---------------------------------------------------------------- (1), (2)
 def test_predict_moves_by_equation_1_and_projects_q():
-    ekf = EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0, heading_sigma_rad=0.0), initial_xy_m=(1.0, 2.0), initial_cov_m2=np.eye(2) * 1e-4)
+    ekf = EkfSlam(
+        SlamConfig(
+            landmark_height_sigma_m=0.0,
+            altitude_bias_sigma_m=0.0,
+            speed_bias_sigma_mps=0.0,
+            heading_bias_sigma_rad=0.0,
+            heading_sigma_rad=0.0,
+        ),
+        initial_xy_m=(1.0, 2.0),
+        initial_cov_m2=np.eye(2) * 1e-4,
+    )
     q = np.array([[4e-6, 1e-6], [1e-6, 9e-6]])
     psi = 0.6
     ekf.predict(MotionInput(0.1, -0.03, q, psi, DT))
@@ -59,7 +75,12 @@ def test_predict_moves_by_equation_1_and_projects_q():
     np.testing.assert_allclose(ekf.vehicle_xy_m, [1.0, 2.0] + r @ [0.1, -0.03] * DT, atol=1e-15)
     np.testing.assert_allclose(ekf.vehicle_cov_m2, np.eye(2) * 1e-4 + DT**2 * r @ q @ r.T, atol=1e-18)
     # Heading noise adds sigma^2 J J^T with J = dR/dpsi [u, v] dt.
-    ekf2 = EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0), initial_cov_m2=np.eye(2) * 1e-4)
+    ekf2 = EkfSlam(
+        SlamConfig(
+            landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0
+        ),
+        initial_cov_m2=np.eye(2) * 1e-4,
+    )
     ekf2.predict(MotionInput(0.1, -0.03, q, psi, DT, heading_sigma_rad=0.01))
     dr = np.array([[-np.sin(psi), -np.cos(psi)], [np.cos(psi), -np.sin(psi)]])
     j = dr @ [0.1, -0.03] * DT
@@ -76,7 +97,15 @@ def test_predict_leaves_landmarks_and_cross_terms_except_process_noise():
     x1, p1 = snapshot(ekf)
     np.testing.assert_array_equal(x1[2:], x0[2:])  # (2): static landmarks
     np.testing.assert_array_equal(p1[2:, :], p0[2:, :])
-    noisy = EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0, landmark_process_sigma_m=0.001))
+    noisy = EkfSlam(
+        SlamConfig(
+            landmark_height_sigma_m=0.0,
+            altitude_bias_sigma_m=0.0,
+            speed_bias_sigma_mps=0.0,
+            heading_bias_sigma_rad=0.0,
+            landmark_process_sigma_m=0.001,
+        )
+    )
     for _ in range(3):
         noisy.augment(rng.uniform(-50, 50, 2), 0.0, Z, F)
     before = noisy.landmarks_cov_m2()
@@ -94,7 +123,14 @@ def test_update_equals_the_dense_joseph_form():
     k = 2 + 2 * i
     mn_pred, s_pred = ekf.predict_observation(i, psi, Z, F, altitude_sigma_m=0.03)
     mn = mn_pred + np.array([0.7, -0.4])
-    r_m = observation_noise_px2(mn_pred, SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0).pixel_sigma_px, Z, 0.03)
+    r_m = observation_noise_px2(
+        mn_pred,
+        SlamConfig(
+            landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0
+        ).pixel_sigma_px,
+        Z,
+        0.03,
+    )
     res = ekf.update(i, mn, psi, Z, F, altitude_sigma_m=0.03)
     assert isinstance(res, UpdateResult) and res.accepted and res.reason == ""
     x_ref, p_ref = dense_update(x0, p0, k, mn, psi, Z, F, r_m)
@@ -115,7 +151,14 @@ def test_innovation_gate_rejects_and_leaves_the_state_untouched():
     mn_pred, s = ekf.predict_observation(2, 0.1, Z, F)
     sigma = np.sqrt(s[0, 0])
     res = ekf.update(2, mn_pred + [6.0 * sigma, 0.0], 0.1, Z, F)  # a wrong correlation match
-    assert not res.accepted and res.nis > SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0).innovation_gate and "innovation" in res.reason
+    assert (
+        not res.accepted
+        and res.nis
+        > SlamConfig(
+            landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0
+        ).innovation_gate
+        and "innovation" in res.reason
+    )
     x1, p1 = snapshot(ekf)
     np.testing.assert_array_equal(x1, x0)
     np.testing.assert_array_equal(p1, p0)
@@ -169,7 +212,17 @@ def test_full_augmentation_carries_the_cross_covariances():
 
 def test_paper_augmentation_is_the_diagonal_block_only():
     rng = np.random.default_rng(4)
-    ekf = random_filter(rng, 4, SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0, augmentation="paper"))
+    ekf = random_filter(
+        rng,
+        4,
+        SlamConfig(
+            landmark_height_sigma_m=0.0,
+            altitude_bias_sigma_m=0.0,
+            speed_bias_sigma_mps=0.0,
+            heading_bias_sigma_rad=0.0,
+            augmentation="paper",
+        ),
+    )
     x0, p0 = snapshot(ekf)
     mn, psi = np.array([60.0, -30.0]), 1.1
     ekf.augment(mn, psi, Z, F)
@@ -182,8 +235,18 @@ def test_paper_augmentation_is_the_diagonal_block_only():
 
 def test_capacity_growth_preserves_the_state():
     rng = np.random.default_rng(5)
-    small = EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0), initial_capacity=1)
-    big = EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0), initial_capacity=100)
+    small = EkfSlam(
+        SlamConfig(
+            landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0
+        ),
+        initial_capacity=1,
+    )
+    big = EkfSlam(
+        SlamConfig(
+            landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0
+        ),
+        initial_capacity=100,
+    )
     for _ in range(37):
         u, psi, mn = rng.uniform(0, 0.1), rng.uniform(-3, 3), rng.uniform(-100, 100, 2)
         for ekf in (small, big):
@@ -205,8 +268,26 @@ def test_revisit_shrinks_the_vehicle_covariance_dead_reckoning_grows():
     rng = np.random.default_rng(6)
     sig0 = 1e-3
     q = np.eye(2) * 0.002**2
-    slam = EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0, heading_sigma_rad=0.0), initial_cov_m2=np.eye(2) * sig0**2)
-    dr = EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0, heading_sigma_rad=0.0), initial_cov_m2=np.eye(2) * sig0**2)
+    slam = EkfSlam(
+        SlamConfig(
+            landmark_height_sigma_m=0.0,
+            altitude_bias_sigma_m=0.0,
+            speed_bias_sigma_mps=0.0,
+            heading_bias_sigma_rad=0.0,
+            heading_sigma_rad=0.0,
+        ),
+        initial_cov_m2=np.eye(2) * sig0**2,
+    )
+    dr = EkfSlam(
+        SlamConfig(
+            landmark_height_sigma_m=0.0,
+            altitude_bias_sigma_m=0.0,
+            speed_bias_sigma_mps=0.0,
+            heading_bias_sigma_rad=0.0,
+            heading_sigma_rad=0.0,
+        ),
+        initial_cov_m2=np.eye(2) * sig0**2,
+    )
     truth = np.zeros(2)
     landmark = np.array([0.02, -0.01])
     slam.augment(observe_mn(landmark, truth, 0.0, Z, F)[0] + rng.normal(0, 0.5, 2), 0.0, Z, F)
@@ -277,10 +358,18 @@ def survey_nees(seed, augmentation="full", drift_rad=0.0, drift_tau_s=60.0, mode
     landmarks = rng.uniform(lo, hi, (int(30 * np.prod(hi - lo)), 2))
     mapped = np.zeros(len(landmarks), dtype=bool)
     truth_of = []
-    ekf = EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0,
-        heading_bias_sigma_rad=drift_rad if model_drift else 0.0, heading_bias_tau_s=drift_tau_s,
-        heading_sigma_rad=SIG_PSI, pixel_sigma_px=SIG_PX, augmentation=augmentation,
-    ))
+    ekf = EkfSlam(
+        SlamConfig(
+            landmark_height_sigma_m=0.0,
+            altitude_bias_sigma_m=0.0,
+            speed_bias_sigma_mps=0.0,
+            heading_bias_sigma_rad=drift_rad if model_drift else 0.0,
+            heading_bias_tau_s=drift_tau_s,
+            heading_sigma_rad=SIG_PSI,
+            pixel_sigma_px=SIG_PX,
+            augmentation=augmentation,
+        )
+    )
     q = np.eye(2) * SIG_V**2
     psi_frame = np.append(psi_true, psi_true[-1])
     psi_meas = psi_frame + rng.normal(0.0, SIG_PSI, k_steps + 1)
@@ -328,8 +417,11 @@ def monte_carlo(augmentation, runs=50, **drift):
     lo, hi = chi2.ppf([0.025, 0.975], 2 * runs) / runs  # [1.484, 2.591] for 50 runs
     inside = float(np.mean((mean >= lo) & (mean <= hi)))
     stats = dict(
-        landmarks=np.mean([o[1] for o in out]), updates=np.mean([o[2] for o in out]),
-        rejected=np.mean([o[3] for o in out]), mean_nees=float(mean.mean()), steps=nees.shape[1],
+        landmarks=np.mean([o[1] for o in out]),
+        updates=np.mean([o[2] for o in out]),
+        rejected=np.mean([o[3] for o in out]),
+        mean_nees=float(mean.mean()),
+        steps=nees.shape[1],
     )
     return inside, stats
 
@@ -393,11 +485,35 @@ def test_nan_or_inf_input_is_rejected_before_the_state_changes(call):
 
 def test_bad_config_and_initial_covariance():
     with pytest.raises(ConfigError, match="augmentation"):
-        EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0, augmentation="diagonal"))
+        EkfSlam(
+            SlamConfig(
+                landmark_height_sigma_m=0.0,
+                altitude_bias_sigma_m=0.0,
+                speed_bias_sigma_mps=0.0,
+                heading_bias_sigma_rad=0.0,
+                augmentation="diagonal",
+            )
+        )
     with pytest.raises(ConfigError, match="gate_covariance"):
-        EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0, gate_covariance="x"))
+        EkfSlam(
+            SlamConfig(
+                landmark_height_sigma_m=0.0,
+                altitude_bias_sigma_m=0.0,
+                speed_bias_sigma_mps=0.0,
+                heading_bias_sigma_rad=0.0,
+                gate_covariance="x",
+            )
+        )
     with pytest.raises(ConfigError, match="pixel_sigma_px"):
-        EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=0.0, pixel_sigma_px=0.0))
+        EkfSlam(
+            SlamConfig(
+                landmark_height_sigma_m=0.0,
+                altitude_bias_sigma_m=0.0,
+                speed_bias_sigma_mps=0.0,
+                heading_bias_sigma_rad=0.0,
+                pixel_sigma_px=0.0,
+            )
+        )
     with pytest.raises(InvalidMeasurementError, match="semi-definite"):
         EkfSlam(initial_cov_m2=[[1.0, 2.0], [2.0, 1.0]])
     with pytest.raises(InvalidMeasurementError):
@@ -435,8 +551,10 @@ def test_monte_carlo_drifting_compass_needs_the_heading_bias_state():
     drift = dict(drift_rad=np.deg2rad(0.5), drift_tau_s=60.0)
     inside_plain, plain = monte_carlo("full", runs=30, **drift)
     inside_bias, bias = monte_carlo("full", runs=30, model_drift=True, **drift)
-    print(f"\ndrifting compass: NEES inside {inside_plain:.1%} (mean {plain['mean_nees']:.2f}) without eps, "
-          f"{inside_bias:.1%} (mean {bias['mean_nees']:.2f}) with eps")
+    print(
+        f"\ndrifting compass: NEES inside {inside_plain:.1%} (mean {plain['mean_nees']:.2f}) without eps, "
+        f"{inside_bias:.1%} (mean {bias['mean_nees']:.2f}) with eps"
+    )
     assert plain["mean_nees"] > 2.6  # over-confident
     assert inside_bias >= 0.85
     assert 1.6 < bias["mean_nees"] < 2.5
@@ -457,7 +575,15 @@ def test_heading_bias_state_matches_a_dense_ekf():
     # are taken numerically on the whole state.
     rng = np.random.default_rng(40)
     tau, sig_b = 50.0, 0.01
-    cfg = SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=sig_b, heading_bias_tau_s=tau, heading_sigma_rad=0.0, pixel_sigma_px=0.5)
+    cfg = SlamConfig(
+        landmark_height_sigma_m=0.0,
+        altitude_bias_sigma_m=0.0,
+        speed_bias_sigma_mps=0.0,
+        heading_bias_sigma_rad=sig_b,
+        heading_bias_tau_s=tau,
+        heading_sigma_rad=0.0,
+        pixel_sigma_px=0.5,
+    )
     ekf = EkfSlam(cfg, initial_cov_m2=np.eye(2) * 1e-4)
     for _ in range(5):
         ekf.predict(MotionInput(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT))
@@ -552,8 +678,12 @@ def test_model_jacobians_match_finite_differences():
     a, j_psi = observation_jacobians(mn, psi, Z, F)
     num_psi = (observe_mn(lm, x, psi + eps, Z, F) - observe_mn(lm, x, psi - eps, Z, F)) / (2 * eps)
     np.testing.assert_allclose(j_psi, num_psi, rtol=1e-6)
-    num_a = np.column_stack([(observe_mn(lm + d, x, psi, Z, F) - observe_mn(lm - d, x, psi, Z, F))[0] / (2 * eps)
-                             for d in (np.array([eps, 0.0]), np.array([0.0, eps]))])
+    num_a = np.column_stack(
+        [
+            (observe_mn(lm + d, x, psi, Z, F) - observe_mn(lm - d, x, psi, Z, F))[0] / (2 * eps)
+            for d in (np.array([eps, 0.0]), np.array([0.0, eps]))
+        ]
+    )
     np.testing.assert_allclose(a, num_a, rtol=1e-6)
     g, jl = landmark_jacobians(mn, psi, Z, F)
     num_jl = (landmark_from_mn(mn, x, psi + eps, Z, F) - landmark_from_mn(mn, x, psi - eps, Z, F)) / (2 * eps)
@@ -575,15 +705,26 @@ def test_landmark_height_and_altitude_bias_states_match_a_dense_ekf(bias_b, bias
     # [x, y, eps, (b,) (wx, wy,) X1, Y1, h1, ...].
     rng = np.random.default_rng(43)
     sig_h, tau_b, tau_e, tau_w = 0.03, 1.5, 60.0, 20.0
-    cfg = SlamConfig(landmark_height_sigma_m=sig_h, heading_bias_sigma_rad=0.01, heading_bias_tau_s=tau_e,
-                     heading_sigma_rad=0.0, altitude_bias_sigma_m=bias_b, altitude_bias_tau_s=tau_b,
-                     altitude_bias_consider=False,  # b learned (the consider form: the test below)
-                     speed_bias_sigma_mps=bias_w, speed_bias_tau_s=tau_w)
+    cfg = SlamConfig(
+        landmark_height_sigma_m=sig_h,
+        heading_bias_sigma_rad=0.01,
+        heading_bias_tau_s=tau_e,
+        heading_sigma_rad=0.0,
+        altitude_bias_sigma_m=bias_b,
+        altitude_bias_tau_s=tau_b,
+        altitude_bias_consider=False,  # b learned (the consider form: the test below)
+        speed_bias_sigma_mps=bias_w,
+        speed_bias_tau_s=tau_w,
+    )
     ekf = EkfSlam(cfg, initial_cov_m2=np.eye(2) * 1e-4)
     w = 4 if bias_b else 3  # first row of w
     v0 = w + (2 if bias_w else 0)
     for _ in range(4):
-        ekf.predict(MotionInput(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT, altitude_m=Z, speed_bias_sigma_mps=bias_w))
+        ekf.predict(
+            MotionInput(
+                0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT, altitude_m=Z, speed_bias_sigma_mps=bias_w
+            )
+        )
         ekf.augment(rng.uniform(-120, 120, 2), rng.uniform(-3, 3), Z, F, altitude_sigma_m=0.02)
     ekf.update(1, ekf.predict_observation(1, 0.3, Z, F)[0] + [1.5, -1.0], 0.3, Z, F)  # biases non-zero
     assert ekf.state_dim == v0 + 3 * 4 and ekf.has_landmark_heights
@@ -681,8 +822,10 @@ def test_landmark_height_and_altitude_bias_states_match_a_dense_ekf(bias_b, bias
 def test_joint_compatibility_points_at_the_landmark_that_does_not_fit():
     rng = np.random.default_rng(44)
     ekf = random_filter(rng, 5)
-    obs = [(i, ekf.predict_observation(i, 0.2, Z, F)[0] + rng.normal(0, 0.5, 2), 0.2, Z, F, None, 0.0, None)
-           for i in (0, 2, 4)]
+    obs = [
+        (i, ekf.predict_observation(i, 0.2, Z, F)[0] + rng.normal(0, 0.5, 2), 0.2, Z, F, None, 0.0, None)
+        for i in (0, 2, 4)
+    ]
     total, share = ekf.joint_nis(obs)
     assert total < 16.8  # chi-square 6 dof, 99 %
     np.testing.assert_allclose(share.sum(), total, rtol=1e-12)
@@ -712,10 +855,16 @@ def test_landmark_heights_keep_the_filter_consistent_over_relief():
     With the height state the vehicle's NEES stays consistent and the heights are recovered;
     the paper's flat model (3) is over-confident on the same measurements.
     """
+
     def run(height_sigma, seed):
         rng = np.random.default_rng(seed)
-        cfg = SlamConfig(landmark_height_sigma_m=height_sigma, heading_bias_sigma_rad=0.0, heading_sigma_rad=0.0,
-                         altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0)
+        cfg = SlamConfig(
+            landmark_height_sigma_m=height_sigma,
+            heading_bias_sigma_rad=0.0,
+            heading_sigma_rad=0.0,
+            altitude_bias_sigma_m=0.0,
+            speed_bias_sigma_mps=0.0,
+        )
         ekf = EkfSlam(cfg)
         truth = np.zeros(2)
         lm_xy = rng.uniform([-0.05, -0.15], [0.95, 0.15], (12, 2))
@@ -750,8 +899,15 @@ def test_consider_altitude_bias_is_a_schmidt_update_of_the_dense_ekf():
     # With altitude_bias_consider (the default), an update is the textbook Joseph form with the gain's
     # row for b set to zero: b keeps its value and its variance, the rest sees b's uncertainty.
     rng = np.random.default_rng(45)
-    cfg = SlamConfig(landmark_height_sigma_m=0.03, heading_bias_sigma_rad=0.01, heading_sigma_rad=0.0,
-                     altitude_bias_sigma_m=0.01, speed_bias_sigma_mps=0.0, altitude_bias_tau_s=30.0, altitude_bias_consider=True)
+    cfg = SlamConfig(
+        landmark_height_sigma_m=0.03,
+        heading_bias_sigma_rad=0.01,
+        heading_sigma_rad=0.0,
+        altitude_bias_sigma_m=0.01,
+        speed_bias_sigma_mps=0.0,
+        altitude_bias_tau_s=30.0,
+        altitude_bias_consider=True,
+    )
     ekf = EkfSlam(cfg, initial_cov_m2=np.eye(2) * 1e-4)
     for _ in range(3):
         ekf.predict(MotionInput(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT, altitude_m=Z))
@@ -825,8 +981,10 @@ def test_monte_carlo_a_persistent_altimeter_offset_needs_a_long_lived_bias_state
     assert new.altitude_bias_consider and new.altitude_bias_tau_s == 30.0
     nees_old = np.array([_persistent_offset_nees(old, s) for s in range(8)])
     nees_new = np.array([_persistent_offset_nees(new, s) for s in range(8)])
-    print(f"\npersistent altimeter offset: mean NEES b 1 s learned {nees_old.mean():.2f}, "
-          f"default {nees_new.mean():.2f}; inside 2-sigma {np.mean(nees_old < 4):.1%} / {np.mean(nees_new < 4):.1%}")
+    print(
+        f"\npersistent altimeter offset: mean NEES b 1 s learned {nees_old.mean():.2f}, "
+        f"default {nees_new.mean():.2f}; inside 2-sigma {np.mean(nees_old < 4):.1%} / {np.mean(nees_new < 4):.1%}"
+    )
     assert 1.0 < nees_new.mean() < 3.0
     assert np.mean(nees_new < 4.0) > 0.75
     assert nees_old.mean() > 3.0 * nees_new.mean()
@@ -834,8 +992,13 @@ def test_monte_carlo_a_persistent_altimeter_offset_needs_a_long_lived_bias_state
 
 # ---------------------------------------------------------------- the speed error w (sunlight drag)
 def test_speed_bias_variance_rises_when_its_sigma_does_and_fades_without_it():
-    cfg = SlamConfig(heading_bias_sigma_rad=0.0, altitude_bias_sigma_m=0.0, landmark_height_sigma_m=0.0,
-                     speed_bias_sigma_mps=0.002, speed_bias_tau_s=20.0)
+    cfg = SlamConfig(
+        heading_bias_sigma_rad=0.0,
+        altitude_bias_sigma_m=0.0,
+        landmark_height_sigma_m=0.0,
+        speed_bias_sigma_mps=0.002,
+        speed_bias_tau_s=20.0,
+    )
     ekf = EkfSlam(cfg, initial_cov_m2=np.eye(2) * 1e-6)
     plain = EkfSlam(dataclasses.replace(cfg, speed_bias_sigma_mps=0.0), initial_cov_m2=np.eye(2) * 1e-6)
     assert ekf.state_dim == 4 and plain.state_dim == 2
@@ -851,8 +1014,12 @@ def test_speed_bias_variance_rises_when_its_sigma_does_and_fades_without_it():
     ekf.predict(MotionInput(0.1, 0.02, np.eye(2) * 4e-6, 0.4, DT, speed_bias_sigma_mps=0.002))
     np.testing.assert_allclose(ekf.speed_bias_cov_mps2, np.eye(2) * 0.002**2, rtol=1e-12)  # stationary
     grown = ekf.vehicle_cov_m2 - before
-    np.testing.assert_allclose(grown - DT**2 * rot2(0.4) @ (np.eye(2) * 4e-6) @ rot2(0.4).T,
-                               np.eye(2) * 0.002**2 * DT**2, rtol=1e-9, atol=1e-20)  # + w dt
+    np.testing.assert_allclose(
+        grown - DT**2 * rot2(0.4) @ (np.eye(2) * 4e-6) @ rot2(0.4).T,
+        np.eye(2) * 0.002**2 * DT**2,
+        rtol=1e-9,
+        atol=1e-20,
+    )  # + w dt
     # Undriven again: it fades as the Ornstein-Uhlenbeck process does.
     for _ in range(50):
         ekf.predict(MotionInput(0.0, 0.0, np.zeros((2, 2)), 0.4, DT))
@@ -865,8 +1032,13 @@ def _drag_run(sigma_w, seed, drag=(0.0017, 0.0010), steps=1000):
     """Lanes 2 m long and 0.3 m apart at 0.3 m/s over 90 landmarks; the measured speed is dragged by a
     world-frame ``drag`` (sunlight caustics drifting over the seabed). Returns the NEES per step and w."""
     rng = np.random.default_rng(seed)
-    cfg = SlamConfig(heading_bias_sigma_rad=0.0, heading_sigma_rad=0.0, altitude_bias_sigma_m=0.0,
-                     landmark_height_sigma_m=0.0, speed_bias_sigma_mps=sigma_w)
+    cfg = SlamConfig(
+        heading_bias_sigma_rad=0.0,
+        heading_sigma_rad=0.0,
+        altitude_bias_sigma_m=0.0,
+        landmark_height_sigma_m=0.0,
+        speed_bias_sigma_mps=sigma_w,
+    )
     ekf = EkfSlam(cfg)
     lm = rng.uniform([-0.2, -0.3], [2.2, 1.2], (90, 2))
     ids: dict[int, int] = {}
@@ -897,8 +1069,10 @@ def test_monte_carlo_a_world_frame_drag_of_the_speed_is_learned_by_the_speed_bia
     n_without = np.concatenate([r[0] for r in without])
     n_with = np.concatenate([r[0] for r in with_w])
     w_end = np.array([r[1] for r in with_w])
-    print(f"\nworld-frame drag: mean NEES {n_without.mean():.2f} without w, {n_with.mean():.2f} with; inside 2-sigma "
-          f"{np.mean(n_without < 5.99):.1%} / {np.mean(n_with < 5.99):.1%}; w at the end {w_end.mean(axis=0) * 1e3} mm/s")
+    print(
+        f"\nworld-frame drag: mean NEES {n_without.mean():.2f} without w, {n_with.mean():.2f} with; inside 2-sigma "
+        f"{np.mean(n_without < 5.99):.1%} / {np.mean(n_with < 5.99):.1%}; w at the end {w_end.mean(axis=0) * 1e3} mm/s"
+    )
     assert 1.0 < n_with.mean() < 3.5 and np.mean(n_with < 5.99) > 0.75
     assert n_without.mean() > 2.0 * n_with.mean()
     np.testing.assert_allclose(w_end.mean(axis=0), [0.0017, 0.0010], atol=0.0005)  # the drag, found

@@ -156,7 +156,7 @@ def test_frame_shifts_measure_a_known_image_shift_to_a_tenth_of_a_pixel():
 
     sea = _seabed()
     # The window moves by (+4, -3) px over the seabed each frame: the content moves by (-4, +3).
-    frames = [sea[300 - 3 * k: 572 - 3 * k, 200 + 4 * k: 560 + 4 * k] for k in range(6)]
+    frames = [sea[300 - 3 * k : 572 - 3 * k, 200 + 4 * k : 560 + 4 * k] for k in range(6)]
     shifts = frame_shifts_px(frames)
     assert shifts.shape == (5, 2)
     np.testing.assert_allclose(shifts, np.tile([-4.0, 3.0], (5, 1)), atol=0.1)
@@ -270,7 +270,9 @@ def test_true_body_speed_takes_the_mean_heading_on_the_circle_and_refuses_bad_sh
     from rovslam.eval.metrics import true_body_speed_mps
 
     # a step across +-pi: the mean heading is pi (south), not 0
-    v = true_body_speed_mps(np.array([[0.0, 0.0], [-0.02, 0.0]]), np.array([np.pi - 0.01, -np.pi + 0.01]), np.array([0.0, 0.2]))
+    v = true_body_speed_mps(
+        np.array([[0.0, 0.0], [-0.02, 0.0]]), np.array([np.pi - 0.01, -np.pi + 0.01]), np.array([0.0, 0.2])
+    )
     np.testing.assert_allclose(v, [[0.1, 0.0]], atol=1e-12)
     assert np.all(np.isnan(true_body_speed_mps(np.zeros((2, 2)), np.zeros(2), np.array([1.0, 1.0]))))  # no time passed
     with pytest.raises(InvalidArgumentError, match="need"):

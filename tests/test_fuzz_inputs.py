@@ -95,8 +95,13 @@ def test_one_line_from_a_real_process(name, shared, tmp_path):
     d = tmp_path / name
     d.mkdir()
     argv = case.build(d, shared)
-    proc = subprocess.run([sys.executable, "-m", "rovslam", *argv], capture_output=True, text=True, timeout=120,
-                          env={**os.environ, "COLUMNS": "80"})
+    proc = subprocess.run(
+        [sys.executable, "-m", "rovslam", *argv],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "COLUMNS": "80"},
+    )
     assert proc.returncode == 2, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("rovslam: error: ") and case.needle in lines[0], proc.stderr
@@ -106,9 +111,33 @@ def test_one_line_from_a_real_process(name, shared, tmp_path):
 # --------------------------------------------------------------------------- hypothesis on the parsers
 
 CELLS = st.one_of(
-    st.sampled_from(["0", "0.2", "-1", "1e6", "nan", "NaN", "inf", "-inf", "", " ", "1,3", "abc", '"0.4"', "1e309",
-                     "images/000001.png", "../outside/bait.png", "/etc/passwd", "images", "images/../images/000002.png",
-                     "images/\x00.png", "0x10", "1_000", "\ufeff0"]),
+    st.sampled_from(
+        [
+            "0",
+            "0.2",
+            "-1",
+            "1e6",
+            "nan",
+            "NaN",
+            "inf",
+            "-inf",
+            "",
+            " ",
+            "1,3",
+            "abc",
+            '"0.4"',
+            "1e309",
+            "images/000001.png",
+            "../outside/bait.png",
+            "/etc/passwd",
+            "images",
+            "images/../images/000002.png",
+            "images/\x00.png",
+            "0x10",
+            "1_000",
+            "\ufeff0",
+        ]
+    ),
     st.floats(allow_nan=True, allow_infinity=True).map(repr),
     st.text(max_size=6),
 )
@@ -120,14 +149,21 @@ def _csv_text(header: list[str], rows: list[list[str]]) -> str:
 
 @st.composite
 def frames_csv(draw):
-    header = draw(st.one_of(
-        st.just(["t_s", "image", "heading_rad", "sonar_altitude_m"]),
-        st.just(["t_s", "image", "heading_rad", "sonar_altitude_m", "roll_rad", "pitch_rad"]),
-        st.lists(st.sampled_from(["t_s", "image", "heading_rad", "sonar_altitude_m", "roll_rad", "x"]), max_size=6),
-    ))
+    header = draw(
+        st.one_of(
+            st.just(["t_s", "image", "heading_rad", "sonar_altitude_m"]),
+            st.just(["t_s", "image", "heading_rad", "sonar_altitude_m", "roll_rad", "pitch_rad"]),
+            st.lists(st.sampled_from(["t_s", "image", "heading_rad", "sonar_altitude_m", "roll_rad", "x"]), max_size=6),
+        )
+    )
     n = draw(st.integers(0, 6))
-    rows = [[draw(CELLS) for _ in range(draw(st.sampled_from([len(header), len(header), max(len(header) - 1, 0), len(header) + 1])))]
-            for _ in range(n)]
+    rows = [
+        [
+            draw(CELLS)
+            for _ in range(draw(st.sampled_from([len(header), len(header), max(len(header) - 1, 0), len(header) + 1])))
+        ]
+        for _ in range(n)
+    ]
     text = _csv_text(header, rows)
     encoding = draw(st.sampled_from(["utf-8", "utf-8-sig", "latin-1", "utf-16"]))
     return text.encode(encoding, errors="replace")
@@ -170,9 +206,11 @@ def test_frames_csv_parser(data, parser_folder, shared):
 
 
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(rows=st.lists(st.lists(CELLS, min_size=5, max_size=5), max_size=5),
-       header=st.sampled_from([["t_s", "x_m", "y_m", "altitude_m", "heading_rad"], ["t_s", "x_m", "y_m"]]),
-       bom=st.booleans())
+@given(
+    rows=st.lists(st.lists(CELLS, min_size=5, max_size=5), max_size=5),
+    header=st.sampled_from([["t_s", "x_m", "y_m", "altitude_m", "heading_rad"], ["t_s", "x_m", "y_m"]]),
+    bom=st.booleans(),
+)
 def test_groundtruth_parser(rows, header, bom, parser_folder):
     from rovslam.io.sequence import read_groundtruth
 
@@ -186,20 +224,29 @@ def test_groundtruth_parser(rows, header, bom, parser_folder):
     assert len(gt) >= 1 and np.all(np.isfinite(gt.xy_m)) and np.all(np.diff(gt.t_s) > 0)
 
 
-TOML_VALUES = st.one_of(st.integers(-10**6, 10**12), st.floats(allow_nan=True), st.text(max_size=5), st.booleans(),
-                        st.lists(st.floats(allow_nan=False, width=32), max_size=9))
+TOML_VALUES = st.one_of(
+    st.integers(-(10**6), 10**12),
+    st.floats(allow_nan=True),
+    st.text(max_size=5),
+    st.booleans(),
+    st.lists(st.floats(allow_nan=False, width=32), max_size=9),
+)
 
 
 @st.composite
 def sequence_toml(draw):
     cam = {"width_px": 128, "height_px": 96, "fx_px": 200.0, "fy_px": 200.0, "cx_px": 63.5, "cy_px": 47.5}
-    for key in draw(st.lists(st.sampled_from(sorted(cam) + ["distortion", "yaw_offset_rad", "bit_depth", "foo"]), max_size=3)):
+    for key in draw(
+        st.lists(st.sampled_from(sorted(cam) + ["distortion", "yaw_offset_rad", "bit_depth", "foo"]), max_size=3)
+    ):
         cam[key] = draw(TOML_VALUES)
     for key in draw(st.lists(st.sampled_from(sorted(cam)), max_size=2)):
         cam.pop(key, None)
     data = {"format": draw(st.sampled_from(["rovslam-sequence/1", "rovslam-sequence/1", "v2"])), "camera": cam}
     if draw(st.booleans()):
-        data["laser"] = [{"origin_m": draw(st.lists(TOML_VALUES, max_size=4)), "direction": draw(st.lists(TOML_VALUES, max_size=4))}]
+        data["laser"] = [
+            {"origin_m": draw(st.lists(TOML_VALUES, max_size=4)), "direction": draw(st.lists(TOML_VALUES, max_size=4))}
+        ]
     if draw(st.booleans()):
         data["vehicle"] = {"altitude_m": draw(TOML_VALUES)}
     return data
@@ -230,9 +277,13 @@ def test_sequence_toml_parser(data, garbage, parser_folder):
 
 
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(column=st.sampled_from(["t_s", "x_m", "var_x_m2", "altitude_m", "skipped", "altitude_source"]),
-       line=st.integers(1, 8), value=CELLS, cut=st.integers(0, 400),
-       summary=st.one_of(st.none(), st.binary(max_size=40), st.sampled_from([b"{}", b"[]", b"null", b'{"a": NaN}'])))
+@given(
+    column=st.sampled_from(["t_s", "x_m", "var_x_m2", "altitude_m", "skipped", "altitude_source"]),
+    line=st.integers(1, 8),
+    value=CELLS,
+    cut=st.integers(0, 400),
+    summary=st.one_of(st.none(), st.binary(max_size=40), st.sampled_from([b"{}", b"[]", b"null", b'{"a": NaN}'])),
+)
 def test_results_reader(column, line, value, cut, summary, shared, tmp_path_factory):
     from rovslam.io.results import read_results
 
@@ -280,13 +331,22 @@ def _mutants(data: bytes, rng: np.random.Generator, k: int) -> list[bytes]:
 def test_byte_mutations_of_every_file(shared, tmp_path):
     """Seeded mutants of sequence.toml, frames.csv, an image, groundtruth.csv and every results file."""
     rng = np.random.default_rng(15)
-    targets = [("seq", "sequence.toml"), ("seq", "frames.csv"), ("seq", "images/000002.png"), ("seq", "groundtruth.csv"),
-               ("res", "trajectory.csv"), ("res", "summary.json"), ("res", "landmarks.csv"), ("res", "observations.csv")]
+    targets = [
+        ("seq", "sequence.toml"),
+        ("seq", "frames.csv"),
+        ("seq", "images/000002.png"),
+        ("seq", "groundtruth.csv"),
+        ("res", "trajectory.csv"),
+        ("res", "summary.json"),
+        ("res", "landmarks.csv"),
+        ("res", "observations.csv"),
+    ]
     failures, outcomes = [], {0: 0, 2: 0}
     for kind, rel in targets:
         base = shared.base_seq if kind == "seq" else shared.base_results
         for m, data in enumerate(_mutants((base / rel).read_bytes(), rng, 60)):
-            def build(d, sh, kind=kind, rel=rel, data=data):
+
+            def build(d, sh, kind=kind, rel=rel, data=data, base=base):
                 folder = d / kind
                 shutil.copytree(base, folder)
                 (folder / rel).write_bytes(data)

@@ -56,8 +56,15 @@ def test_gate_keeps_just_inside_and_drops_well_outside(heading):
     vehicle = np.array([3.0, -1.0])
     # Body-frame offsets: just inside the image edge forward, starboard and in a corner;
     # and well outside (5 half-footprints ahead, 4 to port).
-    body = np.array([[0.95 * HALF_H_M, 0.0], [0.0, -0.95 * HALF_W_M], [0.6 * HALF_H_M, 0.6 * HALF_W_M],
-                     [5.0 * HALF_H_M, 0.0], [0.0, -4.0 * HALF_W_M]])
+    body = np.array(
+        [
+            [0.95 * HALF_H_M, 0.0],
+            [0.0, -0.95 * HALF_W_M],
+            [0.6 * HALF_H_M, 0.6 * HALF_W_M],
+            [5.0 * HALF_H_M, 0.0],
+            [0.0, -4.0 * HALF_W_M],
+        ]
+    )
     xy = vehicle + body @ r.T
     cov = np.broadcast_to(TINY, (5, 2, 2))
     fp = footprint_matrix_m2(heading, Z, F, W, H)
@@ -86,7 +93,9 @@ def test_new_landmark_test_refuses_within_the_spacing():
     far = vehicle + np.array([[0.8, -0.3]])
     cov = TINY[None]
     # d^T L^-1 d = 0.0072 / (0.0225 / 13.82)
-    assert new_landmark_statistics(near, cov, vehicle, TINY, spacing)[0] == pytest.approx(0.0072 / 0.0225 * mu, rel=1e-6)
+    assert new_landmark_statistics(near, cov, vehicle, TINY, spacing)[0] == pytest.approx(
+        0.0072 / 0.0225 * mu, rel=1e-6
+    )
     assert not new_landmark_test(near, cov, vehicle, TINY, spacing, mu)
     assert new_landmark_test(far, cov, vehicle, TINY, spacing, mu)
     # One near landmark among many far ones is enough to refuse.
@@ -116,7 +125,15 @@ def test_relative_covariance_uses_the_cross_terms():
 
 
 def test_ekf_gate_and_new_landmark_test():
-    ekf = EkfSlam(SlamConfig(pixel_sigma_px=0.5, new_landmark_spacing_m=0.372, landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0))
+    ekf = EkfSlam(
+        SlamConfig(
+            pixel_sigma_px=0.5,
+            new_landmark_spacing_m=0.372,
+            landmark_height_sigma_m=0.0,
+            altitude_bias_sigma_m=0.0,
+            speed_bias_sigma_mps=0.0,
+        )
+    )
     assert ekf.may_add_landmark()  # no landmarks yet
     assert ekf.visible_landmarks(0.0, Z, F, W, H).size == 0
     # Landmark 0 just inside the image edge ahead (m = 0.95 * H/2), landmark 1 far ahead.

@@ -54,7 +54,9 @@ def test_times_file_chooses_and_times_the_images(folder, tmp_path):
 
 def test_a_folder_of_images_runs_end_to_end(folder, tmp_path):
     d, cam = folder
-    res = CliRunner().invoke(app, ["run", str(d), "--camera", str(cam), "--fps", "5", "--out", str(tmp_path / "o"), "-q"])
+    res = CliRunner().invoke(
+        app, ["run", str(d), "--camera", str(cam), "--fps", "5", "--out", str(tmp_path / "o"), "-q"]
+    )
     assert res.exit_code == 0, res.stderr
     import json
 
@@ -82,19 +84,29 @@ def test_bad_image_folders(folder, tmp_path):
     assert "missing: --camera CAMERA.toml and --fps F or --times FILE." in line
     assert "missing: --fps F or --times FILE." in _error(["run", d, "--camera", cam, *out])
     assert "missing: --camera CAMERA.toml." in _error(["run", d, "--fps", "5", *out])
-    assert "give --fps or --times, one of the two, not both" in _error(["run", d, "--camera", cam, "--fps", "5", "--times", tmp_path / "t.csv", *out])
+    assert "give --fps or --times, one of the two, not both" in _error(
+        ["run", d, "--camera", cam, "--fps", "5", "--times", tmp_path / "t.csv", *out]
+    )
     assert "--fps must be a frame rate" in _error(["run", d, "--camera", cam, "--fps", "0", *out])
     times = tmp_path / "t.csv"
     times.write_text("image,t_s\nimg1.png,0\nimg99.png,1\n")
-    assert "t.csv, line 3: image file 'img99.png' not found" in _error(["run", d, "--camera", cam, "--times", times, *out])
+    assert "t.csv, line 3: image file 'img99.png' not found" in _error(
+        ["run", d, "--camera", cam, "--times", times, *out]
+    )
     (tmp_path / "bait.png").write_bytes((d / "img1.png").read_bytes())
     times.write_text("image,t_s\nimg1.png,0\n../bait.png,1\n")
-    assert "line 3: column 'image': path '../bait.png' leads outside" in _error(["run", d, "--camera", cam, "--times", times, *out])
+    assert "line 3: column 'image': path '../bait.png' leads outside" in _error(
+        ["run", d, "--camera", cam, "--times", times, *out]
+    )
     times.write_text("image,t_s\nimg1.png,0\n/etc/passwd,1\n")
-    assert "line 3: column 'image': path '/etc/passwd' is absolute" in _error(["run", d, "--camera", cam, "--times", times, *out])
+    assert "line 3: column 'image': path '/etc/passwd' is absolute" in _error(
+        ["run", d, "--camera", cam, "--times", times, *out]
+    )
     times.write_text("image,t_s\nimg1.png,0\nimg2.png,0\n")
     assert "repeats another image's time" in _error(["run", d, "--camera", cam, "--times", times, *out])
-    assert "--image-topic cannot be used" in _error(["run", d, "--camera", cam, "--fps", "5", "--image-topic", "/x", *out])
+    assert "--image-topic cannot be used" in _error(
+        ["run", d, "--camera", cam, "--fps", "5", "--image-topic", "/x", *out]
+    )
 
 
 def test_an_image_linking_outside_the_folder_is_refused(folder, tmp_path):
@@ -104,7 +116,8 @@ def test_an_image_linking_outside_the_folder_is_refused(folder, tmp_path):
     (d / "img5.png").unlink()
     os.symlink(bait, d / "img5.png")
     assert "image 'img5.png': path 'img5.png' leads outside" in _error(
-        ["run", d, "--camera", cam, "--fps", "5", "--out", tmp_path / "o", "-q"])
+        ["run", d, "--camera", cam, "--fps", "5", "--out", tmp_path / "o", "-q"]
+    )
 
 
 def test_every_readme_section_an_error_names_exists():

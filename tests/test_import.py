@@ -29,8 +29,22 @@ def video(tmp_path):
 
 def test_import_writes_the_navigation_at_each_frame(video, tmp_path):
     v, cam, nav = video
-    res = CliRunner().invoke(app, ["import", str(v), "--camera", str(cam), "--nav", str(nav), "--nav-time-offset",
-                                   repr(fc.NAV_OFFSET_S), "--out", str(tmp_path / "seq"), "-q"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "import",
+            str(v),
+            "--camera",
+            str(cam),
+            "--nav",
+            str(nav),
+            "--nav-time-offset",
+            repr(fc.NAV_OFFSET_S),
+            "--out",
+            str(tmp_path / "seq"),
+            "-q",
+        ],
+    )
     assert res.exit_code == 0, res.stderr
     s = open_sequence(tmp_path / "seq")
     assert len(s) == 12
@@ -52,8 +66,13 @@ def test_an_import_stopped_early_is_a_readable_sequence(video, tmp_path):
     v, cam, _ = video
     src = open_source(v, options=InputOptions(camera_file=cam))
     calls = []
-    summary = import_source(src, tmp_path / "seq", describe_source(src), should_stop=lambda: len(calls) >= 4,
-                            on_frame=lambda done, total: calls.append((done, total)))
+    summary = import_source(
+        src,
+        tmp_path / "seq",
+        describe_source(src),
+        should_stop=lambda: len(calls) >= 4,
+        on_frame=lambda done, total: calls.append((done, total)),
+    )
     assert summary.stopped and summary.frames == 4
     assert calls[0] == (1, 12)
     s = open_sequence(tmp_path / "seq")
@@ -88,6 +107,8 @@ def test_a_video_without_camera_file_says_what_one_holds(video, tmp_path):
     v, _, _ = video
     res = CliRunner().invoke(app, ["run", str(v), "--out", str(tmp_path / "o")])
     assert res.exit_code == 2
-    assert res.stderr.strip() == (f"rovslam: error: {v}: a video needs --camera CAMERA.toml, a camera file with [camera] "
-                                  "(width_px, height_px, fx_px, fy_px, cx_px, cy_px), optional [[laser]], [vehicle] "
-                                  "altitude_m and [nav].")
+    assert res.stderr.strip() == (
+        f"rovslam: error: {v}: a video needs --camera CAMERA.toml, a camera file with [camera] "
+        "(width_px, height_px, fx_px, fy_px, cx_px, cy_px), optional [[laser]], [vehicle] "
+        "altitude_m and [nav]."
+    )

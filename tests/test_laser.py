@@ -151,9 +151,11 @@ def test_sloped_seabed_plane_fit_gives_altitude_below_camera_and_slope():
 def test_tilted_pointers_and_attitude_triangulate_exactly():
     cam = Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5, distortion=(-0.1, 0.02, 0.0, 0.0, 0.0))
     d = np.array([0.0, -0.12, 1.0])
-    lasers = (LaserPointer((0.1, 0.15, 0.02), tuple(d / np.linalg.norm(d))),
-              LaserPointer((-0.1, 0.0, 0.0), (0.05, 0.0, 1.0)),
-              LaserPointer((0.0, -0.12, 0.0)))
+    lasers = (
+        LaserPointer((0.1, 0.15, 0.02), tuple(d / np.linalg.norm(d))),
+        LaserPointer((-0.1, 0.0, 0.0), (0.05, 0.0, 1.0)),
+        LaserPointer((0.0, -0.12, 0.0)),
+    )
     for z, roll, pitch in [(1.0, 0.0, 0.0), (2.2, 0.05, -0.03), (0.8, -0.1, 0.08)]:
         uv = predict_spot_pixels(cam, lasers, z, roll, pitch)
         assert np.all(np.isfinite(uv))
@@ -225,8 +227,9 @@ def test_laser_input_checks():
     assert dataclasses.is_dataclass(fuse_altitude(np.zeros(0), np.zeros(0), None, 1.0, CFG))
 
 
-@pytest.mark.parametrize("faint, truth_m, fallback_m, rel", [(False, 0.6, 2.5, 0.01), (True, 1.31, 1.8, 0.005)],
-                         ids=["bright", "faint"])
+@pytest.mark.parametrize(
+    "faint, truth_m, fallback_m, rel", [(False, 0.6, 2.5, 0.01), (True, 1.31, 1.8, 0.005)], ids=["bright", "faint"]
+)
 def test_spots_far_from_the_prediction_are_found_by_the_altitude_search(faint, truth_m, fallback_m, rel):
     # bright: the spots are ~70 px from where the fallback puts them; faint (no spot seen yet): 11 px outside
     # the faint search around their prediction
@@ -247,8 +250,13 @@ def _smeared_spot(centre_uv, pedestal: int = 0, neighbour_uv=None) -> np.ndarray
     # kernel taps along u: 0.6 at -1.5 px, 0.4 spread over +1..+4 px, shifted to a first moment of 0
     taps = [(-1.5, 0.6)] + [(d, 0.4 / 4) for d in (1.0, 2.0, 3.0, 4.0)]
     shift = -sum(d * a for d, a in taps)  # put the first moment back at exactly 0
-    smeared = sum(a * np.exp(-((uu - centre_uv[0] - d - shift) ** 2 + (vv - centre_uv[1]) ** 2) / (2 * 1.2**2))
-                  for d, a in taps) * 230.0
+    smeared = (
+        sum(
+            a * np.exp(-((uu - centre_uv[0] - d - shift) ** 2 + (vv - centre_uv[1]) ** 2) / (2 * 1.2**2))
+            for d, a in taps
+        )
+        * 230.0
+    )
     red = 60.0 + pedestal + smeared
     if neighbour_uv is not None:  # another red blob nearby (a second pointer, a red sponge)
         red += 200.0 * (((uu - neighbour_uv[0]) ** 2 + (vv - neighbour_uv[1]) ** 2) <= 4.0)

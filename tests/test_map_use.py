@@ -23,8 +23,11 @@ def test_tally_counts_frames_with_a_landmark_in_view_and_found():
         tally.add(_res(2, 1 if k % 10 == 0 else 0))  # found in 10 of 100
     tally.add(_res(0, 0))  # nothing in view: not counted
     tally.add(_res(3, 3, skipped="no image"))  # a skipped frame: not counted
-    assert tally.summary() == {"frames_with_landmark_in_view": 100, "frames_with_landmark_found": 10,
-                               "found_fraction": 0.1}
+    assert tally.summary() == {
+        "frames_with_landmark_in_view": 100,
+        "frames_with_landmark_found": 10,
+        "found_fraction": 0.1,
+    }
     (warning,) = tally.warnings()
     assert "found again in only 10 of the 100 frames that had one in view (10 %)" in warning
     assert "caustics" in warning

@@ -23,9 +23,20 @@ from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
 def frame(index=1, **changes):
     """A valid frame with two observations; ``changes`` override fields."""
     fields = dict(
-        index=index, t_s=0.2 * index, dt_s=0.2, speed_mps=[0.1, -0.01], speed_cov_mps2=[[4e-6, 1e-7], [1e-7, 9e-6]],
-        speed_ok=True, heading_rad=0.4, heading_sigma_rad=0.003, compass_rad=0.41, compass_sigma_rad=0.0087,
-        heading_step_rad=0.001, heading_step_sigma_rad=0.002, altitude_m=1.31, altitude_sigma_m=0.01,
+        index=index,
+        t_s=0.2 * index,
+        dt_s=0.2,
+        speed_mps=[0.1, -0.01],
+        speed_cov_mps2=[[4e-6, 1e-7], [1e-7, 9e-6]],
+        speed_ok=True,
+        heading_rad=0.4,
+        heading_sigma_rad=0.003,
+        compass_rad=0.41,
+        compass_sigma_rad=0.0087,
+        heading_step_rad=0.001,
+        heading_step_sigma_rad=0.002,
+        altitude_m=1.31,
+        altitude_sigma_m=0.01,
         focal_px=1075.0,
         landmarks=(
             LandmarkMeasurement(3, "track", [12.5, -40.25], [[0.25, 0.01], [0.01, 0.3]], accepted_by_online=False),
@@ -112,8 +123,15 @@ def test_the_first_frame_may_have_no_speed_covariance():
 # ---------------------------------------------------------------- the files
 def test_a_survey_round_trips_exactly(tmp_path, survey):
     frames = list(survey.frames)
-    frames[5] = frame(index=5, t_s=1.0, compass_rad=np.nan, heading_step_rad=np.nan,
-                      heading_step_sigma_rad=np.nan, altitude_sigma_m=np.nan, speed_ok=False)
+    frames[5] = frame(
+        index=5,
+        t_s=1.0,
+        compass_rad=np.nan,
+        heading_step_rad=np.nan,
+        heading_step_sigma_rad=np.nan,
+        altitude_sigma_m=np.nan,
+        speed_ok=False,
+    )
     assert not has_measurements(tmp_path)
     write_measurements(tmp_path, frames)
     assert has_measurements(tmp_path)
@@ -125,7 +143,9 @@ def test_a_survey_round_trips_exactly(tmp_path, survey):
 
 
 def test_the_ahrs_accuracy_round_trips_and_an_earlier_run_without_it_reads_as_none(tmp_path, survey):
-    frames = [frame(index=k, t_s=0.2 * k, attitude_sigma_rad=0.0035 if k % 2 else 0.0, landmarks=()) for k in range(1, 5)]
+    frames = [
+        frame(index=k, t_s=0.2 * k, attitude_sigma_rad=0.0035 if k % 2 else 0.0, landmarks=()) for k in range(1, 5)
+    ]
     write_measurements(tmp_path, frames)
     back = read_measurements(tmp_path)
     assert [f.attitude_sigma_rad for f in back] == [0.0035, 0.0, 0.0035, 0.0]
@@ -141,15 +161,21 @@ def test_the_ahrs_accuracy_round_trips_and_an_earlier_run_without_it_reads_as_no
 
 @settings(max_examples=40, deadline=None)
 @given(
-    values=st.lists(st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, allow_subnormal=True), min_size=6,
-                    max_size=6),
+    values=st.lists(
+        st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, allow_subnormal=True), min_size=6, max_size=6
+    ),
     tiny=st.floats(min_value=1e-300, max_value=1e-3),
 )
 def test_any_finite_numbers_round_trip_exactly(tmp_path_factory, values, tiny):
     out = tmp_path_factory.mktemp("rt")
-    f = frame(t_s=values[0], speed_mps=values[1:3], heading_rad=values[3], compass_rad=values[4],
-              speed_cov_mps2=np.eye(2) * tiny,
-              landmarks=(LandmarkMeasurement(7, "track", values[4:6], np.eye(2) * tiny),))
+    f = frame(
+        t_s=values[0],
+        speed_mps=values[1:3],
+        heading_rad=values[3],
+        compass_rad=values[4],
+        speed_cov_mps2=np.eye(2) * tiny,
+        landmarks=(LandmarkMeasurement(7, "track", values[4:6], np.eye(2) * tiny),),
+    )
     write_measurements(out, [f])
     assert read_measurements(out) == [f]
 
@@ -167,8 +193,11 @@ def test_an_interrupted_run_reads_up_to_its_last_complete_frame(tmp_path, survey
     # The frame rows reached the disk but not the observations of the last frames.
     meas.write_text(text)
     last_with_obs = max(i for i, f in enumerate(frames) if f.landmarks)
-    kept = [line for line in obs.read_text().splitlines()
-            if not line.split(",")[0].isdigit() or int(line.split(",")[0]) < frames[last_with_obs].index]
+    kept = [
+        line
+        for line in obs.read_text().splitlines()
+        if not line.split(",")[0].isdigit() or int(line.split(",")[0]) < frames[last_with_obs].index
+    ]
     obs.write_text("\n".join(kept) + "\n")
     back = read_measurements(tmp_path)
     assert back == frames[:last_with_obs]
@@ -212,8 +241,12 @@ def test_bad_files_name_the_file_line_and_column(tmp_path, survey):
     with pytest.raises(ResultsFormatError, match="do not belong together"):
         read_measurements(tmp_path)
 
-    obs.write_text("\n".join(obs_lines[:1] + [obs_lines[1].replace(",track,", ",seen,").replace(",init,", ",seen,")]
-                             + obs_lines[2:]) + "\n")
+    obs.write_text(
+        "\n".join(
+            obs_lines[:1] + [obs_lines[1].replace(",track,", ",seen,").replace(",init,", ",seen,")] + obs_lines[2:]
+        )
+        + "\n"
+    )
     with pytest.raises(ResultsFormatError, match="landmark_measurements.csv, line 2: .*kind must be 'init' or 'track'"):
         read_measurements(tmp_path)
 

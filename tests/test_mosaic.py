@@ -112,13 +112,31 @@ def test_tiles_are_allocated_only_where_frames_land():
 
 def test_grid_plan_refuses_a_mosaic_too_large_and_bad_scales():
     cam = Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5)
-    poses = Poses(np.arange(2), np.array([0.0, 500.0]), np.zeros(2), np.full(2, 1.3), np.zeros(2), np.zeros(2), np.zeros(2))
+    poses = Poses(
+        np.arange(2), np.array([0.0, 500.0]), np.zeros(2), np.full(2, 1.3), np.zeros(2), np.zeros(2), np.zeros(2)
+    )
     with pytest.raises(InvalidArgumentError, match="coarser --mm-per-px"):
         plan_grid(cam, poses, 1.0)
     with pytest.raises(InvalidArgumentError, match="positive"):
         plan_grid(cam, poses, 0.0)
-    g = plan_grid(cam, Poses(*(a[:1] for a in (poses.frame, poses.x_m, poses.y_m, poses.altitude_m, poses.heading_rad,
-                                               poses.roll_rad, poses.pitch_rad))), 2.0)
+    g = plan_grid(
+        cam,
+        Poses(
+            *(
+                a[:1]
+                for a in (
+                    poses.frame,
+                    poses.x_m,
+                    poses.y_m,
+                    poses.altitude_m,
+                    poses.heading_rad,
+                    poses.roll_rad,
+                    poses.pitch_rad,
+                )
+            )
+        ),
+        2.0,
+    )
     # the footprint at 1.3 m is about 33 cm x 44 cm: at 2 mm/px, ~164 x ~218 px plus the margin
     assert isinstance(g, MosaicGrid) and 215 <= g.width_px <= 230 and 160 <= g.height_px <= 175
 
@@ -141,8 +159,9 @@ def test_mosaic_command_lays_the_estimate_where_the_truth_lays_the_frames(dive, 
     gone = runner.invoke(app, ["mosaic", str(out), "--seq", str(tmp_path / "nowhere")])
     assert gone.exit_code == 2 and "--seq" in gone.output
     est = mosaic_of_run(out, tmp_path / "e.png", mm_per_px=1.0, overlay=False).mosaic
-    tru = mosaic_of_run(out, tmp_path / "t.png", groundtruth=dive / "seq" / "groundtruth.csv", grid=est.grid,
-                        overlay=False).mosaic
+    tru = mosaic_of_run(
+        out, tmp_path / "t.png", groundtruth=dive / "seq" / "groundtruth.csv", grid=est.grid, overlay=False
+    ).mosaic
     both = est.covered & tru.covered
     assert both.sum() > 0.95 * est.covered.sum()  # the same seabed is covered
     a = _highpass(cv2.cvtColor(est.rgb, cv2.COLOR_RGB2GRAY))[both]
@@ -161,7 +180,7 @@ def test_landmark_ids_never_overlap_and_a_lone_one_sits_above_right_of_its_cross
         (w, h), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.35, 1)
         boxes.append((u, v - h, u + w, v))  # putText's origin is the text's bottom-left corner
     for i, a in enumerate(boxes):
-        for b in boxes[i + 1:]:
+        for b in boxes[i + 1 :]:
             assert not (a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]), (a, b)
     for (u0, v0, u1, v1), (pu, pv) in zip(boxes, points):
         assert 0 <= u0 and u1 <= 200 and 0 <= v0 and v1 <= 200  # inside the mosaic
@@ -173,8 +192,9 @@ def test_landmark_ids_never_overlap_and_a_lone_one_sits_above_right_of_its_cross
 
 def test_landmarks_a_centimetre_apart_get_their_ids_on_separate_rows():
     grid = MosaicGrid(x_top_m=0.5, y_left_m=-0.5, mm_per_px=5.0, width_px=200, height_px=200)
-    blank = Mosaic(rgb=np.full((200, 200, 3), 255, np.uint8), covered=np.ones((200, 200), bool), grid=grid,
-                   frames_used=1, tiles=1)
+    blank = Mosaic(
+        rgb=np.full((200, 200, 3), 255, np.uint8), covered=np.ones((200, 200), bool), grid=grid, frames_used=1, tiles=1
+    )
     lms = {"id": np.array([1, 2]), "x_m": np.array([0.0, 0.001]), "y_m": np.array([0.0, 0.002])}
     img = decorate(blank, None, lms)[:200]
     red = (img[:, :, 0] > 150) & (img[:, :, 1] < 120)

@@ -111,8 +111,9 @@ def test_a_huge_quaternion_is_refused_without_a_numpy_warning():
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # an overflow warning would reach the user's stderr before the error
         with pytest.raises(NavigationError, match="line 4: quaternion .* length inf, not 1"):
-            quaternions_to_heading(np.array([[1e200, 0.0, 0.0, 1.0]]), ["nav.csv, line 4"], "enu", "flu",
-                                   "body-to-world")
+            quaternions_to_heading(
+                np.array([[1e200, 0.0, 0.0, 1.0]]), ["nav.csv, line 4"], "enu", "flu", "body-to-world"
+            )
 
 
 # --------------------------------------------------------------------------- NAV.csv and its mapping
@@ -135,8 +136,12 @@ def test_default_columns_need_no_mapping(tmp_path):
 
 def test_mapping_units_offset_and_enu_heading(tmp_path):
     p = _csv(tmp_path, "stamp_ms,yaw_deg,alt\n1000000,90,2.0\n1000500,80,2.2\n")
-    m = nav_mapping({"time": "stamp_ms", "time_unit": "ms", "heading": "yaw_deg", "heading_convention": "enu",
-                     "altitude": "alt"}, "cam.toml: [nav]", overrides=(("angle_unit", "deg"),), time_offset_s=1000.0)
+    m = nav_mapping(
+        {"time": "stamp_ms", "time_unit": "ms", "heading": "yaw_deg", "heading_convention": "enu", "altitude": "alt"},
+        "cam.toml: [nav]",
+        overrides=(("angle_unit", "deg"),),
+        time_offset_s=1000.0,
+    )
     nav = read_nav_csv(p, m)
     assert nav.span_s[0] <= 0.0 and nav.span_s[1] >= 0.5
     s = nav.sample(0.5)
@@ -204,15 +209,24 @@ def test_a_log_that_does_not_overlap_the_frames_is_refused(tmp_path):
     nav.check_overlap((0.0, 100.2), "video", "")  # partly covered: fine
 
 
-NAV_CELLS = st.one_of(st.sampled_from(["0", "0.5", "-1", "1e9", "nan", "inf", "", "x", "1e309", "-0"]),
-                      st.floats(allow_nan=True, allow_infinity=True).map(repr))
+NAV_CELLS = st.one_of(
+    st.sampled_from(["0", "0.5", "-1", "1e9", "nan", "inf", "", "x", "1e309", "-0"]),
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+)
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(rows=st.lists(st.lists(NAV_CELLS, min_size=4, max_size=4), max_size=6),
-       header=st.sampled_from([["t_s", "heading_rad", "altitude_m", "x"], ["t", "qx", "qy", "qz"],
-                               ["t_s", "roll_rad", "pitch_rad", "heading_deg"]]),
-       table=st.sampled_from([{}, {"time": "t", "quaternion": ["qx", "qy", "qz", "t"]}, {"drop_repeated_rows": True}]))
+@given(
+    rows=st.lists(st.lists(NAV_CELLS, min_size=4, max_size=4), max_size=6),
+    header=st.sampled_from(
+        [
+            ["t_s", "heading_rad", "altitude_m", "x"],
+            ["t", "qx", "qy", "qz"],
+            ["t_s", "roll_rad", "pitch_rad", "heading_deg"],
+        ]
+    ),
+    table=st.sampled_from([{}, {"time": "t", "quaternion": ["qx", "qy", "qz", "t"]}, {"drop_repeated_rows": True}]),
+)
 def test_nav_parser_returns_valid_tracks_or_a_named_error(rows, header, table, tmp_path):
     p = tmp_path / "fuzz_nav.csv"
     p.write_text("\n".join(",".join(r) for r in [header, *rows]) + "\n", encoding="utf-8")
@@ -263,7 +277,9 @@ def test_sparus_convention_agrees_with_the_video_itself():
     for a, b in zip(frames, frames[1:]):
         ka, da = sift.detectAndCompute(a, None)
         kb, db = sift.detectAndCompute(b, None)
-        good = [m[0] for m in cv2.BFMatcher().knnMatch(da, db, k=2) if len(m) == 2 and m[0].distance < 0.75 * m[1].distance]
+        good = [
+            m[0] for m in cv2.BFMatcher().knnMatch(da, db, k=2) if len(m) == 2 and m[0].distance < 0.75 * m[1].distance
+        ]
         pa = np.float32([ka[g.queryIdx].pt for g in good])
         pb = np.float32([kb[g.trainIdx].pt for g in good])
         m, _ = cv2.estimateAffinePartial2D(pa, pb, method=cv2.RANSAC)
@@ -273,8 +289,10 @@ def test_sparus_convention_agrees_with_the_video_itself():
     vehicle_turn_deg = -turn_deg  # the seabed turns one way on screen when the camera turns the other
     import tomllib
 
-    nav = read_nav_csv(SPARUS / "sparus_snippet.csv",
-                       nav_mapping(tomllib.loads((ROOT / "examples" / "sparus-camera.toml").read_text())["nav"]))
+    nav = read_nav_csv(
+        SPARUS / "sparus_snippet.csv",
+        nav_mapping(tomllib.loads((ROOT / "examples" / "sparus-camera.toml").read_text())["nav"]),
+    )
     nav_turn_deg = math.degrees(nav.sample(4.2).heading_rad - nav.sample(0.0).heading_rad)
     assert vehicle_turn_deg == pytest.approx(nav_turn_deg, abs=4.0)
     assert shift[1] > 100 and abs(shift[0]) < 0.4 * shift[1]  # mostly down the image: moving forward (image-up)

@@ -38,7 +38,9 @@ def _mission(tmp_path_factory, estimator: str):
     """portofino, seed 1: a 120 s survey, then the 4 corners and the centre of a 1 m square, 5 s holds."""
     base = tmp_path_factory.mktemp("nav")
     pois = [Goal(n, np.array([x, y])) for n, x, y in CORNERS_AND_CENTRE]
-    return navigate("portofino", pois, base / estimator, estimator, survey_s=120.0, hold_s=5.0, seed=1), base / estimator
+    return navigate(
+        "portofino", pois, base / estimator, estimator, survey_s=120.0, hold_s=5.0, seed=1
+    ), base / estimator
 
 
 @pytest.fixture(scope="module")
@@ -79,8 +81,9 @@ def test_dead_reckoning_arrives_at_least_3_times_farther_from_the_points(tmp_pat
     pois = [Goal(n, np.array([x, y])) for n, x, y in CORNERS_AND_CENTRE]
     mean_err = {}
     for estimator in ("slam", "dead-reckoning"):
-        s = navigate("portofino-relief", pois, tmp_path / estimator, estimator, survey_s=300.0, hold_s=5.0, seed=seed,
-                     plot=False)
+        s = navigate(
+            "portofino-relief", pois, tmp_path / estimator, estimator, survey_s=300.0, hold_s=5.0, seed=seed, plot=False
+        )
         assert s.status == "complete" and all(r["reached"] == 1 for r in s.arrivals)
         mean_err[estimator] = float(np.mean([r["true_err_m"] for r in s.arrivals]))
     assert mean_err["dead-reckoning"] >= REQUIRED_DR_OVER_SLAM * mean_err["slam"], mean_err
@@ -166,8 +169,17 @@ def test_a_live_frame_is_the_frame_simulate_writes_for_the_same_pose(tmp_path):
     live = LiveSimulator("portofino-relief", 4, area_m=(-1.0, 1.0, -1.0, 1.0))
     for k in (0, 2):
         p = frame_pose(traj, k)
-        state = TrueState(float(traj.t_s[k]), p.x_m, p.y_m, p.altitude_m, p.heading_rad, p.roll_rad, p.pitch_rad,
-                          float(traj.surge_mps[k]), float(traj.sway_mps[k]))
+        state = TrueState(
+            float(traj.t_s[k]),
+            p.x_m,
+            p.y_m,
+            p.altitude_m,
+            p.heading_rad,
+            p.roll_rad,
+            p.pitch_rad,
+            float(traj.surge_mps[k]),
+            float(traj.sway_mps[k]),
+        )
         np.testing.assert_array_equal(live.render(k, state), written[k].image)
     frame = live.capture(2, state)
     assert frame.index == 2 and frame.sonar_altitude_m == pytest.approx(state.altitude_m, abs=0.2)

@@ -32,8 +32,13 @@ WIDE_COV = np.eye(2) * 1e-4  # 2 cm
 
 
 def est(t_s, xy, cov=SMALL_COV, heading=0.0, vel=None):
-    return NavEstimate(t_s, np.asarray(xy, dtype=float), np.asarray(cov, dtype=float), heading,
-                       None if vel is None else np.asarray(vel, dtype=float))
+    return NavEstimate(
+        t_s,
+        np.asarray(xy, dtype=float),
+        np.asarray(cov, dtype=float),
+        heading,
+        None if vel is None else np.asarray(vel, dtype=float),
+    )
 
 
 # ------------------------------------------------------------------ pure laws
@@ -128,8 +133,11 @@ def test_a_wide_ellipse_waits_then_arrives_flagged_as_not_confident():
 
 def test_survey_points_are_passed_and_dropped_when_the_survey_time_is_over():
     cfg = GuidanceConfig(waypoint_radius_m=0.03)
-    goals = [Goal("s0", np.array([0.0, 0.02]), kind="survey"), Goal("s1", np.array([5.0, 0.0]), kind="survey"),
-             Goal("poi", np.array([0.0, 0.0]))]
+    goals = [
+        Goal("s0", np.array([0.0, 0.02]), kind="survey"),
+        Goal("s1", np.array([5.0, 0.0]), kind="survey"),
+        Goal("poi", np.array([0.0, 0.0])),
+    ]
     m = Mission(goals, cfg, survey_until_s=1.0)
     m.update(est(0.0, [0.0, 0.0]), 0.2)
     assert m.goal.name == "s1"  # s0 passed within 3 cm, no event
@@ -141,8 +149,11 @@ def test_survey_points_are_passed_and_dropped_when_the_survey_time_is_over():
 
 def test_landmark_goals_follow_the_map_and_a_missing_landmark_is_skipped():
     where = {3: np.array([0.4, 0.1])}
-    m = Mission([Goal("lm9", None, landmark_id=9), Goal("lm3", None, landmark_id=3)], GuidanceConfig(),
-                resolve=lambda i: where.get(i))
+    m = Mission(
+        [Goal("lm9", None, landmark_id=9), Goal("lm3", None, landmark_id=3)],
+        GuidanceConfig(),
+        resolve=lambda i: where.get(i),
+    )
     _, ev = m.update(est(0.0, [0.0, 0.0]), 0.2)
     assert ev == [HoldEnd(0, "lm9", 0.0, False, "landmark 9 is not in the map")]
     np.testing.assert_array_equal(m.target_xy_m, [0.4, 0.1])
@@ -199,8 +210,14 @@ def test_dead_reckoning_covariance_adds_each_step():
     from types import SimpleNamespace
 
     dr = DeadReckoningCovariance()
-    res = SimpleNamespace(dt_s=0.2, surge_mps=0.1, sway_mps=0.0, speed_cov_mps2=np.eye(2) * 1e-6, heading_rad=0.0,
-                          measurements=SimpleNamespace(heading_rad=0.0, heading_sigma_rad=0.01))
+    res = SimpleNamespace(
+        dt_s=0.2,
+        surge_mps=0.1,
+        sway_mps=0.0,
+        speed_cov_mps2=np.eye(2) * 1e-6,
+        heading_rad=0.0,
+        measurements=SimpleNamespace(heading_rad=0.0, heading_sigma_rad=0.01),
+    )
     for _ in range(10):
         cov = dr.update(res)
     # speed: 10 x 0.2^2 x 1e-6 on both axes; heading: 10 x (0.1 x 0.2 x 0.01)^2 across the track (y)

@@ -72,8 +72,14 @@ def test_a_missing_file_is_named(tmp_path):
     [
         (["--poi", "BAD", "--scenario", "portofino"], "line 3: column 'x_m' is not a number"),
         (["--poi", "GOOD", "--scenario", "atlantis"], "unknown preset 'atlantis'"),
-        (["--poi", "GOOD", "--scenario", "portofino", "--estimator", "gps"], "estimator must be one of slam, dead-reckoning"),
-        (["--poi", "GOOD", "--scenario", "portofino", "--survey-s", "-1"], "--survey-s must be a number of seconds >= 0"),
+        (
+            ["--poi", "GOOD", "--scenario", "portofino", "--estimator", "gps"],
+            "estimator must be one of slam, dead-reckoning",
+        ),
+        (
+            ["--poi", "GOOD", "--scenario", "portofino", "--survey-s", "-1"],
+            "--survey-s must be a number of seconds >= 0",
+        ),
     ],
 )
 def test_navigate_refuses_bad_input_in_one_line_with_exit_2(tmp_path, args, needle):

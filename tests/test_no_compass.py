@@ -92,8 +92,14 @@ def test_photo_turns_without_compass_stays_inside_its_covariance(tmp_path, seed)
     c, s = math.cos(gt.heading_rad[0]), math.sin(gt.heading_rad[0])
     rot = np.array([[c, -s], [s, c]])
     est = np.column_stack([tr["x_m"], tr["y_m"]]) @ rot.T
-    cov = rot @ np.stack([np.column_stack([tr["var_x_m2"], tr["cov_xy_m2"]]),
-                          np.column_stack([tr["cov_xy_m2"], tr["var_y_m2"]])], axis=1) @ rot.T
+    cov = (
+        rot
+        @ np.stack(
+            [np.column_stack([tr["var_x_m2"], tr["cov_xy_m2"]]), np.column_stack([tr["cov_xy_m2"], tr["var_y_m2"]])],
+            axis=1,
+        )
+        @ rot.T
+    )
     cons = consistency(est - np.column_stack([gt.x_m, gt.y_m]), cov)
     assert cons.coverage_2sigma >= 0.95  # 69 % with the heading's error told as white noise
     assert cons.nees_mean <= 2.0  # 2.7 before
@@ -101,4 +107,6 @@ def test_photo_turns_without_compass_stays_inside_its_covariance(tmp_path, seed)
     ev = evaluate_run(tmp_path / "out", seq / "groundtruth.csv")
     assert ev.run_frame_turn_rad == pytest.approx(gt.heading_rad[0], abs=1e-9)
     assert ev.consistency.coverage_2sigma == pytest.approx(cons.coverage_2sigma)
-    assert ev.slam.ate_rmse_m == pytest.approx(float(np.sqrt(np.mean(np.sum((est - np.column_stack([gt.x_m, gt.y_m]))**2, 1)))))
+    assert ev.slam.ate_rmse_m == pytest.approx(
+        float(np.sqrt(np.mean(np.sum((est - np.column_stack([gt.x_m, gt.y_m])) ** 2, 1))))
+    )

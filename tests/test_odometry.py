@@ -1,6 +1,5 @@
 """Motion-from-tokens speed estimator: geometry, mirrored motion, tilt, robustness, Q, gaps."""
 
-
 import dataclasses
 
 import numpy as np
@@ -55,8 +54,9 @@ def test_sway_starboard_moves_image_left():
 
 
 def test_yaw_offset_distortion_heading_change_and_altitude_change():
-    cam = Camera(360, 272, 1070.0, 1080.0, 181.0, 134.0, distortion=(-0.12, 0.05, 0.001, -0.0005, 0.0),
-                 yaw_offset_rad=0.3)
+    cam = Camera(
+        360, 272, 1070.0, 1080.0, 181.0, 134.0, distortion=(-0.12, 0.05, 0.001, -0.0005, 0.0), yaw_offset_rad=0.3
+    )
     rng = np.random.default_rng(3)
     d = np.array([0.018, -0.007])
     uv0, uv1 = make_tokens(cam, rng, 8, d, dpsi_rad=0.05, z_prev=1.30, z_curr=1.36)
@@ -82,8 +82,12 @@ def test_tilt_is_compensated_for_speed_tokens():
 
 @settings(max_examples=40, deadline=None, derandomize=True)
 @given(
-    u=st.floats(-0.3, 0.3), v=st.floats(-0.2, 0.2), dpsi=st.floats(-0.1, 0.1),
-    yaw=st.floats(-3.1, 3.1), roll=st.floats(-0.08, 0.08), pitch=st.floats(-0.08, 0.08),
+    u=st.floats(-0.3, 0.3),
+    v=st.floats(-0.2, 0.2),
+    dpsi=st.floats(-0.1, 0.1),
+    yaw=st.floats(-3.1, 3.1),
+    roll=st.floats(-0.08, 0.08),
+    pitch=st.floats(-0.08, 0.08),
     z=st.floats(0.8, 3.0),
 )
 def test_noise_free_motion_is_recovered_exactly(u, v, dpsi, yaw, roll, pitch, z):
@@ -92,8 +96,18 @@ def test_noise_free_motion_is_recovered_exactly(u, v, dpsi, yaw, roll, pitch, z)
     d = np.array([u, v]) * DT
     att = (roll, pitch)
     uv0, uv1 = make_tokens(cam, rng, 8, d, dpsi, z, z, att, att)
-    m = speed_from_tokens(cam, uv0, uv1, z, z, DT, dpsi_rad=dpsi, attitude_prev_rad=att, attitude_curr_rad=att,
-                          config=OdometryConfig(outlier_threshold_px=1.0))
+    m = speed_from_tokens(
+        cam,
+        uv0,
+        uv1,
+        z,
+        z,
+        DT,
+        dpsi_rad=dpsi,
+        attitude_prev_rad=att,
+        attitude_curr_rad=att,
+        config=OdometryConfig(outlier_threshold_px=1.0),
+    )
     assert m.ok
     np.testing.assert_allclose(m.speed_mps, [u, v], atol=1e-8)
 
@@ -286,16 +300,23 @@ def test_a_held_speed_covers_the_position_error_it_causes():
         pos = pos + (e0 + acc * t_gap) * dt
     np.testing.assert_allclose(np.var(pos, axis=0), var_filter.diagonal(), rtol=0.02)
     # An independent Q (the old model) would have given a third of it here.
-    assert var_filter[0, 0] > 2.5 * (DT**2 * b_sigma**2 + sum(dt**2 * (b_sigma**2 + (g * t) ** 2)
-                                                          for dt, t in zip(steps, np.cumsum(steps))))
+    assert var_filter[0, 0] > 2.5 * (
+        DT**2 * b_sigma**2 + sum(dt**2 * (b_sigma**2 + (g * t) ** 2) for dt, t in zip(steps, np.cumsum(steps)))
+    )
 
 
 @pytest.mark.parametrize(
     "kwargs",
     [
-        dict(altitude_prev_m=np.nan), dict(altitude_curr_m=np.inf), dict(altitude_curr_m=-1.0),
-        dict(dt_s=0.0), dict(dt_s=np.nan), dict(dpsi_rad=np.inf), dict(altitude_sigma_m=np.nan),
-        dict(attitude_curr_rad=(np.nan, 0.0)), dict(attitude_prev_rad=(0.0,)),
+        dict(altitude_prev_m=np.nan),
+        dict(altitude_curr_m=np.inf),
+        dict(altitude_curr_m=-1.0),
+        dict(dt_s=0.0),
+        dict(dt_s=np.nan),
+        dict(dpsi_rad=np.inf),
+        dict(altitude_sigma_m=np.nan),
+        dict(attitude_curr_rad=(np.nan, 0.0)),
+        dict(attitude_prev_rad=(0.0,)),
     ],
 )
 def test_bad_inputs_raise_typed_errors(kwargs):
@@ -336,7 +357,11 @@ def test_held_speed_drives_the_filter_through_a_gap():
 
     rng = np.random.default_rng(18)
     est = SpeedEstimator(OdometryConfig(held_speed_drift_mps2=0.02))
-    ekf = EkfSlam(SlamConfig(heading_bias_sigma_rad=0.0, landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0))
+    ekf = EkfSlam(
+        SlamConfig(
+            heading_bias_sigma_rad=0.0, landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0
+        )
+    )
     empty = np.zeros((0, 2))
     uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])
     growth = []
@@ -441,8 +466,13 @@ def test_no_compass_noise_is_learned_before_twenty_readings():
 
 def _noisy_steps(dof0: float, n_tokens: int, steps: int = 700, noise_px: float = 0.4, seed: int = 3):
     """Speed NEES, turn z^2 and inliers per step of an estimator fed ``n_tokens`` tokens with ``noise_px`` noise."""
-    cfg = OdometryConfig(token_noise_prior_dof=dof0, token_sigma_px=0.05, common_sigma_px=0.0,
-                         relief_prior_sigma=0.0, relief_scale_gain=0.0)
+    cfg = OdometryConfig(
+        token_noise_prior_dof=dof0,
+        token_sigma_px=0.05,
+        common_sigma_px=0.0,
+        relief_prior_sigma=0.0,
+        relief_scale_gain=0.0,
+    )
     est, rng = SpeedEstimator(cfg), np.random.default_rng(seed)
     nees, turn, inliers = [], [], []
     for k in range(steps):
@@ -534,8 +564,17 @@ def _zoomed_steps(cfg, dpsi_sigma_rad, n_steps=300, seed=21, ratio_error=0.01, n
     for _ in range(n_steps):
         uv0, uv1 = make_tokens(CAM, rng, 8, truth * DT)
         uv1 = uv1 + rng.normal(0.0, noise_px, uv1.shape)
-        m = speed_from_tokens(CAM, uv0, uv1, Z, Z * (1.0 + ratio_error), DT, altitude_sigma_m=0.005, config=cfg,
-                              dpsi_sigma_rad=dpsi_sigma_rad)
+        m = speed_from_tokens(
+            CAM,
+            uv0,
+            uv1,
+            Z,
+            Z * (1.0 + ratio_error),
+            DT,
+            altitude_sigma_m=0.005,
+            config=cfg,
+            dpsi_sigma_rad=dpsi_sigma_rad,
+        )
         if not m.ok:
             refused += 1
             continue
@@ -573,11 +612,22 @@ def test_without_an_altitude_sigma_the_fit_stays_rigid():
     uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.004], dpsi_rad=0.003)
     uv1 = uv1 + rng.normal(0.0, 0.1, uv1.shape)
     for dpsi_sigma in (None, 0.005):
-        a = speed_from_tokens(CAM, uv0, uv1, Z, Z * 1.01, DT, 0.003, dpsi_sigma_rad=dpsi_sigma,
-                              config=OdometryConfig(token_scale=True))
+        a = speed_from_tokens(
+            CAM, uv0, uv1, Z, Z * 1.01, DT, 0.003, dpsi_sigma_rad=dpsi_sigma, config=OdometryConfig(token_scale=True)
+        )
         b = speed_from_tokens(CAM, uv0, uv1, Z, Z * 1.01, DT, 0.003, dpsi_sigma_rad=dpsi_sigma)
         assert np.array_equal(a.speed_mps, b.speed_mps) and np.array_equal(a.cov_mps2, b.cov_mps2)
         # given a sigma, the zoom is fitted (the same tokens: 1 % of zoom moves the speed)
-        c = speed_from_tokens(CAM, uv0, uv1, Z, Z * 1.01, DT, 0.003, 0.005, dpsi_sigma_rad=dpsi_sigma,
-                              config=OdometryConfig(token_scale=True))
+        c = speed_from_tokens(
+            CAM,
+            uv0,
+            uv1,
+            Z,
+            Z * 1.01,
+            DT,
+            0.003,
+            0.005,
+            dpsi_sigma_rad=dpsi_sigma,
+            config=OdometryConfig(token_scale=True),
+        )
         assert not np.allclose(c.speed_mps, b.speed_mps, atol=2e-4)

@@ -42,7 +42,9 @@ def _one_error_line(res, *needles: str) -> str:
 def dive(tmp_path_factory):
     """A 40-frame simulated dive and its run: (sequence folder, results folder)."""
     root = tmp_path_factory.mktemp("outputs")
-    res = runner.invoke(app, ["simulate", "--scenario", "portofino-short", "--frames", "40", "--out", str(root / "seq"), "-q"])
+    res = runner.invoke(
+        app, ["simulate", "--scenario", "portofino-short", "--frames", "40", "--out", str(root / "seq"), "-q"]
+    )
     assert res.exit_code == 0, res.output
     res = runner.invoke(app, ["run", str(root / "seq"), "--out", str(root / "out"), "-q"])
     assert res.exit_code == 0, res.output
@@ -88,9 +90,13 @@ def _assert_untouched(path: Path, before: tuple[int, int]) -> None:
 
 
 KINDS = ["device", "fifo", "socket", "link-to-fifo", "dangling-link"]
-NEEDLE = {"device": "is a character device, not a regular file", "fifo": "is a FIFO (named pipe), not a regular file",
-          "socket": "is a socket, not a regular file", "link-to-fifo": "is a FIFO (named pipe), not a regular file",
-          "dangling-link": "is a symbolic link to"}
+NEEDLE = {
+    "device": "is a character device, not a regular file",
+    "fifo": "is a FIFO (named pipe), not a regular file",
+    "socket": "is a socket, not a regular file",
+    "link-to-fifo": "is a FIFO (named pipe), not a regular file",
+    "dangling-link": "is a symbolic link to",
+}
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -142,8 +148,9 @@ def test_mosaic_world_file_that_is_a_fifo_is_refused(dive, tmp_path):
     _, out = dive
     _make("fifo", tmp_path / "m.pgw")
     before = _snapshot(tmp_path / "m.pgw")
-    _one_error_line(runner.invoke(app, ["mosaic", str(out), "--out", str(tmp_path / "m.png"), "-q"]),
-                    "m.pgw", NEEDLE["fifo"])
+    _one_error_line(
+        runner.invoke(app, ["mosaic", str(out), "--out", str(tmp_path / "m.png"), "-q"]), "m.pgw", NEEDLE["fifo"]
+    )
     _assert_untouched(tmp_path / "m.pgw", before)
     assert not (tmp_path / "m.png").exists()
 
@@ -236,8 +243,11 @@ def test_a_symlink_to_a_folder_as_out_is_used_as_that_folder(dive, tmp_path):
 def test_a_regular_file_as_simulate_out_is_not_a_folder(tmp_path):
     target = tmp_path / "f"
     target.write_text("mine")
-    line = _one_error_line(runner.invoke(app, ["simulate", "--frames", "5", "--out", str(target), "-q"]),
-                           str(target), "is a file, not a folder")
+    line = _one_error_line(
+        runner.invoke(app, ["simulate", "--frames", "5", "--out", str(target), "-q"]),
+        str(target),
+        "is a file, not a folder",
+    )
     assert "not empty" not in line
     assert target.read_text() == "mine"
 
@@ -292,7 +302,9 @@ def _check_consistent(out: Path) -> dict:
 
 
 def _check_eval_tells_the_reason(seq: Path, out: Path, summary: dict) -> None:
-    res = runner.invoke(app, ["eval", str(out), "-g", str(seq / "groundtruth.csv"), "--json", str(out.parent / "e.json")])
+    res = runner.invoke(
+        app, ["eval", str(out), "-g", str(seq / "groundtruth.csv"), "--json", str(out.parent / "e.json")]
+    )
     text = " ".join(res.output.split())
     assert "killed or a power loss" not in text
     if summary["frames_written"] == 0:
@@ -313,8 +325,13 @@ def small_disk(tmp_path):
         where = tmp_path / f"disk{len(mounts)}"
         where.mkdir()
         try:
-            done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)],
-                                  check=False, capture_output=True, text=True, timeout=30)
+            done = subprocess.run(
+                ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)],
+                check=False,
+                capture_output=True,
+                text=True,
+                timeout=30,
+            )
         except (OSError, subprocess.TimeoutExpired) as exc:
             pytest.skip(f"cannot run mount: {exc}")
         if done.returncode != 0:
@@ -374,8 +391,9 @@ class _FakeDisk:
         st = self.real_statvfs(path)
         if not str(path).startswith(self.root):
             return st
-        return type("statvfs", (), {"f_bavail": max(0, self.capacity - self._used()), "f_frsize": 1,
-                                    "f_bsize": st.f_bsize})()
+        return type(
+            "statvfs", (), {"f_bavail": max(0, self.capacity - self._used()), "f_frsize": 1, "f_bsize": st.f_bsize}
+        )()
 
     def fallocate(self, fd: int, offset: int, length: int) -> None:
         if self._under(fd) and self._used() + length > self.capacity:
@@ -489,8 +507,10 @@ def test_batch_exit_code_two_for_cells_with_bad_input_one_for_a_bug(dive, tmp_pa
     shutil.copytree(dive[0], seq)
     (seq / "groundtruth.csv").unlink()
     matrix = tmp_path / "m.toml"
-    matrix.write_text(f'name = "t"\n[[sequence]]\nname = "d"\npath = "{seq}"\n[[sequence]]\nname = "gone"\n'
-                      f'path = "{tmp_path / "gone"}"\n')
+    matrix.write_text(
+        f'name = "t"\n[[sequence]]\nname = "d"\npath = "{seq}"\n[[sequence]]\nname = "gone"\n'
+        f'path = "{tmp_path / "gone"}"\n'
+    )
     monkeypatch.setattr(batch, "_connect", lambda scheduler, workers: (_Client(), None))
     monkeypatch.setattr(dask.distributed, "as_completed", lambda futures: list(futures))
     if bug:
@@ -524,8 +544,9 @@ def test_a_fifo_in_images_is_not_a_regular_file_not_missing(dive, tmp_path):
     first = min((seq / "images").iterdir())
     first.unlink()
     os.mkfifo(first)
-    line = _one_error_line(runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]),
-                           first.name, "is not a regular file")
+    line = _one_error_line(
+        runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]), first.name, "is not a regular file"
+    )
     assert "not found" not in line
 
 
@@ -539,8 +560,14 @@ def test_a_fifo_listed_in_a_times_file_is_not_a_regular_file(dive, tmp_path):
     times = tmp_path / "times.csv"
     times.write_text("image,t_s\n" + "".join(f"{p.name},{0.1 * k}\n" for k, p in enumerate(images)))
     camera = Path(__file__).resolve().parents[1] / "examples" / "sparus-camera.toml"
-    line = _one_error_line(runner.invoke(app, ["run", str(folder), "--camera", str(camera), "--times", str(times),
-                                               "--out", str(tmp_path / "o"), "-q"]), images[2].name, "is not a regular file")
+    line = _one_error_line(
+        runner.invoke(
+            app,
+            ["run", str(folder), "--camera", str(camera), "--times", str(times), "--out", str(tmp_path / "o"), "-q"],
+        ),
+        images[2].name,
+        "is not a regular file",
+    )
     assert "not found" not in line
 
 

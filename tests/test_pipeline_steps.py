@@ -75,9 +75,18 @@ def test_speed_and_position_follow_the_known_shift(spectrum):
 def test_steps_run_in_the_papers_order(spectrum):
     calls: list[str] = []
     pipe = SlamPipeline(_info())
-    steps = ["_measure_altitude", "_inhibit_laser_spots", "_track_landmarks", "_choose_new_landmark",
-             "_inhibit_landmarks", "_measure_speed", "_fuse_heading", "_predict_and_update", "_add_landmark",
-             "_extract_tokens"]
+    steps = [
+        "_measure_altitude",
+        "_inhibit_laser_spots",
+        "_track_landmarks",
+        "_choose_new_landmark",
+        "_inhibit_landmarks",
+        "_measure_speed",
+        "_fuse_heading",
+        "_predict_and_update",
+        "_add_landmark",
+        "_extract_tokens",
+    ]
     for name in steps:
         method = getattr(pipe, name)
 

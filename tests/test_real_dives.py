@@ -69,11 +69,29 @@ def test_a_bag_gives_the_sequence_folders_trajectory(dive, flavour, name):
     bag = dive / name
     topics = sequence_to_bag(dive / "seq", bag, flavour, heading="imu", altitude="range", attitude=True)
     out = dive / f"out_{flavour}"
-    _run([bag, "--camera", dive / "camera.toml", "--image-topic", topics["image"], "--heading-topic", topics["heading"],
-          "--altitude-topic", topics["altitude"], "--attitude-topic", topics["heading"], "--out", out])
+    _run(
+        [
+            bag,
+            "--camera",
+            dive / "camera.toml",
+            "--image-topic",
+            topics["image"],
+            "--heading-topic",
+            topics["heading"],
+            "--altitude-topic",
+            topics["altitude"],
+            "--attitude-topic",
+            topics["heading"],
+            "--out",
+            out,
+        ]
+    )
     summary = _same_path(out, dive / "ref")
     src = summary["sources"]
-    assert src["input"]["kind"] == {"ros1": "ROS 1 bag", "sqlite3": "ROS 2 bag (sqlite3)", "mcap": "ROS 2 bag (MCAP)"}[flavour]
+    assert (
+        src["input"]["kind"]
+        == {"ros1": "ROS 1 bag", "sqlite3": "ROS 2 bag (sqlite3)", "mcap": "ROS 2 bag (MCAP)"}[flavour]
+    )
     assert src["heading"]["frames"] == {"navigation": N_FRAMES}
     assert "/nav/heading (sensor_msgs/msg/Imu orientation, ENU)" in src["heading"]["detail"]
     assert src["altitude"]["frames"] == {"laser+sonar": N_FRAMES}  # a sensor_msgs/Range is a sonar
@@ -84,9 +102,26 @@ def test_a_bag_imported_as_a_sequence_runs_the_same(dive):
     bag = dive / "import.bag"
     topics = sequence_to_bag(dive / "seq", bag, "ros1", heading="odometry", altitude="float64", attitude=True)
     seq = dive / "imported"
-    res = CliRunner().invoke(app, ["import", str(bag), "--camera", str(dive / "camera.toml"), "--image-topic", topics["image"],
-                                   "--heading-topic", topics["heading"], "--altitude-topic", topics["altitude"],
-                                   "--attitude-topic", topics["heading"], "--out", str(seq), "-q"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "import",
+            str(bag),
+            "--camera",
+            str(dive / "camera.toml"),
+            "--image-topic",
+            topics["image"],
+            "--heading-topic",
+            topics["heading"],
+            "--altitude-topic",
+            topics["altitude"],
+            "--attitude-topic",
+            topics["heading"],
+            "--out",
+            str(seq),
+            "-q",
+        ],
+    )
     assert res.exit_code == 0, res.stderr
     assert f"wrote {seq} ({N_FRAMES} frames)" in res.stdout
     s = open_sequence(seq)
@@ -121,13 +156,17 @@ def _nav_csv(seq: Path, path: Path, offset_s: float) -> None:
     rows = open_sequence(seq).rows
     lines = ["unix_time,hdg_deg,alt,roll_deg,pitch_deg"]
     for r, n in zip(rows, rows[1:] + [None]):
-        lines.append(f"{offset_s + r.t_s!r},{math.degrees(r.heading_rad)!r},{r.sonar_altitude_m!r},"
-                     f"{math.degrees(r.roll_rad)!r},{math.degrees(r.pitch_rad)!r}")
+        lines.append(
+            f"{offset_s + r.t_s!r},{math.degrees(r.heading_rad)!r},{r.sonar_altitude_m!r},"
+            f"{math.degrees(r.roll_rad)!r},{math.degrees(r.pitch_rad)!r}"
+        )
         if n is not None:  # a row half-way, interpolated on the shorter arc
             dh = math.atan2(math.sin(n.heading_rad - r.heading_rad), math.cos(n.heading_rad - r.heading_rad))
-            lines.append(f"{offset_s + (r.t_s + n.t_s) / 2!r},{math.degrees(r.heading_rad + dh / 2)!r},"
-                         f"{(r.sonar_altitude_m + n.sonar_altitude_m) / 2!r},{math.degrees((r.roll_rad + n.roll_rad) / 2)!r},"
-                         f"{math.degrees((r.pitch_rad + n.pitch_rad) / 2)!r}")
+            lines.append(
+                f"{offset_s + (r.t_s + n.t_s) / 2!r},{math.degrees(r.heading_rad + dh / 2)!r},"
+                f"{(r.sonar_altitude_m + n.sonar_altitude_m) / 2!r},{math.degrees((r.roll_rad + n.roll_rad) / 2)!r},"
+                f"{math.degrees((r.pitch_rad + n.pitch_rad) / 2)!r}"
+            )
     path.write_text("\n".join(lines) + "\n")
 
 
@@ -139,8 +178,10 @@ def test_a_video_with_its_nav_csv_gives_the_sequence_folders_trajectory(dive, co
     nav = dive / "nav.csv"
     _nav_csv(dive / "seq", nav, offset)
     cam = dive / f"camera_{codec}.toml"
-    cam.write_text((dive / "camera.toml").read_text()
-                   + '\n[nav]\ntime = "unix_time"\nheading = "hdg_deg"\naltitude = "alt"\nroll = "roll_deg"\npitch = "pitch_deg"\n')
+    cam.write_text(
+        (dive / "camera.toml").read_text()
+        + '\n[nav]\ntime = "unix_time"\nheading = "hdg_deg"\naltitude = "alt"\nroll = "roll_deg"\npitch = "pitch_deg"\n'
+    )
     out = dive / f"video_{codec}"
     _run([video, "--camera", cam, "--nav", nav, "--nav-time-offset", repr(offset), "--out", out])
     a, b = read_results(out), read_results(dive / "ref")
@@ -166,16 +207,56 @@ def test_an_image_folder_with_times_and_nav(dive):
     (dive / "times.csv").write_text("\n".join(times[:1] + times[:0:-1]) + "\n")  # rows in any order
     _nav_csv(dive / "seq", dive / "nav_folder.csv", 0.0)
     out = dive / "folder_out"
-    _run([folder, "--camera", dive / "camera.toml", "--times", dive / "times.csv", "--nav", dive / "nav_folder.csv",
-          "--nav-map", "time=unix_time", "--nav-map", "heading=hdg_deg", "--nav-map", "altitude=alt",
-          "--nav-map", "roll=roll_deg", "--nav-map", "pitch=pitch_deg", "--out", out])
+    _run(
+        [
+            folder,
+            "--camera",
+            dive / "camera.toml",
+            "--times",
+            dive / "times.csv",
+            "--nav",
+            dive / "nav_folder.csv",
+            "--nav-map",
+            "time=unix_time",
+            "--nav-map",
+            "heading=hdg_deg",
+            "--nav-map",
+            "altitude=alt",
+            "--nav-map",
+            "roll=roll_deg",
+            "--nav-map",
+            "pitch=pitch_deg",
+            "--out",
+            out,
+        ]
+    )
     summary = _same_path(out, dive / "ref")
     assert summary["sources"]["input"]["kind"] == "image folder"
     # --fps: natural order (f2 before f10), frame k at k / fps
     out2 = dive / "folder_fps"
-    _run([folder, "--camera", dive / "camera.toml", "--fps", "5", "--nav", dive / "nav_folder.csv", "--nav-map",
-          "time=unix_time", "--nav-map", "heading=hdg_deg", "--nav-map", "altitude=alt", "--nav-map", "roll=roll_deg",
-          "--nav-map", "pitch=pitch_deg", "--out", out2])
+    _run(
+        [
+            folder,
+            "--camera",
+            dive / "camera.toml",
+            "--fps",
+            "5",
+            "--nav",
+            dive / "nav_folder.csv",
+            "--nav-map",
+            "time=unix_time",
+            "--nav-map",
+            "heading=hdg_deg",
+            "--nav-map",
+            "altitude=alt",
+            "--nav-map",
+            "roll=roll_deg",
+            "--nav-map",
+            "pitch=pitch_deg",
+            "--out",
+            out2,
+        ]
+    )
     _same_path(out2, dive / "ref", tol_m=1e-6)  # k / 5 vs the simulator's 0.2 k: the last digit of t_s
 
 
@@ -192,7 +273,9 @@ def test_without_navigation_the_summary_and_report_say_what_was_assumed(dive):
     assert s["altitude"]["frames"] == {"assumed constant": N_FRAMES}
     assert "1.31 m, [vehicle] altitude_m of" in s["altitude"]["detail"]
     assert s["heading"]["frames"] == {"tokens only (no compass)": N_FRAMES}
-    assert len(s["warnings"]) == 2 and "altitude assumed constant" in s["warnings"][0] and "no compass" in s["warnings"][1]
+    assert (
+        len(s["warnings"]) == 2 and "altitude assumed constant" in s["warnings"][0] and "no compass" in s["warnings"][1]
+    )
     html = write_report(out, mosaic=False).read_text(encoding="utf-8")
     assert "ASSUMED constant 1.31 m (100 %)" in html and "tokens only (no compass) (100 %)" in html
     assert "Altitude NOT MEASURED" in html
@@ -209,12 +292,23 @@ def test_sparus_video_with_its_own_navigation(tmp_path):
     from rovslam.io.nav import nav_mapping, read_nav_csv
 
     out = tmp_path / "sparus"
-    _run([SPARUS / "sparus_snippet.mp4", "--camera", ROOT / "examples" / "sparus-camera.toml", "--nav",
-          SPARUS / "sparus_snippet.csv", "--out", out])
+    _run(
+        [
+            SPARUS / "sparus_snippet.mp4",
+            "--camera",
+            ROOT / "examples" / "sparus-camera.toml",
+            "--nav",
+            SPARUS / "sparus_snippet.csv",
+            "--out",
+            out,
+        ]
+    )
     r = read_results(out)
     assert len(r.t_s) == 22 and r.summary["sources"]["heading"]["frames"] == {"navigation": 22}
-    nav = read_nav_csv(SPARUS / "sparus_snippet.csv",
-                       nav_mapping(tomllib.loads((ROOT / "examples" / "sparus-camera.toml").read_text())["nav"]))
+    nav = read_nav_csv(
+        SPARUS / "sparus_snippet.csv",
+        nav_mapping(tomllib.loads((ROOT / "examples" / "sparus-camera.toml").read_text())["nav"]),
+    )
     t0, t1 = float(r.t_s[0]), float(r.t_s[-1])
     nav_turn = math.degrees(nav.sample(t1).heading_rad - nav.sample(t0).heading_rad)
     run_turn = math.degrees(r.trajectory["heading_rad"][-1] - r.trajectory["heading_rad"][0])

@@ -63,12 +63,28 @@ Z_M, DT_S, U_MPS = 1.3, 0.2, 0.15
 
 def _drift_var_m2(tau_s: float | None, steps: int, sigma_b_m: float = 0.02) -> float:
     """Along-track position variance after ``steps`` predictions driven only by the consider state b."""
-    cfg = SlamConfig(landmark_height_sigma_m=0.0, heading_bias_sigma_rad=0.0, speed_bias_sigma_mps=0.0,
-                     heading_sigma_rad=0.0, altitude_bias_sigma_m=sigma_b_m, altitude_bias_tau_s=30.0)
+    cfg = SlamConfig(
+        landmark_height_sigma_m=0.0,
+        heading_bias_sigma_rad=0.0,
+        speed_bias_sigma_mps=0.0,
+        heading_sigma_rad=0.0,
+        altitude_bias_sigma_m=sigma_b_m,
+        altitude_bias_tau_s=30.0,
+    )
     ekf = EkfSlam(cfg, initial_cov_m2=np.zeros((2, 2)))
     for _ in range(steps):
-        ekf.predict(MotionInput(U_MPS, 0.0, np.zeros((2, 2)), 0.0, DT_S, altitude_m=Z_M, altitude_bias_sigma_m=sigma_b_m,
-                                altitude_bias_tau_s=tau_s))
+        ekf.predict(
+            MotionInput(
+                U_MPS,
+                0.0,
+                np.zeros((2, 2)),
+                0.0,
+                DT_S,
+                altitude_m=Z_M,
+                altitude_bias_sigma_m=sigma_b_m,
+                altitude_bias_tau_s=tau_s,
+            )
+        )
     return float(ekf.covariance_m2[0, 0])
 
 
@@ -169,8 +185,9 @@ def test_a_flat_seabed_keeps_the_altimeter_offset_alone(tmp_path):
     seq = simulate_variant(tmp_path / "flat", "photo-survey", "photo-survey-flat", 0, n_frames=150, relief=None)
     _, sigmas = _inside_2sigma(seq, _ON)
     slam = RunConfig().slam
-    lasting = altitude_offset_sigma_m(slam.altitude_bias_sigma_m, slam.altitude_scale_sigma,
-                                      SCENARIOS["photo-survey"].vehicle.altitude_m)
+    lasting = altitude_offset_sigma_m(
+        slam.altitude_bias_sigma_m, slam.altitude_scale_sigma, SCENARIOS["photo-survey"].vehicle.altitude_m
+    )
     assert 0.97 * lasting < np.median(sigmas[50:]) < 1.15 * lasting
     # summary.json says what b carried, as the run used it
     import json
@@ -194,7 +211,8 @@ def test_over_the_relief_trial_with_a_noisy_compass_the_truth_stays_inside(tmp_p
 
     base = SCENARIOS["portofino-relief"]
     SCENARIOS["relief-compass1"] = dataclasses.replace(
-        base, name="relief-compass1", nav=dataclasses.replace(base.nav, compass_sigma_rad=math.radians(1.0)))
+        base, name="relief-compass1", nav=dataclasses.replace(base.nav, compass_sigma_rad=math.radians(1.0))
+    )
     try:
         simulate("relief-compass1", tmp_path / "seq", frames=300, seed=2)
     finally:

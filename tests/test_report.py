@@ -68,8 +68,18 @@ def test_report_is_one_self_contained_file_with_every_figure(run):
     # Figures 2, 3, 4, the error plot, Figures 5 and 6, and the two mosaics.
     assert len(imgs) == 8
     assert all(min(i.shape[:2]) > 200 for i in imgs)
-    for name in ("altitude_speed.png", "position.png", "map.png", "errors.png", "fig5_landmark_0.png",
-                 "fig6_landmarks.png", "mosaic.png", "mosaic.pgw", "mosaic_truth.png", "mosaic_truth.pgw"):
+    for name in (
+        "altitude_speed.png",
+        "position.png",
+        "map.png",
+        "errors.png",
+        "fig5_landmark_0.png",
+        "fig6_landmarks.png",
+        "mosaic.png",
+        "mosaic.pgw",
+        "mosaic_truth.png",
+        "mosaic_truth.pgw",
+    ):
         assert (out / "report" / name).stat().st_size > 50
     # A copy of the HTML alone, elsewhere, holds the same pictures.
     moved = run / "elsewhere.html"
@@ -164,8 +174,15 @@ def test_report_displays_every_figure_in_headless_chromium(run, tmp_path):
     html_path = write_report(run / "out", run / "seq" / "groundtruth.csv")
     probe = tmp_path / "probe.html"
     probe.write_text(html_path.read_text(encoding="utf-8").replace("</body>", _PROBE + "</body>"), encoding="utf-8")
-    flags = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--no-first-run",
-             f"--user-data-dir={tmp_path / 'profile'}", "--virtual-time-budget=10000"]
+    flags = [
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--no-first-run",
+        f"--user-data-dir={tmp_path / 'profile'}",
+        "--virtual-time-budget=10000",
+    ]
     dom = subprocess.run([browser, *flags, "--dump-dom", probe.as_uri()], capture_output=True, text=True, timeout=180)
     m = re.search(r'data-probe="([^"]*)"', dom.stdout)
     assert m, dom.stderr[-2000:]
@@ -176,8 +193,11 @@ def test_report_displays_every_figure_in_headless_chromium(run, tmp_path):
         w, h = (int(v) for v in size.split("x"))
         assert complete == "true" and w > 200 and h > 200, shown
     shot = tmp_path / "shot.png"
-    subprocess.run([browser, *flags, "--window-size=1200,2400", f"--screenshot={shot}", html_path.as_uri()],
-                   capture_output=True, timeout=180)
+    subprocess.run(
+        [browser, *flags, "--window-size=1200,2400", f"--screenshot={shot}", html_path.as_uri()],
+        capture_output=True,
+        timeout=180,
+    )
     img = cv2.imread(str(shot))
     assert img is not None and img.shape[:2] == (2400, 1200)
     assert float(img.std()) > 20  # figures drawn, not a blank page

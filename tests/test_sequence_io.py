@@ -13,7 +13,10 @@ from rovslam.io.sequence import read_image
 
 CAM = Camera(64, 48, 100.0, 100.0, 31.5, 23.5)
 INFO = SequenceInfo(
-    "unit", CAM, (LaserPointer((0.05, 0.05, 0.0)), LaserPointer((-0.05, 0.05, 0.0), (0.0, 0.1, 1.0))), 1.31,
+    "unit",
+    CAM,
+    (LaserPointer((0.05, 0.05, 0.0)), LaserPointer((-0.05, 0.05, 0.0), (0.0, 0.1, 1.0))),
+    1.31,
     {"scenario": "unit", "seed": 3},
 )
 
@@ -23,9 +26,15 @@ def write_seq(folder, n=5, fmt="png", attitude=True):
     images = [rng.integers(0, 256, size=(48, 64, 3), dtype=np.uint8) for _ in range(n)]
     with SequenceWriter(folder, INFO, image_format=fmt, with_attitude=attitude) as w:
         for k, img in enumerate(images):
-            w.write_frame(0.2 * k, img, 0.1 * k, None if k == 2 else 1.3 + 0.01 * k,
-                          0.01 * k if attitude else None, -0.02 * k if attitude else None,
-                          truth=(0.01 * k, -0.02 * k, 1.31, 0.1 * k))
+            w.write_frame(
+                0.2 * k,
+                img,
+                0.1 * k,
+                None if k == 2 else 1.3 + 0.01 * k,
+                0.01 * k if attitude else None,
+                -0.02 * k if attitude else None,
+                truth=(0.01 * k, -0.02 * k, 1.31, 0.1 * k),
+            )
     return images
 
 
@@ -65,7 +74,7 @@ def test_non_monotonic_time_names_the_row(tmp_path):
     write_seq(tmp_path / "s")
     p = tmp_path / "s" / "frames.csv"
     lines = p.read_text().splitlines()
-    lines[3] = "0.1" + lines[3][lines[3].index(","):]
+    lines[3] = "0.1" + lines[3][lines[3].index(",") :]
     p.write_text("\n".join(lines) + "\n")
     with pytest.raises(SequenceFormatError, match="line 4.*strictly increasing"):
         open_sequence(tmp_path / "s")
@@ -82,7 +91,7 @@ def test_header_without_required_column(tmp_path):
 def test_camera_without_focal_length(tmp_path):
     write_seq(tmp_path / "s")
     p = tmp_path / "s" / "sequence.toml"
-    p.write_text("\n".join(l for l in p.read_text().splitlines() if not l.startswith("fx_px")))
+    p.write_text("\n".join(line for line in p.read_text().splitlines() if not line.startswith("fx_px")))
     with pytest.raises(SequenceFormatError, match=r"sequence.toml: \[camera\] is missing key 'fx_px'"):
         open_sequence(tmp_path / "s")
 
@@ -135,7 +144,10 @@ def _outside(tmp_path):
 @pytest.mark.parametrize(
     "image,needle",
     [
-        ("../outside/secret.png", "line 4: column 'image': path '../outside/secret.png' leads outside the sequence folder"),
+        (
+            "../outside/secret.png",
+            "line 4: column 'image': path '../outside/secret.png' leads outside the sequence folder",
+        ),
         ("images/../../outside/secret.png", "leads outside"),
         ("ABS", "is absolute"),
         ("/etc/passwd", "line 4: column 'image': path '/etc/passwd' is absolute"),
@@ -303,8 +315,14 @@ def _seq_with_angles(folder, heading, roll=None):
     rng = np.random.default_rng(1)
     with SequenceWriter(folder, INFO, with_attitude=roll is not None) as w:
         for k in range(n):
-            w.write_frame(0.2 * k, rng.integers(0, 256, size=(48, 64, 3), dtype=np.uint8), heading[k], 1.3,
-                          None if roll is None else roll[k], None if roll is None else 0.0)
+            w.write_frame(
+                0.2 * k,
+                rng.integers(0, 256, size=(48, 64, 3), dtype=np.uint8),
+                heading[k],
+                1.3,
+                None if roll is None else roll[k],
+                None if roll is None else 0.0,
+            )
     return open_sequence(folder)
 
 

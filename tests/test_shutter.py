@@ -93,7 +93,11 @@ def test_landmark_seen_late_in_the_readout_is_moved_back_to_the_frame_pose():
 def rolling_shutter_dive(tmp_path_factory):
     """80 frames at 0.3 m/s under a 30 ms rolling shutter (flat seabed, the paper's camera)."""
     return simulate_variant(
-        tmp_path_factory.mktemp("rs") / "seq", "portofino-short", "test-rolling-shutter", seed=3, n_frames=80,
+        tmp_path_factory.mktemp("rs") / "seq",
+        "portofino-short",
+        "test-rolling-shutter",
+        seed=3,
+        n_frames=80,
         sensor=dataclasses.replace(SensorParams(), readout_s=0.03),
         vehicle=dataclasses.replace(VehicleParams(), cruise_speed_mps=0.3, accel_limit_mps2=0.3),
     )

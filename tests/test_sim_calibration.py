@@ -44,8 +44,9 @@ def test_the_dive_differs_by_the_drawn_errors_alone(pair):
     ds = np.array([rb.sonar_altitude_m - ra.sonar_altitude_m for ra, rb in zip(sa.rows, sb.rows)])
     np.testing.assert_allclose(ds, cal.sonar_offset_m, atol=0.0011)  # readings rounded to the millimetre
     for la, lb in zip(sa.info.lasers, sb.info.lasers):
-        np.testing.assert_allclose(np.array(lb.origin_m[:2]) / np.array(la.origin_m[:2]), 1 + cal.laser_baseline_error,
-                                   rtol=1e-12)
+        np.testing.assert_allclose(
+            np.array(lb.origin_m[:2]) / np.array(la.origin_m[:2]), 1 + cal.laser_baseline_error, rtol=1e-12
+        )
         assert lb.origin_m[2] == la.origin_m[2] and lb.direction == la.direction
     meta = sb.info.metadata
     assert meta["calibration_compass_deviation_deg"] == pytest.approx(math.degrees(cal.compass_deviation_rad), abs=1e-4)
@@ -68,8 +69,12 @@ def test_the_recorded_rig_scales_the_lasers_altitude_by_one_plus_the_error(altit
 
 def test_draws_are_zero_mean_with_the_given_sigmas():
     errors = CalibrationErrors(compass_deviation_sigma_rad=0.01, laser_baseline_sigma=0.005, sonar_offset_sigma_m=0.02)
-    draws = np.array([[d.compass_deviation_rad, d.laser_baseline_error, d.sonar_offset_m]
-                      for d in (draw_calibration(errors, s) for s in range(3000))])
+    draws = np.array(
+        [
+            [d.compass_deviation_rad, d.laser_baseline_error, d.sonar_offset_m]
+            for d in (draw_calibration(errors, s) for s in range(3000))
+        ]
+    )
     np.testing.assert_allclose(draws.std(axis=0), [0.01, 0.005, 0.02], rtol=0.06)
     assert np.all(np.abs(draws.mean(axis=0)) < 3 * np.array([0.01, 0.005, 0.02]) / math.sqrt(3000))
     assert abs(np.corrcoef(draws.T)[0, 1]) < 0.06  # independent
@@ -78,8 +83,15 @@ def test_draws_are_zero_mean_with_the_given_sigmas():
     assert (zero.compass_deviation_rad, zero.laser_baseline_error, zero.sonar_offset_m) == (0.0, 0.0, 0.0)
 
 
-@pytest.mark.parametrize("kwargs", [{"compass_deviation_sigma_rad": -0.1}, {"laser_baseline_sigma": math.nan},
-                                    {"sonar_offset_sigma_m": math.inf}, {"laser_baseline_sigma": 0.5}])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"compass_deviation_sigma_rad": -0.1},
+        {"laser_baseline_sigma": math.nan},
+        {"sonar_offset_sigma_m": math.inf},
+        {"laser_baseline_sigma": 0.5},
+    ],
+)
 def test_bad_sigmas_are_refused(kwargs):
     with pytest.raises(SimulationError, match=next(iter(kwargs))):
         CalibrationErrors(**kwargs)
@@ -94,20 +106,38 @@ def test_bad_seed_and_calibration_are_refused(tmp_path):
 
 
 def test_cli_flag_records_the_errors(tmp_path):
-    res = CliRunner().invoke(app, ["simulate", "--scenario", "portofino-short", "--frames", "2", "--seed", "4",
-                                   "--out", str(tmp_path / "s"), "-q", "--calibration-errors"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "simulate",
+            "--scenario",
+            "portofino-short",
+            "--frames",
+            "2",
+            "--seed",
+            "4",
+            "--out",
+            str(tmp_path / "s"),
+            "-q",
+            "--calibration-errors",
+        ],
+    )
     assert res.exit_code == 0, res.output
     meta = open_sequence(tmp_path / "s").info.metadata
     cal = draw_calibration(CalibrationErrors(), 4)
     assert meta["calibration_sonar_offset_m"] == pytest.approx(cal.sonar_offset_m, abs=1e-5)
-    assert (f"compass {math.degrees(cal.compass_deviation_rad):+.2f} deg, laser rig "
-            f"{100 * cal.laser_baseline_error:+.2f} %, sonar {100 * cal.sonar_offset_m:+.2f} cm") in res.output
+    assert (
+        f"compass {math.degrees(cal.compass_deviation_rad):+.2f} deg, laser rig "
+        f"{100 * cal.laser_baseline_error:+.2f} %, sonar {100 * cal.sonar_offset_m:+.2f} cm"
+    ) in res.output
 
 
 def test_matrix_key(tmp_path):
     p = tmp_path / "m.toml"
-    p.write_text('seeds = [1]\n[[scenario]]\nname = "portofino-short"\nframes = 5\ncalibration_errors = true\n'
-                 '[[scenario]]\nname = "portofino-short"\nlabel = "exact"\nframes = 5\n')
+    p.write_text(
+        'seeds = [1]\n[[scenario]]\nname = "portofino-short"\nframes = 5\ncalibration_errors = true\n'
+        '[[scenario]]\nname = "portofino-short"\nlabel = "exact"\nframes = 5\n'
+    )
     cells = load_matrix(p).cells
     assert [c.calibration_errors for c in cells] == [True, False]
     p.write_text('[[scenario]]\nname = "portofino-short"\ncalibration_errors = "yes"\n')

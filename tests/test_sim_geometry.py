@@ -102,8 +102,12 @@ def test_every_pixel_samples_the_inverse_mapped_texture():
     r0, c0 = np.floor(rows).astype(int), np.floor(cols).astype(int)
     fr, fc = rows - r0, cols - c0
     pf = pattern.astype(np.uint8).astype(float)
-    ref = ((1 - fr) * (1 - fc) * pf[r0, c0] + (1 - fr) * fc * pf[r0, c0 + 1] + fr * (1 - fc) * pf[r0 + 1, c0]
-           + fr * fc * pf[r0 + 1, c0 + 1])
+    ref = (
+        (1 - fr) * (1 - fc) * pf[r0, c0]
+        + (1 - fr) * fc * pf[r0, c0 + 1]
+        + fr * (1 - fc) * pf[r0 + 1, c0]
+        + fr * fc * pf[r0 + 1, c0 + 1]
+    )
     diff = np.abs(img.ravel() - ref)
     assert np.mean(diff) < 1.0
     assert np.percentile(diff, 99) < 3.0

@@ -11,8 +11,13 @@ from rovslam.sim import PAPER_LASERS, PORTOFINO_CAMERA, SCENARIOS, Pose, SensorP
 from rovslam.sim.texture import ProceduralSeabed, TextureParams
 
 CAM = PORTOFINO_CAMERA
-BARE = dict(weed_cover=0.0, pebble_density_per_m2=0.0, shell_density_per_m2=0.0, stone_density_per_m2=0.0,
-            burrow_density_per_m2=0.0)
+BARE = dict(
+    weed_cover=0.0,
+    pebble_density_per_m2=0.0,
+    shell_density_per_m2=0.0,
+    stone_density_per_m2=0.0,
+    burrow_density_per_m2=0.0,
+)
 
 
 def _second_peaks(img: np.ndarray, half: int = 8, search: int = 24, exclude: int = 4) -> np.ndarray:
@@ -34,9 +39,12 @@ def test_coral_lattice_gives_tokens_a_wrong_match_as_good_as_the_paper_threshold
     sand = World.procedural(3, TextureParams(**BARE))
     peaks = {}
     for name, world in (("coral", coral), ("sand", sand)):
-        peaks[name] = np.concatenate([
-            _second_peaks(render_frame(world, CAM, Pose(x, 0.2, 1.31), sensor=SensorParams(), noise_free=True))
-            for x in (0.0, 0.5)])
+        peaks[name] = np.concatenate(
+            [
+                _second_peaks(render_frame(world, CAM, Pose(x, 0.2, 1.31), sensor=SensorParams(), noise_free=True))
+                for x in (0.0, 0.5)
+            ]
+        )
     # On coral most tokens find a second place, one corallite away, above the paper's 0.89.
     assert np.median(peaks["coral"]) > 0.92
     assert np.median(peaks["sand"]) < 0.7
@@ -79,8 +87,10 @@ def test_urchins_are_dark_look_alike_blobs():
     assert len(patches) >= 15
     ncc = np.corrcoef(np.array(patches))[np.triu_indices(len(patches), 1)]
     rng = np.random.default_rng(0)
-    sand = [cv2.GaussianBlur(b, (0, 0), 1.2)[y - 40 : y + 40, x - 40 : x + 40].ravel()
-            for x, y in rng.integers(40, 2008, (len(patches), 2))]
+    sand = [
+        cv2.GaussianBlur(b, (0, 0), 1.2)[y - 40 : y + 40, x - 40 : x + 40].ravel()
+        for x, y in rng.integers(40, 2008, (len(patches), 2))
+    ]
     sand_ncc = np.corrcoef(np.array(sand))[np.triu_indices(len(sand), 1)]
     assert np.median(ncc) > 0.6  # any urchin looks much like any other
     assert np.median(np.abs(sand_ncc)) < 0.35  # two places on the (rippled) sand much less
@@ -90,12 +100,14 @@ def test_faint_laser_spots_bleed_into_the_green_channel():
     sc = SCENARIOS["coral-repetitive"]
     world = World.procedural(2, TextureParams(**BARE))
     pose = Pose(0.0, 0.0, 1.31)
-    with_spots = render_frame(world, CAM, pose, PAPER_LASERS, sc.water, sensor=sc.sensor, spots=sc.spots,
-                              noise_free=True).astype(int)
+    with_spots = render_frame(
+        world, CAM, pose, PAPER_LASERS, sc.water, sensor=sc.sensor, spots=sc.spots, noise_free=True
+    ).astype(int)
     without = render_frame(world, CAM, pose, (), sc.water, sensor=sc.sensor, noise_free=True).astype(int)
     bright = SCENARIOS["portofino"]
-    strong = render_frame(world, CAM, pose, PAPER_LASERS, bright.water, sensor=bright.sensor, spots=bright.spots,
-                          noise_free=True).astype(int)
+    strong = render_frame(
+        world, CAM, pose, PAPER_LASERS, bright.water, sensor=bright.sensor, spots=bright.spots, noise_free=True
+    ).astype(int)
     for u, v in ((CAM.cx_px + 41.0, CAM.cy_px - 41.0), (CAM.cx_px - 41.0, CAM.cy_px + 41.0)):
         win = (slice(int(v) - 3, int(v) + 5), slice(int(u) - 3, int(u) + 5))
         red = with_spots[win][..., 0].max()

@@ -53,8 +53,19 @@ def test_spot_centres_give_the_true_altitude_within_1_percent_noise_free(world, 
     for k in range(12):
         z = float(rng.uniform(1.2, 1.42))
         pose = Pose(*rng.uniform(-0.3, 0.3, 2), z, float(rng.uniform(-3, 3)))
-        img = render_frame(world, CAM, pose, PAPER_LASERS, sc.water, None, sensor=sc.sensor, spots=sc.spots,
-                           velocity_mps=(0.1, 0.0), t_s=0.2 * k, noise_free=True)
+        img = render_frame(
+            world,
+            CAM,
+            pose,
+            PAPER_LASERS,
+            sc.water,
+            None,
+            sensor=sc.sensor,
+            spots=sc.spots,
+            velocity_mps=(0.1, 0.0),
+            t_s=0.2 * k,
+            noise_free=True,
+        )
         centres = red_dominance_centres(img)
         assert len(centres) == 4
         rel = np.abs(altitudes_from_spots(centres) - z) / z
@@ -86,8 +97,15 @@ def test_noisy_spots_still_give_the_altitude_within_2_percent(world):
     errs = []
     for k in range(8):
         z = float(rng.uniform(1.25, 1.37))
-        img = render_frame(world, CAM, Pose(*rng.uniform(-0.3, 0.3, 2), z, 0.0), PAPER_LASERS, sc.water,
-                           np.random.default_rng([5, k]), sensor=sc.sensor)
+        img = render_frame(
+            world,
+            CAM,
+            Pose(*rng.uniform(-0.3, 0.3, 2), z, 0.0),
+            PAPER_LASERS,
+            sc.water,
+            np.random.default_rng([5, k]),
+            sensor=sc.sensor,
+        )
         centres = red_dominance_centres(img)
         assert len(centres) == 4
         errs.append(np.abs(altitudes_from_spots(centres) - z) / z)
@@ -136,12 +154,22 @@ def test_codec_smeared_spots_keep_their_centre_in_turbid_water():
     try:
         for k in range(n):
             pose = S.frame_pose(traj, k)
-            img = codec.push(renderer.render(world, pose, sc.lasers, S.frame_rng(seed, k),
-                                             velocity_mps=(float(traj.surge_mps[k]), float(traj.sway_mps[k])),
-                                             t_s=float(traj.t_s[k])))
+            img = codec.push(
+                renderer.render(
+                    world,
+                    pose,
+                    sc.lasers,
+                    S.frame_rng(seed, k),
+                    velocity_mps=(float(traj.surge_mps[k]), float(traj.sway_mps[k])),
+                    t_s=float(traj.t_s[k]),
+                )
+            )
             uv = renderer.laser_hits(pose, sc.lasers, world)[0]
             out = (uv - centre) / np.linalg.norm(uv - centre, axis=1, keepdims=True)  # outward unit vectors
-            for name, cfg in (("default", LaserConfig()), ("thresholded", dataclasses.replace(LaserConfig(), spot_skirt_px=0.0))):
+            for name, cfg in (
+                ("default", LaserConfig()),
+                ("thresholded", dataclasses.replace(LaserConfig(), spot_skirt_px=0.0)),
+            ):
                 found = detect_laser_spots(img, uv, cfg)
                 ok = np.all(np.isfinite(found), axis=1)
                 radial[name].extend(np.sum((found[ok] - uv[ok]) * out[ok], axis=1))

@@ -19,8 +19,16 @@ from rovslam.sim import (
 )
 from rovslam.sim.codec import H264Params, H264RoundTrip
 
-NEW_PRESETS = ("portofino-relief", "photo-survey", "photo-turns", "hd-survey", "still-camera", "turbid-relief",
-               "coral-repetitive", "swell")
+NEW_PRESETS = (
+    "portofino-relief",
+    "photo-survey",
+    "photo-turns",
+    "hd-survey",
+    "still-camera",
+    "turbid-relief",
+    "coral-repetitive",
+    "swell",
+)
 
 
 def _ground_speed(traj) -> np.ndarray:
@@ -70,8 +78,9 @@ def test_still_camera_frames_overlap_about_half():
     step = np.diff(np.column_stack([traj.x_m, traj.y_m]), axis=0)
     moving = np.hypot(*step.T) > 0.2
     # Constant heading 0: lanes along x move the image along its height, lanes along y along its width.
-    overlap = np.where(np.abs(step[:, 0]) > np.abs(step[:, 1]), 1 - np.abs(step[:, 0]) / along,
-                       1 - np.abs(step[:, 1]) / across)[moving]
+    overlap = np.where(
+        np.abs(step[:, 0]) > np.abs(step[:, 1]), 1 - np.abs(step[:, 0]) / along, 1 - np.abs(step[:, 1]) / across
+    )[moving]
     assert 0.4 < np.median(overlap) < 0.7
     assert 0.3 <= np.percentile(_ground_speed(traj), 90) <= 0.5  # lanes flown at 0.4 m/s
 

@@ -19,8 +19,16 @@ from rovslam.io.sequence import SequenceWriter, open_sequence, read_groundtruth
 from rovslam.sim import SCENARIOS, simulate, simulate_trajectory
 from rovslam.sim import scenarios as scenarios_module
 
-NEW_PRESETS = ("portofino-relief", "photo-survey", "photo-turns", "hd-survey", "still-camera", "turbid-relief",
-               "coral-repetitive", "swell")
+NEW_PRESETS = (
+    "portofino-relief",
+    "photo-survey",
+    "photo-turns",
+    "hd-survey",
+    "still-camera",
+    "turbid-relief",
+    "coral-repetitive",
+    "swell",
+)
 PHOTO = {"photo-survey", "photo-turns"}
 
 
@@ -35,8 +43,9 @@ def test_every_new_preset_is_listed_with_a_dive_of_3_to_10_minutes():
         assert sc.name == name
         assert 180.0 <= sc.duration_s + 1.0 / sc.frame_rate_hz <= 600.0, name
         assert "\n" not in sc.summary_line()
-    out = subprocess.run([sys.executable, "-m", "rovslam", "simulate", "--list"], capture_output=True, text=True,
-                         check=True).stdout.splitlines()
+    out = subprocess.run(
+        [sys.executable, "-m", "rovslam", "simulate", "--list"], capture_output=True, text=True, check=True
+    ).stdout.splitlines()
     assert len(out) == len(SCENARIOS)
     for name in NEW_PRESETS:
         (line,) = [ln for ln in out if ln.split()[0] == name]
@@ -90,8 +99,9 @@ def test_photo_surveys_keep_the_footprint_on_the_photo(name):
     sc = SCENARIOS[name]
     cam = sc.camera
     half_north, half_east = 2128 * 0.5e-3 * sc.photo_mm_per_px, 2288 * 0.5e-3 * sc.photo_mm_per_px
-    corners = np.array([[0, 0], [cam.width_px - 1, 0], [0, cam.height_px - 1], [cam.width_px - 1, cam.height_px - 1]],
-                       dtype=float)
+    corners = np.array(
+        [[0, 0], [cam.width_px - 1, 0], [0, cam.height_px - 1], [cam.width_px - 1, cam.height_px - 1]], dtype=float
+    )
     for seed in (0, 1, 2):
         traj = simulate_trajectory(sc.vehicle, sc.grid, sc.n_frames, sc.frame_rate_hz, seed)
         worst = 0.0
@@ -99,7 +109,9 @@ def test_photo_surveys_keep_the_footprint_on_the_photo(name):
             # the largest footprint: rays down to 5 cm below the mean plane (the relief's lowest)
             ground = pixels_to_ground(cam, corners, traj.altitude_m[k] + 0.05, traj.roll_rad[k], traj.pitch_rad[k])
             xy = ground @ rot2(traj.heading_rad[k]).T + [traj.x_m[k], traj.y_m[k]]
-            worst = max(worst, float(np.max(np.abs(xy[:, 0]) / half_north)), float(np.max(np.abs(xy[:, 1]) / half_east)))
+            worst = max(
+                worst, float(np.max(np.abs(xy[:, 0]) / half_north)), float(np.max(np.abs(xy[:, 1]) / half_east))
+            )
         assert worst < 0.97, (seed, worst)  # at least 3 % of the photo to spare on every side
 
 

@@ -70,8 +70,13 @@ def test_original_preset_frames_later_in_the_survey_are_unchanged(name):
     for arr in (traj.x_m, traj.y_m, traj.altitude_m, traj.heading_rad, nav.heading_rad, nav.sonar_altitude_m):
         h.update(np.ascontiguousarray(arr).tobytes())
     for k in (150, 399):
-        img = renderer.render(world, frame_pose(traj, k), sc.lasers, frame_rng(4, k),
-                              velocity_mps=(float(traj.surge_mps[k]), float(traj.sway_mps[k])),
-                              t_s=float(traj.t_s[k]))
+        img = renderer.render(
+            world,
+            frame_pose(traj, k),
+            sc.lasers,
+            frame_rng(4, k),
+            velocity_mps=(float(traj.surge_mps[k]), float(traj.sway_mps[k])),
+            t_s=float(traj.t_s[k]),
+        )
         h.update(img.tobytes())
     assert h.hexdigest() == LATER_FRAME_DIGESTS[name]

@@ -85,8 +85,19 @@ def stones():
         (CAM, Pose(0.0, 0.0, 1.31, 0.0)),
         (CAM, Pose(0.03, -0.05, 1.20, 0.7)),
         (CAM, Pose(0.11, 0.07, 1.31, np.pi / 2)),
-        (Camera(360, 272, 1075.0, 1070.0, 181.0, 134.0, distortion=(-0.25, 0.12, 0.002, -0.001, 0.0),
-                yaw_offset_rad=0.05), Pose(0.01, 0.02, 1.31, 0.4, roll_rad=0.02, pitch_rad=-0.015)),
+        (
+            Camera(
+                360,
+                272,
+                1075.0,
+                1070.0,
+                181.0,
+                134.0,
+                distortion=(-0.25, 0.12, 0.002, -0.001, 0.0),
+                yaw_offset_rad=0.05,
+            ),
+            Pose(0.01, 0.02, 1.31, 0.4, roll_rad=0.02, pitch_rad=-0.015),
+        ),
     ],
 )
 def test_a_point_on_a_stone_projects_where_a_pinhole_camera_puts_it(stones, camera, pose):
@@ -118,8 +129,11 @@ def test_a_point_on_a_10_cm_stone_moves_8_percent_faster_than_the_sand_beside_it
     o = (m - 1) // 2
     ry, rx = np.mgrid[0:m, 0:m]
     d = np.hypot(ry - o, rx - (o - 15)) * RELIEF_MM * 1e-3  # stone centred on the west dot
-    world = World.from_array(img, MM_PER_PX, relief=ArrayRelief((0.10 * smoothstep(0.06, 0.015, d)).astype(np.float32),
-                                                                RELIEF_MM, origin_px=(o, o)))
+    world = World.from_array(
+        img,
+        MM_PER_PX,
+        relief=ArrayRelief((0.10 * smoothstep(0.06, 0.015, d)).astype(np.float32), RELIEF_MM, origin_px=(o, o)),
+    )
     a = _ideal(world, CAM, Pose(-0.02, 0.0, 1.31, 0.0))[..., 1]
     b = _ideal(world, CAM, Pose(0.02, 0.0, 1.31, 0.0))[..., 1]
 
@@ -148,14 +162,28 @@ def test_laser_altitude_equals_the_range_to_the_local_relief(relief_world):
     for _ in range(10):
         z = float(rng.uniform(1.2, 1.42))
         pose = Pose(*rng.uniform(-0.4, 0.4, 2), z, float(rng.uniform(-3, 3)))
-        img = render_frame(world, CAM, pose, PAPER_LASERS, sc.water, None, sensor=sc.sensor, spots=sc.spots,
-                           lighting=sc.lighting, noise_free=True)
+        img = render_frame(
+            world,
+            CAM,
+            pose,
+            PAPER_LASERS,
+            sc.water,
+            None,
+            sensor=sc.sensor,
+            spots=sc.spots,
+            lighting=sc.lighting,
+            noise_free=True,
+        )
         centres = red_dominance_centres(img)
         assert len(centres) == 4
         hit = offsets @ rot2(pose.heading_rad).T + [pose.x_m, pose.y_m]
         local_range = z - heights_at(world.relief, hit[:, 0], hit[:, 1])
-        predicted = np.column_stack([CAM.cx_px + CAM.focal_px * offsets[:, 1] / local_range,
-                                     CAM.cy_px - CAM.focal_px * offsets[:, 0] / local_range])
+        predicted = np.column_stack(
+            [
+                CAM.cx_px + CAM.focal_px * offsets[:, 1] / local_range,
+                CAM.cy_px - CAM.focal_px * offsets[:, 0] / local_range,
+            ]
+        )
         for u, v in centres:
             i = int(np.argmin(np.hypot(*(predicted - (u, v)).T)))
             triangulated = CAM.focal_px * np.hypot(*offsets[i]) / np.hypot(u - CAM.cx_px, v - CAM.cy_px)
@@ -194,8 +222,9 @@ def test_landmark_patches_under_vehicle_lamps_change_over_relief_not_on_a_flat_s
     and shading change the patch, correlation < 0.99: a landmark is never an exact copy.
     """
     yy, xx = np.mgrid[0:1000, 0:1000] * RELIEF_MM * 1e-3
-    egg = ArrayRelief((0.05 * np.sin(2 * np.pi * xx / 0.10) * np.sin(2 * np.pi * yy / 0.10)).astype(np.float32),
-                      RELIEF_MM)
+    egg = ArrayRelief(
+        (0.05 * np.sin(2 * np.pi * xx / 0.10) * np.sin(2 * np.pi * yy / 0.10)).astype(np.float32), RELIEF_MM
+    )
     lighting = SCENARIOS["portofino-relief"].lighting
     shift, z = 80, 1.31
     d = shift * z / CAM.focal_px
@@ -235,8 +264,9 @@ def test_lamps_irradiance_falls_as_one_over_r_squared_and_follows_the_normal():
     assert e1[0, 0] / e2[0, 0] == pytest.approx(4.0, rel=1e-5)
     s = np.sqrt(0.5)  # a 45 degree facet: facing the lamp (cos 0) vs sideways (cos 45)
     lamp = np.array([1.0, 0.0, 0.0])
-    facing, _, _ = lamp_irradiance(lamp, np.array([-1.0, 0.0, 0.0]) , 1.0, 0 * one, 0 * one, 1.0 * one,
-                                   s * one, 0 * one, -s * one)
+    facing, _, _ = lamp_irradiance(
+        lamp, np.array([-1.0, 0.0, 0.0]), 1.0, 0 * one, 0 * one, 1.0 * one, s * one, 0 * one, -s * one
+    )
     flat, _, _ = lamp_irradiance(lamp, np.array([-1.0, 0.0, 0.0]), 1.0, 0 * one, 0 * one, 1.0 * one, *up)
     assert facing[0, 0] / flat[0, 0] == pytest.approx(1.0 / s, rel=1e-5)
 
@@ -247,8 +277,9 @@ def test_rendered_brightness_follows_the_lamps_distance_and_the_slope_of_the_sea
     centre = (slice(130, 142), slice(174, 186))
 
     def centre_level(world, pose, lighting=one_lamp):
-        img = render_frame(world, CAM, pose, water=WaterParams.none(), sensor=SensorParams.ideal(),
-                           lighting=lighting, noise_free=True)
+        img = render_frame(
+            world, CAM, pose, water=WaterParams.none(), sensor=SensorParams.ideal(), lighting=lighting, noise_free=True
+        )
         return img[centre][..., 1].astype(float).mean()
 
     near = centre_level(albedo, Pose(0.0, 0.0, 1.31))
@@ -269,10 +300,28 @@ def test_rendered_brightness_follows_the_lamps_distance_and_the_slope_of_the_sea
 def test_caustics_drift_over_the_seabed_with_time():
     world = World.from_array(np.full((3000, 3000, 3), 100, np.uint8), MM_PER_PX)
     sun = LightingParams(caustics=CausticParams(strength=0.3))
-    frames = [render_frame(world, CAM, Pose(0.0, 0.0, 1.31), water=WaterParams.none(), sensor=SensorParams.ideal(),
-                           lighting=sun, noise_free=True, t_s=t)[..., 1].astype(float) for t in (0.0, 0.0, 2.0)]
-    lamps_only = render_frame(world, CAM, Pose(0.0, 0.0, 1.31), water=WaterParams.none(), sensor=SensorParams.ideal(),
-                              lighting=LightingParams(), noise_free=True)[..., 1].astype(float)
+    frames = [
+        render_frame(
+            world,
+            CAM,
+            Pose(0.0, 0.0, 1.31),
+            water=WaterParams.none(),
+            sensor=SensorParams.ideal(),
+            lighting=sun,
+            noise_free=True,
+            t_s=t,
+        )[..., 1].astype(float)
+        for t in (0.0, 0.0, 2.0)
+    ]
+    lamps_only = render_frame(
+        world,
+        CAM,
+        Pose(0.0, 0.0, 1.31),
+        water=WaterParams.none(),
+        sensor=SensorParams.ideal(),
+        lighting=LightingParams(),
+        noise_free=True,
+    )[..., 1].astype(float)
     np.testing.assert_array_equal(frames[0], frames[1])
     assert np.abs(frames[0] - frames[2]).mean() > 2.0  # the network moved
     ratio = frames[0].mean() / lamps_only.mean()
@@ -282,8 +331,9 @@ def test_caustics_drift_over_the_seabed_with_time():
 
 def test_procedural_relief_is_seamless_bounded_and_centred():
     seabed = ProceduralSeabed(TextureParams(boulder_density_per_m2=2.0), 5)
-    params = ReliefParams(ripple_height_m=0.006, stone_height_ratio=0.6, ledge_height_m=0.04, ledge_width_m=0.03,
-                          undulation_m=0.008)
+    params = ReliefParams(
+        ripple_height_m=0.006, stone_height_ratio=0.6, ledge_height_m=0.04, ledge_width_m=0.03, undulation_m=0.008
+    )
     a = ProceduralRelief(params, seabed).region(-300, -300, 600, 600)
     b = ProceduralRelief(ReliefParams(**{**params.__dict__, "chunk_texels": 100}), seabed).region(-300, -300, 600, 600)
     np.testing.assert_array_equal(a, b)  # chunk size does not change the relief: no seams
@@ -313,7 +363,8 @@ def test_relief_from_the_chamber3_photo_puts_dark_crevices_lower():
     assert np.hypot(gn, ge).max() <= 2.5
     # The relief grid is the photo's: the world origin is the photo's centre pixel on both.
     assert heights_at(relief, np.array([0.0]), np.array([0.0]))[0] == pytest.approx(
-        float(h[seabed.origin_px]), abs=1e-6)
+        float(h[seabed.origin_px]), abs=1e-6
+    )
 
 
 def test_ray_cast_frames_do_not_depend_on_what_was_rendered_before(relief_world):
@@ -349,8 +400,9 @@ def test_rolling_shutter_skews_the_image_by_the_motion_during_readout():
     readout, speed = 0.03, 0.5
     sensor = replace(SensorParams.ideal(), readout_s=readout)
     pose = Pose(0.0, 0.0, 1.31, 0.0)
-    img = render_frame(world, CAM, pose, water=WaterParams.none(), sensor=sensor, velocity_mps=(speed, 0.0),
-                       noise_free=True)[..., 1]
+    img = render_frame(
+        world, CAM, pose, water=WaterParams.none(), sensor=sensor, velocity_mps=(speed, 0.0), noise_free=True
+    )[..., 1]
     glob = _ideal(world, CAM, pose)[..., 1]
     mn = (CAM.focal_px / pose.altitude_m) * pts  # heading 0: forward = north
     u, v = CAM.cx_px + mn[:, 1], CAM.cy_px - mn[:, 0]
@@ -363,7 +415,13 @@ def test_rolling_shutter_skews_the_image_by_the_motion_during_readout():
         shifts.append(v_roll - v_glob)
         # Row v is exposed readout * (v - centre) / (H - 1) after mid-frame (v: where the dot is
         # seen): the camera is speed * that further north, so the seabed appears further down.
-        expected.append(CAM.focal_px * speed * readout * (v_roll - 0.5 * (CAM.height_px - 1))
-                        / (CAM.height_px - 1) / pose.altitude_m)
+        expected.append(
+            CAM.focal_px
+            * speed
+            * readout
+            * (v_roll - 0.5 * (CAM.height_px - 1))
+            / (CAM.height_px - 1)
+            / pose.altitude_m
+        )
     np.testing.assert_allclose(shifts, expected, atol=0.05)
     assert max(np.abs(expected)) > 4.0

@@ -19,8 +19,7 @@ def world():
 
 
 def _render(world, water=None, sensor=None, rng=None, **kw):
-    return render_frame(world, CAM, kw.pop("pose", POSE), (), water, rng, sensor=sensor,
-                        noise_free=rng is None, **kw)
+    return render_frame(world, CAM, kw.pop("pose", POSE), (), water, rng, sensor=sensor, noise_free=rng is None, **kw)
 
 
 def test_output_type_and_determinism(world):

@@ -74,8 +74,14 @@ def test_sequence_reads_back_with_all_columns(rough_seq):
         assert abs(frame.roll_rad - traj.roll_rad[k]) < tilt_tol
         assert abs(frame.pitch_rad - traj.pitch_rad[k]) < tilt_tol
         if k in (0, 5):  # PNG is lossless: the image is the pure render of that frame's pose and noise
-            expect = renderer.render(world, frame_pose(traj, k), sc.lasers, frame_rng(5, k),
-                                     velocity_mps=(traj.surge_mps[k], traj.sway_mps[k]), t_s=traj.t_s[k])
+            expect = renderer.render(
+                world,
+                frame_pose(traj, k),
+                sc.lasers,
+                frame_rng(5, k),
+                velocity_mps=(traj.surge_mps[k], traj.sway_mps[k]),
+                t_s=traj.t_s[k],
+            )
             np.testing.assert_array_equal(frame.image, expect)
 
 
@@ -92,8 +98,9 @@ def test_image_texture_option(tmp_path):
     rng = np.random.default_rng(0)
     photo = cv2.GaussianBlur((rng.random((300, 400, 3)) * 255).astype(np.uint8), (0, 0), 2.0)
     cv2.imwrite(str(tmp_path / "mosaic.png"), photo)
-    summary = simulate("portofino-short", tmp_path / "s", frames=2, seed=1,
-                       texture_path=tmp_path / "mosaic.png", texture_mm_per_px=2.0)
+    summary = simulate(
+        "portofino-short", tmp_path / "s", frames=2, seed=1, texture_path=tmp_path / "mosaic.png", texture_mm_per_px=2.0
+    )
     seq = open_sequence(tmp_path / "s")
     assert "mosaic.png" in seq.info.metadata["texture"]
     assert summary.frames == 2
@@ -124,8 +131,9 @@ def test_bad_arguments_raise_simulation_error(tmp_path, kwargs, message):
 def test_texture_that_is_not_an_image_and_non_empty_output(tmp_path):
     (tmp_path / "notes.txt").write_text("not an image")
     with pytest.raises(SimulationError, match="not an image"):
-        simulate("portofino-short", tmp_path / "s", frames=2, texture_path=tmp_path / "notes.txt",
-                 texture_mm_per_px=1.0)
+        simulate(
+            "portofino-short", tmp_path / "s", frames=2, texture_path=tmp_path / "notes.txt", texture_mm_per_px=1.0
+        )
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "old.txt").write_text("x")
     with pytest.raises(SimulationError, match="not empty"):
@@ -148,7 +156,9 @@ def test_cli_bad_arguments_give_one_line_and_exit_code_2(tmp_path, extra):
     args = [a.replace("NOTES", str(notes)) for a in extra]
     res = subprocess.run(
         [sys.executable, "-m", "rovslam", "simulate", "--out", str(tmp_path / "s"), "--quiet", *args],
-        capture_output=True, text=True, timeout=60,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     assert res.returncode == 2
     lines = [ln for ln in res.stderr.strip().splitlines() if ln.strip()]

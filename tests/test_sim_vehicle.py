@@ -108,8 +108,14 @@ def test_rough_preset_turns_swings_and_tilts(rough):
 
 
 def test_sensor_noise_levels(rough):
-    nav = NavSensorParams(compass_sigma_rad=0.005, compass_bias_rad=0.01, compass_drift_rad=0.0, sonar_sigma_m=0.02,
-                          attitude_sigma_rad=0.002, attitude_drift_rad=0.0)
+    nav = NavSensorParams(
+        compass_sigma_rad=0.005,
+        compass_bias_rad=0.01,
+        compass_drift_rad=0.0,
+        sonar_sigma_m=0.02,
+        attitude_sigma_rad=0.002,
+        attitude_drift_rad=0.0,
+    )
     r = read_sensors(rough, nav, seed=3)
     err = np.angle(np.exp(1j * (r.heading_rad - rough.heading_rad)))
     assert err.mean() == pytest.approx(0.01, abs=0.0005)

@@ -63,8 +63,16 @@ def dive(tmp_path_factory):
     peer.start()
     reader.start()
     assert wait_udp_bound(video_port, DEADLINE_S)
-    vehicle = SitlVehicle(SitlConfig(SCENARIO, out, video=f"udp://127.0.0.1:{video_port}",
-                                     mavlink=f"udpout:127.0.0.1:{mav_port}", seed=SEED, duration_s=DURATION_S))
+    vehicle = SitlVehicle(
+        SitlConfig(
+            SCENARIO,
+            out,
+            video=f"udp://127.0.0.1:{video_port}",
+            mavlink=f"udpout:127.0.0.1:{mav_port}",
+            seed=SEED,
+            duration_s=DURATION_S,
+        )
+    )
     vehicle.start()
     try:
         assert vehicle.wait_streaming(DEADLINE_S), "the first frame was never sent"
@@ -149,8 +157,13 @@ def test_messages_sent_to_the_vehicle_land_in_received_csv(dive):
     by_type = {}
     for r in rows:
         by_type.setdefault(r["type"], []).append(r)
-    assert set(by_type) == {"VISION_POSITION_DELTA", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE",
-                            "DISTANCE_SENSOR", "STATUSTEXT"}
+    assert set(by_type) == {
+        "VISION_POSITION_DELTA",
+        "VISION_POSITION_ESTIMATE",
+        "VISION_SPEED_ESTIMATE",
+        "DISTANCE_SENSOR",
+        "STATUSTEXT",
+    }
     est = by_type["VISION_POSITION_ESTIMATE"][0]
     assert (est["x"], est["y"], est["reset_counter"], est["time_usec"]) == (0.25, -0.5, 3, 1_200_000)
     assert est["covariance"] == pytest.approx([i * 0.01 for i in range(21)], abs=1e-7)  # float32 on the wire
@@ -180,8 +193,12 @@ def test_groundtruth_is_the_presets_path_on_the_stream_axis(dive):
     traj = dive["traj"]
     assert len(gt) == N_FRAMES
     np.testing.assert_allclose(gt.t_s, 0.2 * np.arange(N_FRAMES), atol=1e-12)
-    for a, b in ((gt.x_m, traj.x_m), (gt.y_m, traj.y_m), (gt.altitude_m, traj.altitude_m),
-                 (gt.heading_rad, traj.heading_rad)):
+    for a, b in (
+        (gt.x_m, traj.x_m),
+        (gt.y_m, traj.y_m),
+        (gt.altitude_m, traj.altitude_m),
+        (gt.heading_rad, traj.heading_rad),
+    ):
         np.testing.assert_array_equal(a, b)
 
 

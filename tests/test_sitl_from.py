@@ -43,8 +43,13 @@ def _write_sequence(folder: Path, n: int = N) -> Path:
     info = SequenceInfo(name="flat greys", camera=cam, metadata={"frame_rate_hz": RATE_HZ})
     with SequenceWriter(folder, info, with_groundtruth=True) as w:
         for k in range(n):
-            w.write_frame(T0_S + k / RATE_HZ, _image(k), heading_rad=0.01 * k, sonar_altitude_m=1.3 + 0.001 * k,
-                          truth=(0.01 * k, -0.02 * k, 1.3, 0.005 * k))
+            w.write_frame(
+                T0_S + k / RATE_HZ,
+                _image(k),
+                heading_rad=0.01 * k,
+                sonar_altitude_m=1.3 + 0.001 * k,
+                truth=(0.01 * k, -0.02 * k, 1.3, 0.005 * k),
+            )
     return folder
 
 
@@ -93,8 +98,9 @@ def test_from_streams_the_folders_frames_at_their_times(seq, tmp_path):
 def test_pace_slows_the_dive_but_not_its_clock(seq, tmp_path):
     """--pace 3: frames go out 3 frame periods apart (never sooner), presented at their capture times."""
     pace = 3.0
-    vehicle = _vehicle(seq, tmp_path / "truth", f"udp://127.0.0.1:{free_udp_port()}", free_udp_port(), pace=pace,
-                       duration_s=0.3)
+    vehicle = _vehicle(
+        seq, tmp_path / "truth", f"udp://127.0.0.1:{free_udp_port()}", free_udp_port(), pace=pace, duration_s=0.3
+    )
     try:
         vehicle.start()
         assert vehicle.wait(DEADLINE_S)
@@ -112,8 +118,9 @@ def test_the_dive_can_wait_for_the_companions_heartbeat(seq, tmp_path):
     mav_port = free_udp_port()
     peer = MavlinkPeer(mav_port, DEADLINE_S)
     peer.start()
-    vehicle = _vehicle(seq, tmp_path / "truth", f"udp://127.0.0.1:{free_udp_port()}", mav_port,
-                       wait_for_peer_s=DEADLINE_S)
+    vehicle = _vehicle(
+        seq, tmp_path / "truth", f"udp://127.0.0.1:{free_udp_port()}", mav_port, wait_for_peer_s=DEADLINE_S
+    )
     try:
         vehicle.start()
         assert _wait_for(lambda: bool(peer.of("HEARTBEAT")) and bool(peer.conn.clients))
@@ -154,9 +161,13 @@ def test_rtp_stream_opens_through_its_sdp(seq, tmp_path):
         vehicle.start()
         sdp = (out / "stream.sdp").read_text()
         assert f"m=video {video_port} RTP/AVP 96" in sdp and "a=rtpmap:96 H264/90000" in sdp
-        reader = VideoReader(str(out / "stream.sdp"), N, DEADLINE_S, fmt="sdp",
-                             options={"protocol_whitelist": "file,udp,rtp", "probesize": "4096",
-                                      "analyzeduration": "0"})
+        reader = VideoReader(
+            str(out / "stream.sdp"),
+            N,
+            DEADLINE_S,
+            fmt="sdp",
+            options={"protocol_whitelist": "file,udp,rtp", "probesize": "4096", "analyzeduration": "0"},
+        )
         reader.start()
         assert wait_udp_bound(video_port, DEADLINE_S)
         assert _wait_for(lambda: bool(peer.of("HEARTBEAT")) and bool(peer.conn.clients))
@@ -230,19 +241,21 @@ def _pes_lengths(ts: bytes) -> list[int]:
     """PES_packet_length of each PES starting in an MPEG-TS byte string (video PID 0x100)."""
     out = []
     for i in range(0, len(ts) - 187, 188):
-        pk = ts[i:i + 188]
+        pk = ts[i : i + 188]
         if pk[1] & 0x40 and ((pk[1] & 0x1F) << 8 | pk[2]) == 0x100:
             off = 4 + (1 + pk[4] if (pk[3] >> 4) & 2 else 0)
-            if pk[off:off + 3] == b"\x00\x00\x01":
-                out.append(int.from_bytes(pk[off + 4:off + 6], "big"))
+            if pk[off : off + 3] == b"\x00\x00\x01":
+                out.append(int.from_bytes(pk[off + 4 : off + 6], "big"))
     return out
 
 
 # --------------------------------------------------------------------------- the command
 
+
 def _rovslam(*args: str, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "rovslam", "sitl", *args], capture_output=True, text=True,
-                          timeout=DEADLINE_S, **kw)
+    return subprocess.run(
+        [sys.executable, "-m", "rovslam", "sitl", *args], capture_output=True, text=True, timeout=DEADLINE_S, **kw
+    )
 
 
 BAD = [
@@ -276,11 +289,28 @@ def test_bad_input_is_refused_before_anything_is_written(tmp_path, args, says):
     from rovslam.cli.sitl import sitl
     from rovslam.errors import SimulationError
 
-    opts = dict(scenario=None, seed=0, video="udp://127.0.0.1:5600", mavlink="udpout:127.0.0.1:14550",
-                duration_s=None, from_seq=None, rtp=False, pace=1.0, mode="ALT_HOLD", crf=20, wait_for_peer_s=0.0,
-                quiet=True)
-    names = {"--scenario": "scenario", "--video": "video", "--mavlink": "mavlink", "--pace": "pace", "--mode": "mode",
-             "--crf": "crf"}
+    opts = dict(
+        scenario=None,
+        seed=0,
+        video="udp://127.0.0.1:5600",
+        mavlink="udpout:127.0.0.1:14550",
+        duration_s=None,
+        from_seq=None,
+        rtp=False,
+        pace=1.0,
+        mode="ALT_HOLD",
+        crf=20,
+        wait_for_peer_s=0.0,
+        quiet=True,
+    )
+    names = {
+        "--scenario": "scenario",
+        "--video": "video",
+        "--mavlink": "mavlink",
+        "--pace": "pace",
+        "--mode": "mode",
+        "--crf": "crf",
+    }
     for flag, value in zip(args[::2], args[1::2], strict=True):
         opts[names[flag]] = float(value) if flag == "--pace" else int(value) if flag == "--crf" else value
     with pytest.raises((SimulationError, typer.Exit)) as err:
@@ -299,9 +329,27 @@ def test_a_used_output_folder_is_refused(seq, tmp_path):
 def test_sigterm_ends_the_dive_with_its_files_complete(seq, tmp_path):
     out = tmp_path / "truth"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "rovslam", "sitl", "--from", str(seq), "--out", str(out), "--pace", "50",
-         "--video", f"udp://127.0.0.1:{free_udp_port()}", "--mavlink", f"udpout:127.0.0.1:{free_udp_port()}"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+        [
+            sys.executable,
+            "-m",
+            "rovslam",
+            "sitl",
+            "--from",
+            str(seq),
+            "--out",
+            str(out),
+            "--pace",
+            "50",
+            "--video",
+            f"udp://127.0.0.1:{free_udp_port()}",
+            "--mavlink",
+            f"udpout:127.0.0.1:{free_udp_port()}",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ),
+    )
     lines: list[str] = []
     threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True).start()
     try:

@@ -39,20 +39,42 @@ def smoother_config(noise: SurveyNoise = NOISE, **changes) -> SmootherConfig:
 
 def run_ekf(frames, noise: SurveyNoise = NOISE):
     """The EKF fed the records as the pipeline feeds it: (K, 2) positions, (K, 2, 2) covariances."""
-    ekf = EkfSlam(SlamConfig(landmark_height_sigma_m=0.0, altitude_bias_sigma_m=0.0, speed_bias_sigma_mps=0.0, heading_bias_sigma_rad=noise.drift_sigma_rad, heading_bias_tau_s=noise.drift_tau_s,
-                             pixel_sigma_px=noise.pixel_sigma_px))
+    ekf = EkfSlam(
+        SlamConfig(
+            landmark_height_sigma_m=0.0,
+            altitude_bias_sigma_m=0.0,
+            speed_bias_sigma_mps=0.0,
+            heading_bias_sigma_rad=noise.drift_sigma_rad,
+            heading_bias_tau_s=noise.drift_tau_s,
+            pixel_sigma_px=noise.pixel_sigma_px,
+        )
+    )
     xy, cov = np.zeros((len(frames), 2)), np.zeros((len(frames), 2, 2))
     prev = None
     for k, f in enumerate(frames):
         if prev is not None:
-            ekf.predict(MotionInput(f.speed_mps[0], f.speed_mps[1], f.speed_cov_mps2, prev.heading_rad, f.dt_s, f.heading_sigma_rad))
+            ekf.predict(
+                MotionInput(
+                    f.speed_mps[0], f.speed_mps[1], f.speed_cov_mps2, prev.heading_rad, f.dt_s, f.heading_sigma_rad
+                )
+            )
         for ob in f.landmarks:
             if ob.kind == "init":
-                assert ekf.augment(ob.mn_px, f.heading_rad, f.altitude_m, f.focal_px,
-                                   heading_sigma_rad=f.heading_sigma_rad) == ob.landmark_id
+                assert (
+                    ekf.augment(
+                        ob.mn_px, f.heading_rad, f.altitude_m, f.focal_px, heading_sigma_rad=f.heading_sigma_rad
+                    )
+                    == ob.landmark_id
+                )
             else:
-                ekf.update(ob.landmark_id, ob.mn_px, f.heading_rad, f.altitude_m, f.focal_px,
-                           heading_sigma_rad=f.heading_sigma_rad)
+                ekf.update(
+                    ob.landmark_id,
+                    ob.mn_px,
+                    f.heading_rad,
+                    f.altitude_m,
+                    f.focal_px,
+                    heading_sigma_rad=f.heading_sigma_rad,
+                )
         xy[k], cov[k] = ekf.vehicle_xy_m, ekf.vehicle_cov_m2
         prev = f
     return xy, cov
@@ -97,9 +119,11 @@ def monte_carlo(runs, noise=NOISE, frames=GRID_FRAMES):
 # ---------------------------------------------------------------- acceptance
 def test_monte_carlo_smoothed_path_beats_the_online_ekf_and_is_consistent():
     win_rate, ratio, inside, mean_nees = monte_carlo(50)
-    print(f"\ngrid survey, 50 runs: smoothed ATE < EKF online ATE in {win_rate:.0%} of runs "
-          f"(median ratio {ratio:.2f}); smoothed NEES inside the 95 % interval on {inside:.1%} of steps "
-          f"(mean {mean_nees:.2f})")
+    print(
+        f"\ngrid survey, 50 runs: smoothed ATE < EKF online ATE in {win_rate:.0%} of runs "
+        f"(median ratio {ratio:.2f}); smoothed NEES inside the 95 % interval on {inside:.1%} of steps "
+        f"(mean {mean_nees:.2f})"
+    )
     assert win_rate >= 0.90
     assert ratio < 0.8
     assert inside >= 0.90
@@ -112,8 +136,10 @@ def test_monte_carlo_with_a_strongly_drifting_compass():
     # the start, which no revisit can see; smoothing still helps, less often.
     noise = SurveyNoise()
     win_rate, ratio, inside, mean_nees = monte_carlo(50, noise, frames=900)
-    print(f"\ndrifting compass (0.5 deg), 50 runs: smoothed better in {win_rate:.0%} (median ratio {ratio:.2f}); "
-          f"NEES inside on {inside:.1%} of steps (mean {mean_nees:.2f})")
+    print(
+        f"\ndrifting compass (0.5 deg), 50 runs: smoothed better in {win_rate:.0%} (median ratio {ratio:.2f}); "
+        f"NEES inside on {inside:.1%} of steps (mean {mean_nees:.2f})"
+    )
     assert win_rate >= 0.6 and ratio < 1.0
     assert inside >= 0.90
 
@@ -158,8 +184,10 @@ def test_one_wrong_association_is_down_weighted_by_the_robust_loss():
             else:
                 assert shift < 2.0 and cover >= cover_clean - 0.05
                 assert res.landmark_downweighted.sum() >= 1  # the wrong one is flagged
-        print(f"\nseed {seed}: wrong association at frame {k}, {100 * dist_m:.0f} cm off (clean: truth inside "
-              f"2 sigma on {cover_clean:.0%}); " + "; ".join(report))
+        print(
+            f"\nseed {seed}: wrong association at frame {k}, {100 * dist_m:.0f} cm off (clean: truth inside "
+            f"2 sigma on {cover_clean:.0%}); " + "; ".join(report)
+        )
 
 
 # ---------------------------------------------------------------- the model, piece by piece
@@ -185,14 +213,17 @@ def test_online_estimate_of_the_last_pose_is_the_smoothed_one():
     lm_err = mahalanobis(res.landmarks_xy_m, res.landmarks_cov_m2, sv.landmarks_xy_m)
     assert np.mean(lm_err <= 2.0) > 0.8
     assert np.all(res.landmark_observations >= 1) and res.landmark_observations.sum() == sum(
-        len(f.landmarks) for f in sv.frames)
+        len(f.landmarks) for f in sv.frames
+    )
     # The online landmark (read from its marginal) is iSAM2's solution (a full back-substitution),
     # close to the smoothed one.
     best = sm._isam.calculateBestEstimate()
     for i in (0, len(res.landmark_ids) - 1):
         np.testing.assert_allclose(sm.landmark_xy_m(i), best.atPoint2(sm._l(i)), atol=1e-12)
         np.testing.assert_allclose(sm.landmark_cov_m2(i), sm._isam.marginalCovariance(sm._l(i)), rtol=1e-9)
-        np.testing.assert_allclose(sm.landmark_xy_m(i), res.landmarks_xy_m[i], atol=3 * math.sqrt(res.landmarks_cov_m2[i, 0, 0]))
+        np.testing.assert_allclose(
+            sm.landmark_xy_m(i), res.landmarks_xy_m[i], atol=3 * math.sqrt(res.landmarks_cov_m2[i, 0, 0])
+        )
 
 
 def straight_frames(n, compass_sigma=0.01, step_sigma=0.002, frame_changes=None):
@@ -201,11 +232,21 @@ def straight_frames(n, compass_sigma=0.01, step_sigma=0.002, frame_changes=None)
     frames = []
     for k in range(n):
         f = FrameMeasurements(
-            index=k, t_s=0.2 * k, dt_s=0.2 if k else 0.0, speed_mps=[0.1, 0.0],
-            speed_cov_mps2=np.eye(2) * 1e-6 if k else np.zeros((2, 2)), speed_ok=k > 0, heading_rad=0.3,
-            heading_sigma_rad=compass_sigma, compass_rad=0.3, compass_sigma_rad=compass_sigma,
-            heading_step_rad=0.0 if k else np.nan, heading_step_sigma_rad=step_sigma if k else np.nan,
-            altitude_m=1.31, altitude_sigma_m=0.0, focal_px=1075.0,
+            index=k,
+            t_s=0.2 * k,
+            dt_s=0.2 if k else 0.0,
+            speed_mps=[0.1, 0.0],
+            speed_cov_mps2=np.eye(2) * 1e-6 if k else np.zeros((2, 2)),
+            speed_ok=k > 0,
+            heading_rad=0.3,
+            heading_sigma_rad=compass_sigma,
+            compass_rad=0.3,
+            compass_sigma_rad=compass_sigma,
+            heading_step_rad=0.0 if k else np.nan,
+            heading_step_sigma_rad=step_sigma if k else np.nan,
+            altitude_m=1.31,
+            altitude_sigma_m=0.0,
+            focal_px=1075.0,
         )
         frames.append(dataclasses.replace(f, **frame_changes.get(k, {})))
     return frames
@@ -355,8 +396,12 @@ def test_an_ill_posed_graph_is_a_typed_one_line_error():
 
 def test_rejected_observations_can_be_left_out():
     sv = grid_survey(21, frames=200)
-    frames = [dataclasses.replace(f, landmarks=tuple(dataclasses.replace(ob, accepted_by_online=ob.kind == "init")
-                                                     for ob in f.landmarks)) for f in sv.frames]
+    frames = [
+        dataclasses.replace(
+            f, landmarks=tuple(dataclasses.replace(ob, accepted_by_online=ob.kind == "init") for ob in f.landmarks)
+        )
+        for f in sv.frames
+    ]
     _, _, res = smooth(frames, smoother_config(use_rejected=False))
     assert np.all(res.landmark_observations == 1)  # the initialisations only
 
@@ -376,8 +421,9 @@ def test_smooth_command_writes_the_smoothed_files(tmp_path):
     # The graph's marginals plus what the whole dive shares: the compass's error at the start
     # (0.5 degree by default) turns the estimate about the origin, the altimeter's lasting error
     # (1 cm and the laser rig's 0.76 % of the depth, in quadrature) scales it (no AHRS: no tilt term).
-    turned = direct.cov_xy_m2 + apparent_frame_cov_m2(direct.xy_m, direct.altitude_m, 0.0, 0.0087,
-                                                      np.hypot(0.01 / direct.altitude_m, 0.0076))
+    turned = direct.cov_xy_m2 + apparent_frame_cov_m2(
+        direct.xy_m, direct.altitude_m, 0.0, 0.0087, np.hypot(0.01 / direct.altitude_m, 0.0076)
+    )
     np.testing.assert_allclose(traj["var_x_m2"], turned[:, 0, 0], rtol=1e-4)
     np.testing.assert_allclose(traj["cov_xy_m2"], turned[:, 0, 1], rtol=1e-4, atol=1e-12)
     far = np.argmax(np.hypot(*direct.xy_m.T))

@@ -37,10 +37,7 @@ def track_images() -> list[np.ndarray]:
     if not VIDEO.is_file():
         datasets.skip_unless("sparus")
     bp = BandpassConfig()
-    return [
-        bandpass(template_channel(f, bp.channel), bp.sigma_fine_px, bp.sigma_coarse_px)
-        for f in _frames()
-    ]
+    return [bandpass(template_channel(f, bp.channel), bp.sigma_fine_px, bp.sigma_coarse_px) for f in _frames()]
 
 
 def test_sparus_video_decodes(track_images):

@@ -30,8 +30,10 @@ def _spot_candidates_reference(image_rgb, config, near_uv_px):
     u0, v0 = int(max(0, lo[0])), int(max(0, lo[1]))
     u1, v1 = int(min(w, hi[0])), int(min(h, hi[1]))
     crop = image_rgb[v0:v1, u0:u1]
-    excess = cv2.subtract(np.ascontiguousarray(crop[:, :, 0]),
-                          cv2.max(np.ascontiguousarray(crop[:, :, 1]), np.ascontiguousarray(crop[:, :, 2])))
+    excess = cv2.subtract(
+        np.ascontiguousarray(crop[:, :, 0]),
+        cv2.max(np.ascontiguousarray(crop[:, :, 1]), np.ascontiguousarray(crop[:, :, 2])),
+    )
     thr = int(np.clip(np.ceil(config.min_red_excess), 1, 255))
     _, mask = cv2.threshold(excess, thr - 1, 1, cv2.THRESH_BINARY)
     if cv2.countNonZero(mask) == 0:
@@ -52,10 +54,15 @@ def _spot_candidates_reference(image_rgb, config, near_uv_px):
     if len(cents):
         close = np.any(np.linalg.norm(cents[:, None, :] - near[None, :, :], axis=2) <= config.search_radius_px, axis=1)
         ids, cents, weights = ids[close], cents[close], weights[close]
-    if config.spot_skirt_px > 0 and len(ids):  # the centre with the fade beyond the threshold, labels of the whole window
-        cents = np.array([_skirt_centre_reference(excess, labels, mask, int(i), int(area[i]), config.spot_skirt_px)
-                          for i in ids]) + (u0, v0)
-    order = np.lexsort((cents[:, 0], cents[:, 1], -weights)) if len(cents) else np.zeros(0, dtype=np.intp)  # ties: top, left
+    if config.spot_skirt_px > 0 and len(
+        ids
+    ):  # the centre with the fade beyond the threshold, labels of the whole window
+        cents = np.array(
+            [_skirt_centre_reference(excess, labels, mask, int(i), int(area[i]), config.spot_skirt_px) for i in ids]
+        ) + (u0, v0)
+    order = (
+        np.lexsort((cents[:, 0], cents[:, 1], -weights)) if len(cents) else np.zeros(0, dtype=np.intp)
+    )  # ties: top, left
     return cents[order], weights[order]
 
 
@@ -95,8 +102,9 @@ def _red_image(seed: int, n_blobs: int, h: int = 120, w: int = 160) -> np.ndarra
 
 
 @settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), n_blobs=st.integers(0, 12), n_near=st.integers(1, 4),
-       radius=st.floats(5.0, 60.0))
+@given(
+    seed=st.integers(0, 2**31 - 1), n_blobs=st.integers(0, 12), n_near=st.integers(1, 4), radius=st.floats(5.0, 60.0)
+)
 def test_spot_candidates_match_the_whole_window_search(seed, n_blobs, n_near, radius):
     img = _red_image(seed, n_blobs)
     rng = np.random.default_rng(seed + 1)
@@ -182,8 +190,10 @@ def test_despeckled_channel_is_the_opening_of_the_float_channel(channel, despeck
     got = despeckled_channel(img, channel, despeckle_px)
     assert got.dtype == np.float32
     np.testing.assert_array_equal(got, want)
-    np.testing.assert_array_equal(despeckled_channel(img[:, :, 1], channel, despeckle_px),
-                                  remove_specks(template_channel(img[:, :, 1], channel), despeckle_px))
+    np.testing.assert_array_equal(
+        despeckled_channel(img[:, :, 1], channel, despeckle_px),
+        remove_specks(template_channel(img[:, :, 1], channel), despeckle_px),
+    )
 
 
 def test_despeckled_channel_refuses_what_template_channel_refuses():
@@ -247,7 +257,9 @@ def _best_hypothesis_reference(a, b, prior_rad, prior_var, thr, sigma0, joint):
 
     thetas = [prior_rad]
     ds = [np.median(a - b @ rot2(prior_rad).T, axis=0)]
-    pick = np.linspace(0, len(a) - 1, _MAX_HYPOTHESES).astype(np.intp) if len(a) > _MAX_HYPOTHESES else np.arange(len(a))
+    pick = (
+        np.linspace(0, len(a) - 1, _MAX_HYPOTHESES).astype(np.intp) if len(a) > _MAX_HYPOTHESES else np.arange(len(a))
+    )
     singles = a[pick] - b[pick] @ rot2(prior_rad).T
     thetas += [prior_rad] * len(singles)
     ds += list(singles)
@@ -275,8 +287,13 @@ def _best_hypothesis_reference(a, b, prior_rad, prior_var, thr, sigma0, joint):
 
 
 @settings(max_examples=200, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 14), joint=st.booleans(),
-       turn=st.floats(-0.2, 0.2), outliers=st.integers(0, 4))
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(1, 14),
+    joint=st.booleans(),
+    turn=st.floats(-0.2, 0.2),
+    outliers=st.integers(0, 4),
+)
 def test_best_hypothesis_is_the_pair_by_pair_search(seed, n, joint, turn, outliers):
     """Rigid-motion hypotheses of all token pairs at once: the same turn, translation and inliers, bit for bit."""
     from rovslam.camera import rot2

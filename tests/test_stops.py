@@ -27,8 +27,12 @@ def dive(tmp_path_factory):
 
 
 def _start(dive, out):
-    return subprocess.Popen([sys.executable, "-m", "rovslam", "run", str(dive), "--out", str(out), "--quiet"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "rovslam", "run", str(dive), "--out", str(out), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def _wait_for_rows(proc, out, timeout_s=300.0):

@@ -30,7 +30,7 @@ def _bright(seed: int, shape=(200, 260)) -> np.ndarray:
     img = np.zeros(shape, np.float32)
     for _ in range(700):
         r, c = rng.integers(5, shape[0] - 5), rng.integers(5, shape[1] - 5)
-        img[r - 2:r + 3, c - 1:c + 2] = rng.uniform(20.0, 80.0)
+        img[r - 2 : r + 3, c - 1 : c + 2] = rng.uniform(20.0, 80.0)
     return cv2.GaussianBlur(img, (0, 0), 1.0)
 
 
@@ -123,7 +123,7 @@ def test_bright_history_compares_over_a_fifth_of_a_second_whatever_the_frame_rat
     hist = BrightHistory()
     frames = [np.full((4, 4), float(k), np.float32) for k in range(4)]
     pos = [uv]
-    for k in range(1, 4):
+    for _ in range(1, 4):
         pos.append(moved(pos[-1]))
     hist.push(0.0, frames[0], np.zeros((0, 2)), np.zeros((0, 2)))  # the first frame: no link
     for k in (1, 2):
@@ -157,18 +157,24 @@ def swell_runs(tmp_path_factory):
     """The swell preset's first 24 s with the sunlight taken out (default) and left in, and the control."""
     base = SCENARIOS["swell"]
     SCENARIOS["swell-no-caustics"] = dataclasses.replace(
-        base, name="swell-no-caustics", lighting=dataclasses.replace(base.lighting, caustics=None))
+        base, name="swell-no-caustics", lighting=dataclasses.replace(base.lighting, caustics=None)
+    )
     root = tmp_path_factory.mktemp("sunlight")
     runs = {}
     try:
         for name in ("swell", "swell-no-caustics"):
             simulate(name, root / name, frames=120, seed=0)
         left_in = RunConfig(bandpass=BandpassConfig(sunlight_px=0))
-        for key, seq, cfg in (("out", "swell", RunConfig()), ("in", "swell", left_in),
-                              ("control", "swell-no-caustics", RunConfig())):
+        for key, seq, cfg in (
+            ("out", "swell", RunConfig()),
+            ("in", "swell", left_in),
+            ("control", "swell-no-caustics", RunConfig()),
+        ):
             run_sequence(root / seq, root / key, cfg)
-            runs[key] = (json.loads((root / key / "summary.json").read_text()),
-                         evaluate_run(root / key, root / seq / "groundtruth.csv"))
+            runs[key] = (
+                json.loads((root / key / "summary.json").read_text()),
+                evaluate_run(root / key, root / seq / "groundtruth.csv"),
+            )
     finally:
         del SCENARIOS["swell-no-caustics"]
     return runs
@@ -229,7 +235,9 @@ def test_slow_caustics_the_watch_misses_are_taken_by_the_speed_error_when_asked(
     base = SCENARIOS["swell"]
     name = "swell-slow-caustics"
     caustics = dataclasses.replace(base.lighting.caustics, drift_mps=(0.02 * 0.86, 0.02 * 0.51))
-    SCENARIOS[name] = dataclasses.replace(base, name=name, lighting=dataclasses.replace(base.lighting, caustics=caustics))
+    SCENARIOS[name] = dataclasses.replace(
+        base, name=name, lighting=dataclasses.replace(base.lighting, caustics=caustics)
+    )
     try:
         simulate(name, tmp_path / "seq", frames=301, seed=7)
     finally:
@@ -246,7 +254,9 @@ def test_slow_caustics_the_watch_misses_are_taken_by_the_speed_error_when_asked(
         assert summary["speed_bias"]["frames"] == (300 if key == "always" else 0)
         results[key] = evaluate_run(tmp_path / key, tmp_path / "seq" / "groundtruth.csv")
     d, a = results["default"], results["always"]
-    print(f"\nslow caustics: ATE {d.slam.ate_rmse_m * 100:.2f} -> {a.slam.ate_rmse_m * 100:.2f} cm, inside 2-sigma "
-          f"{d.consistency.coverage_2sigma:.1%} -> {a.consistency.coverage_2sigma:.1%}")
+    print(
+        f"\nslow caustics: ATE {d.slam.ate_rmse_m * 100:.2f} -> {a.slam.ate_rmse_m * 100:.2f} cm, inside 2-sigma "
+        f"{d.consistency.coverage_2sigma:.1%} -> {a.consistency.coverage_2sigma:.1%}"
+    )
     assert d.consistency.coverage_2sigma < 0.8
     assert a.slam.ate_rmse_m < 0.7 * d.slam.ate_rmse_m and a.consistency.coverage_2sigma > 0.9

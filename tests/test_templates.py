@@ -99,8 +99,9 @@ def test_extract_templates_on_texture_non_overlapping_strongest_first_inside_bor
     assert len(tpls) == cfg.max_count == 8
     variances = [t.local_variance for t in tpls]
     assert variances == sorted(variances, reverse=True)
-    assert variances[0] == pytest.approx(float(lv[cfg.border_px + 8 : -cfg.border_px - 7,
-                                                     cfg.border_px + 8 : -cfg.border_px - 7].max()))
+    assert variances[0] == pytest.approx(
+        float(lv[cfg.border_px + 8 : -cfg.border_px - 7, cfg.border_px + 8 : -cfg.border_px - 7].max())
+    )
     for i, a in enumerate(tpls):
         assert a.patch.shape == (16, 16) and a.patch.dtype == np.float32
         assert a.local_variance >= cfg.min_local_variance
@@ -151,8 +152,9 @@ def test_landmark_templates_keep_away_from_laser_spots_and_each_other():
 
     # Without the mask the spots attract templates (they are high-variance blobs) ...
     unmasked = extract_templates(bp, lv, lm.size_px, 40, lm.min_local_variance, lm.border_px)
-    near = [t for t in unmasked for s in est.spots_uv_px
-            if _min_distance_to_window(t, s) <= laser_cfg.inhibit_radius_px]
+    near = [
+        t for t in unmasked for s in est.spots_uv_px if _min_distance_to_window(t, s) <= laser_cfg.inhibit_radius_px
+    ]
     assert near
     # ... with it, no template window comes within the inhibition radius of a spot.
     mask = inhibition_mask(bp.shape, est.spots_uv_px, laser_cfg.inhibit_radius_px)
@@ -173,8 +175,10 @@ def test_flat_black_and_saturated_frames_give_no_templates(value, noise):
     if noise:  # sensor noise on a featureless frame stays below both thresholds
         rng = np.random.default_rng(value)
         rgb = np.clip(rgb + rng.normal(0, 3.0, rgb.shape), 0, 255).astype(np.uint8)
-    for size, count, thr, border in [(16, 8, SpeedTemplateConfig().min_local_variance, 4),
-                                     (32, 5, LandmarkTemplateConfig().min_local_variance, 8)]:
+    for size, count, thr, border in [
+        (16, 8, SpeedTemplateConfig().min_local_variance, 4),
+        (32, 5, LandmarkTemplateConfig().min_local_variance, 8),
+    ]:
         bp, lv = _filtered(rgb, size)
         assert extract_templates(bp, lv, size, count, thr, border) == []
 
@@ -243,7 +247,7 @@ def test_second_peak_is_the_highest_other_local_maximum_as_numpy_finds_it():
             corr = np.round(corr, 1)  # ties: plateaus are local maxima too
         pu, pv, ex = int(rng.integers(0, w)), int(rng.integers(0, h)), int(rng.integers(0, 6))
         is_max = corr >= cv2.dilate(corr, np.ones((3, 3), np.uint8))
-        is_max[max(0, pv - ex):pv + ex + 1, max(0, pu - ex):pu + ex + 1] = False
+        is_max[max(0, pv - ex) : pv + ex + 1, max(0, pu - ex) : pu + ex + 1] = False
         assert second_peak(corr, pu, pv, ex) == float(np.max(corr, where=is_max, initial=-1.0))
     flat = np.full((5, 5), 0.3, np.float32)
     assert second_peak(flat, 2, 2, 10) == -1.0  # every maximum inside the exclusion

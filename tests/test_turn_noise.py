@@ -188,7 +188,10 @@ def test_the_worst_real_photo_dive_with_turns_stays_inside_its_bounds(tmp_path, 
         datasets.skip_unless("chamber3")
     simulate("photo-turns", tmp_path / "seq", frames=1500, seed=2)
     cfg = RunConfig()
-    cfg = dataclasses.replace(cfg, odometry=dataclasses.replace(cfg.odometry, turn_noise_learned=learned),
-                              slam=dataclasses.replace(cfg.slam, altitude_bias_relief=False))
+    cfg = dataclasses.replace(
+        cfg,
+        odometry=dataclasses.replace(cfg.odometry, turn_noise_learned=learned),
+        slam=dataclasses.replace(cfg.slam, altitude_bias_relief=False),
+    )
     _, _, nees = run_dive(tmp_path / "seq", cfg)
     assert least <= np.mean(nees < TWO_SIGMA_NEES) <= most

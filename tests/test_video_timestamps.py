@@ -82,8 +82,10 @@ def _raw_h264(path: Path, n: int) -> Path:
 
 def _camera(tmp_path: Path) -> Path:
     cam = tmp_path / "camera.toml"
-    cam.write_text(f"[camera]\nwidth_px = {W_PX}\nheight_px = {H_PX}\nfx_px = 60.0\nfy_px = 60.0\n"
-                   f"cx_px = {W_PX / 2}\ncy_px = {H_PX / 2}\n\n[vehicle]\naltitude_m = 1.0\n")
+    cam.write_text(
+        f"[camera]\nwidth_px = {W_PX}\nheight_px = {H_PX}\nfx_px = 60.0\nfy_px = 60.0\n"
+        f"cx_px = {W_PX / 2}\ncy_px = {H_PX / 2}\n\n[vehicle]\naltitude_m = 1.0\n"
+    )
     return cam
 
 
@@ -100,7 +102,9 @@ def test_time_stamps_out_of_order_keep_every_frame_with_its_own_time(tmp_path, f
     pts = list(true_ms)
     for i in range(3, 30, 3):
         pts[i - 2], pts[i - 1], pts[i] = true_ms[i - 1], true_ms[i], true_ms[i - 2]
-    src, t_s, bars = _frames(_write(tmp_path / f"perm.{'mkv' if fmt == 'matroska' else fmt}", pts, fmt), _camera(tmp_path))
+    src, t_s, bars = _frames(
+        _write(tmp_path / f"perm.{'mkv' if fmt == 'matroska' else fmt}", pts, fmt), _camera(tmp_path)
+    )
     assert bars == list(range(30))  # all kept, in the decoder's order
     np.testing.assert_allclose(t_s, np.array(true_ms) / 1000.0, atol=1e-6)  # each frame its own time
     assert src.left_out == 0

@@ -139,17 +139,18 @@ def test_the_opening_element_is_an_octagon_within_a_pixel_of_the_disc(size_px):
     drawn = cv2.dilate(cv2.dilate(point, _CROSS, iterations=a) if a else point, square) > 0
     disc = np.zeros((n, n), bool)
     r0 = size_px // 2
-    disc[size_px - r0:size_px - r0 + size_px, size_px - r0:size_px - r0 + size_px] = (
-        cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px)) > 0)
+    disc[size_px - r0 : size_px - r0 + size_px, size_px - r0 : size_px - r0 + size_px] = (
+        cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px)) > 0
+    )
     cols = np.flatnonzero(drawn.any(axis=0))
     assert cols[-1] - cols[0] + 1 == size_px  # the same width as the disc
     assert np.sum(drawn ^ disc) <= 0.15 * disc.sum()  # and nearly the same pixels
     # A structure the element fits in survives the opening; one it does not fit in is removed.
     img = np.zeros((n + 20, n + 20), np.uint8)
-    img[10:10 + n, 10:10 + n][drawn] = 200
+    img[10 : 10 + n, 10 : 10 + n][drawn] = 200
     np.testing.assert_array_equal(_open_octagon(img, size_px), img)
     thin = np.zeros_like(img)
-    thin[:, 10:10 + size_px - 1] = 200  # one pixel narrower than the element
+    thin[:, 10 : 10 + size_px - 1] = 200  # one pixel narrower than the element
     assert _open_octagon(thin, size_px).max() == 0
 
 

@@ -32,8 +32,12 @@ def test_labels_never_overlap_each_other_nor_cover_a_landmark(seed, n, spread):
     centres, moved = place_labels(anchors, sizes)
     boxes = _boxes(centres, sizes)
     assert _pairwise_overlap(boxes) == 0
-    inside = (anchors[:, None, 0] > boxes[None, :, 0]) & (anchors[:, None, 0] < boxes[None, :, 2]) & \
-             (anchors[:, None, 1] > boxes[None, :, 1]) & (anchors[:, None, 1] < boxes[None, :, 3])
+    inside = (
+        (anchors[:, None, 0] > boxes[None, :, 0])
+        & (anchors[:, None, 0] < boxes[None, :, 2])
+        & (anchors[:, None, 1] > boxes[None, :, 1])
+        & (anchors[:, None, 1] < boxes[None, :, 3])
+    )
     assert not inside.any()
     assert moved.dtype == bool and moved.shape == (n,)
 
@@ -63,12 +67,24 @@ def test_ellipse_magnification_is_a_stated_1_2_5_number():
 def test_refused_matches_are_grouped_by_the_reason_recorded():
     from rovslam.viz.plots import refusal_groups
 
-    reasons = np.array(["", "laser spot inside the template", "innovation test", "laser spot inside the template",
-                        "", "joint compatibility"], dtype=object)
+    reasons = np.array(
+        [
+            "",
+            "laser spot inside the template",
+            "innovation test",
+            "laser spot inside the template",
+            "",
+            "joint compatibility",
+        ],
+        dtype=object,
+    )
     accepted = np.array([1, 0, 0, 0, 1, 0])
     groups = refusal_groups(reasons, accepted)
     assert [r for r, _ in groups][0] == "laser spot inside the template"  # the most frequent first
-    assert {r: int(m.sum()) for r, m in groups} == {"laser spot inside the template": 2, "innovation test": 1,
-                                                    "joint compatibility": 1}
+    assert {r: int(m.sum()) for r, m in groups} == {
+        "laser spot inside the template": 2,
+        "innovation test": 1,
+        "joint compatibility": 1,
+    }
     assert not any(m[0] or m[4] for _, m in groups)  # accepted matches are in no group
     assert refusal_groups(reasons, np.ones(6)) == []

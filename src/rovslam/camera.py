@@ -28,9 +28,7 @@ import numpy as np
 from rovslam.errors import SequenceFormatError
 
 # Camera axes (x starboard, y aft, z down) expressed in the body frame (x fwd, y stbd, z down).
-_BODY_FROM_CAMERA_NOMINAL = np.array(
-    [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
-)
+_BODY_FROM_CAMERA_NOMINAL = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
 # Input checks of the camera model. A focal length under a pixel is a unit mistake (metres or
 # millimetres given for pixels); beyond 1e6 px no camera sees a seabed metres away.
@@ -119,9 +117,7 @@ class Camera:
     @property
     def K(self) -> np.ndarray:
         """(3, 3) intrinsic matrix."""
-        return np.array(
-            [[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]]
-        )
+        return np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]])
 
     @property
     def dist_coeffs(self) -> np.ndarray:
@@ -255,7 +251,10 @@ def undistort_pixels(camera: Camera, uv_px: np.ndarray) -> np.ndarray:
     import cv2
 
     out = cv2.undistortPoints(
-        uv.reshape(-1, 1, 2), camera.K, camera.dist_coeffs, P=camera.K,
+        uv.reshape(-1, 1, 2),
+        camera.K,
+        camera.dist_coeffs,
+        P=camera.K,
         criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10),
     )
     return out.reshape(-1, 2)
@@ -278,9 +277,7 @@ def distort_pixels(camera: Camera, uv_ideal_px: np.ndarray) -> np.ndarray:
     return np.column_stack([xd * camera.fx_px + camera.cx_px, yd * camera.fy_px + camera.cy_px])
 
 
-def pixel_rays_level(
-    camera: Camera, uv_px: np.ndarray, roll_rad: float = 0.0, pitch_rad: float = 0.0
-) -> np.ndarray:
+def pixel_rays_level(camera: Camera, uv_px: np.ndarray, roll_rad: float = 0.0, pitch_rad: float = 0.0) -> np.ndarray:
     """Viewing rays of (N, 2) pixels as (N, 3) level-frame directions with unit z (down)."""
     uv = undistort_pixels(camera, uv_px)
     rays_cam = np.column_stack(

@@ -161,10 +161,16 @@ def file_path(name: str, file: str, *, download: bool = True) -> Path:
     if found is not None:
         return found
     folder = data_folder()
-    how = (f"set {DATA_ENV} to a folder holding {name}/{file} (the project's shared data folder has it), "
-           f"or put it at {folder / name / file}")
+    how = (
+        f"set {DATA_ENV} to a folder holding {name}/{file} (the project's shared data folder has it), "
+        f"or put it at {folder / name / file}"
+    )
     if ds.base_url is None or not download:
-        why = "it is derived from its upstream file and cannot be downloaded" if ds.base_url is None else "downloads are off"
+        why = (
+            "it is derived from its upstream file and cannot be downloaded"
+            if ds.base_url is None
+            else "downloads are off"
+        )
         raise DataNotFoundError(f"dataset {name!r}: {file} is not in {folder} ({why}); {how}.")
     return _download(ds, file, folder, how)
 

@@ -105,4 +105,6 @@ def parse_toml(text: str) -> dict:
     try:
         return tomllib.loads(text)
     except RecursionError:
-        raise tomllib.TOMLDecodeError("arrays or inline tables nested too deeply (more than a few hundred levels)") from None
+        raise tomllib.TOMLDecodeError(
+            "arrays or inline tables nested too deeply (more than a few hundred levels)"
+        ) from None

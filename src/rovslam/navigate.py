@@ -39,9 +39,26 @@ from rovslam.runner import StopRequest
 __all__ = ["NAVIGATION_COLUMNS", "NavigateSummary", "navigate"]
 
 NAVIGATION_COLUMNS = (
-    "t_s", "phase", "goal", "target_x_m", "target_y_m", "nav_x_m", "nav_y_m", "nav_var_x_m2", "nav_cov_xy_m2",
-    "nav_var_y_m2", "cmd_surge_mps", "cmd_sway_mps", "cmd_yaw_rate_radps", "current_x_mps", "current_y_mps",
-    "true_x_m", "true_y_m", "true_heading_rad", "true_current_x_mps", "true_current_y_mps",
+    "t_s",
+    "phase",
+    "goal",
+    "target_x_m",
+    "target_y_m",
+    "nav_x_m",
+    "nav_y_m",
+    "nav_var_x_m2",
+    "nav_cov_xy_m2",
+    "nav_var_y_m2",
+    "cmd_surge_mps",
+    "cmd_sway_mps",
+    "cmd_yaw_rate_radps",
+    "current_x_mps",
+    "current_y_mps",
+    "true_x_m",
+    "true_y_m",
+    "true_heading_rad",
+    "true_current_x_mps",
+    "true_current_y_mps",
 )
 GROUNDTRUTH_COLUMNS = ("t_s", "x_m", "y_m", "altitude_m", "heading_rad")
 FLUSH_EVERY = 50
@@ -66,7 +83,11 @@ class NavigateSummary:
 
 
 def _f(v) -> str:
-    return "" if v is None or (isinstance(v, float) and math.isnan(v)) else (f"{v:.9g}" if isinstance(v, float) else str(v))
+    return (
+        ""
+        if v is None or (isinstance(v, float) and math.isnan(v))
+        else (f"{v:.9g}" if isinstance(v, float) else str(v))
+    )
 
 
 class _NavFiles:
@@ -89,13 +110,37 @@ class _NavFiles:
         n, est, tr = s.nav, s.nav.estimate, s.truth
         tgt = n.target_xy_m if n.target_xy_m is not None else (math.nan, math.nan)
         with output_errors(self.out / "navigation.csv"):
-            self._w["navigation.csv"].writerow([_f(v) for v in (
-                tr.t_s, n.phase, n.goal_index, float(tgt[0]), float(tgt[1]), float(est.xy_m[0]), float(est.xy_m[1]),
-                float(est.cov_m2[0, 0]), float(est.cov_m2[0, 1]), float(est.cov_m2[1, 1]), n.command.surge_mps,
-                n.command.sway_mps, n.command.yaw_rate_radps, float(n.current_mps[0]), float(n.current_mps[1]),
-                tr.x_m, tr.y_m, tr.heading_rad, float(s.current_true_mps[0]), float(s.current_true_mps[1]))])
+            self._w["navigation.csv"].writerow(
+                [
+                    _f(v)
+                    for v in (
+                        tr.t_s,
+                        n.phase,
+                        n.goal_index,
+                        float(tgt[0]),
+                        float(tgt[1]),
+                        float(est.xy_m[0]),
+                        float(est.xy_m[1]),
+                        float(est.cov_m2[0, 0]),
+                        float(est.cov_m2[0, 1]),
+                        float(est.cov_m2[1, 1]),
+                        n.command.surge_mps,
+                        n.command.sway_mps,
+                        n.command.yaw_rate_radps,
+                        float(n.current_mps[0]),
+                        float(n.current_mps[1]),
+                        tr.x_m,
+                        tr.y_m,
+                        tr.heading_rad,
+                        float(s.current_true_mps[0]),
+                        float(s.current_true_mps[1]),
+                    )
+                ]
+            )
         with output_errors(self.out / "groundtruth.csv"):
-            self._w["groundtruth.csv"].writerow([_f(v) for v in (tr.t_s, tr.x_m, tr.y_m, tr.altitude_m, tr.heading_rad)])
+            self._w["groundtruth.csv"].writerow(
+                [_f(v) for v in (tr.t_s, tr.x_m, tr.y_m, tr.altitude_m, tr.heading_rad)]
+            )
         self._n += 1
         if self._n % FLUSH_EVERY == 0:  # as ResultWriter: complete lines on disk as the run goes
             for name, fh in self._fhs.items():
@@ -145,9 +190,17 @@ def navigate(
         writer = ResultWriter(out)
         files = _NavFiles(out)
         book = ArrivalBook(pois)
-        base = {"software": {"name": "rovslam", "version": __version__}, "command": "navigate", "scenario": scenario,
-                "seed": int(seed), "estimator": estimator, "survey_s": float(survey_s), "hold_s": float(hold_s),
-                "guidance": {k: getattr(gcfg, k) for k in gcfg.__dataclass_fields__}, "config": to_dict(config)}
+        base = {
+            "software": {"name": "rovslam", "version": __version__},
+            "command": "navigate",
+            "scenario": scenario,
+            "seed": int(seed),
+            "estimator": estimator,
+            "survey_s": float(survey_s),
+            "hold_s": float(hold_s),
+            "guidance": {k: getattr(gcfg, k) for k in gcfg.__dataclass_fields__},
+            "config": to_dict(config),
+        }
         writer.write_config(config)
         writer.write_summary({**base, "status": "running"})
         t0 = time.perf_counter()
@@ -163,17 +216,32 @@ def navigate(
             error = error or exc
             status = "failed"
         interrupted = status == "interrupted"
-        summary = {**base, "status": status, "complete": status == "complete", "interrupted": interrupted,
-                   "signal": stop.name if interrupted else None,
-                   "reason": None if error is None else str(error) or type(error).__name__,
-                   "frames_processed": flight.n, "landmarks": flight.landmarks, "wall_time_s": wall,
-                   "arrivals": book.table(), "navigation_start_frame": flight.nav_start}
+        summary = {
+            **base,
+            "status": status,
+            "complete": status == "complete",
+            "interrupted": interrupted,
+            "signal": stop.name if interrupted else None,
+            "reason": None if error is None else str(error) or type(error).__name__,
+            "frames_processed": flight.n,
+            "landmarks": flight.landmarks,
+            "wall_time_s": wall,
+            "arrivals": book.table(),
+            "navigation_start_frame": flight.nav_start,
+        }
         writer.write_summary(summary)
         if error is not None:
             raise error
-        return NavigateSummary(flight.n, book.table(), status, wall, out, flight.landmarks,
-                               signal=stop.name if interrupted else None,
-                               signum=stop.signum if interrupted else None)
+        return NavigateSummary(
+            flight.n,
+            book.table(),
+            status,
+            wall,
+            out,
+            flight.landmarks,
+            signal=stop.name if interrupted else None,
+            signum=stop.signum if interrupted else None,
+        )
 
 
 def _check_mission(estimator: str, pois: list[Goal], hold_s: float) -> None:
@@ -197,8 +265,14 @@ class _Flight:
     error: BaseException | None = None  # an output error, or a bug (the files still get finished)
 
 
-def _fly(loop: ClosedLoop, writer: ResultWriter, files: _NavFiles, book: ArrivalBook, stop: StopRequest,
-         on_step: Callable[[LoopStep, int], None] | None) -> _Flight:
+def _fly(
+    loop: ClosedLoop,
+    writer: ResultWriter,
+    files: _NavFiles,
+    book: ArrivalBook,
+    stop: StopRequest,
+    on_step: Callable[[LoopStep, int], None] | None,
+) -> _Flight:
     """Run the loop to its end (or a stop request, or an error), writing every frame's rows as it goes."""
     pipe = loop.navigator.pipeline
     flight = _Flight()
@@ -242,8 +316,17 @@ def _status(error: BaseException | None, stop: StopRequest, book: ArrivalBook, p
     return "complete" if len(book.table()) == len(pois) else "timeout"
 
 
-def _finish_files(out: Path, writer: ResultWriter, files: _NavFiles, book: ArrivalBook, loop: ClosedLoop,
-                  flight: _Flight, pois: list[Goal], estimator: str, plot: bool) -> None:
+def _finish_files(
+    out: Path,
+    writer: ResultWriter,
+    files: _NavFiles,
+    book: ArrivalBook,
+    loop: ClosedLoop,
+    flight: _Flight,
+    pois: list[Goal],
+    estimator: str,
+    plot: bool,
+) -> None:
     """Close the streamed files, write the arrivals, the landmarks and the plot (OutputError when one fails)."""
     writer.close(quiet=flight.error is not None)
     files.close()
@@ -253,11 +336,18 @@ def _finish_files(out: Path, writer: ResultWriter, files: _NavFiles, book: Arriv
         from rovslam.viz.navigation import plot_navigation
 
         pts = np.array([p.xy_m if p.xy_m is not None else _row_xy(book, p.name) for p in pois])
-        plot_navigation(out / "navigation.png", np.array(flight.true_xy), np.array(flight.est_xy), pts,
-                        [p.name for p in pois], flight.nav_start or 0, book.table(), estimator)
+        plot_navigation(
+            out / "navigation.png",
+            np.array(flight.true_xy),
+            np.array(flight.est_xy),
+            pts,
+            [p.name for p in pois],
+            flight.nav_start or 0,
+            book.table(),
+            estimator,
+        )
 
 
 def _row_xy(book: ArrivalBook, name: str) -> np.ndarray:
     row = book.rows.get(name)
     return np.array([row["x_m"], row["y_m"]]) if row else np.array([math.nan, math.nan])
-

@@ -18,8 +18,15 @@ from rovslam.core import Frame
 from rovslam.io.source import ASSUMED_ALTITUDE, HELD_ALTITUDE, TOKENS_ONLY, SourceDescription
 from rovslam.pipeline import FrameResult
 
-__all__ = ["MAP_USE_MIN_FOUND", "MAP_USE_MIN_FRAMES", "TIME_GAP_MIN_S", "TIME_GAP_RATIO", "MapTally", "SourceTally",
-           "TimeGaps"]
+__all__ = [
+    "MAP_USE_MIN_FOUND",
+    "MAP_USE_MIN_FRAMES",
+    "TIME_GAP_MIN_S",
+    "TIME_GAP_RATIO",
+    "MapTally",
+    "SourceTally",
+    "TimeGaps",
+]
 
 # The map corrects the odometry only where its landmarks are found again: below this share of the
 # frames with a landmark in view, over at least MAP_USE_MIN_FRAMES such frames, the run says so.
@@ -48,15 +55,20 @@ class MapTally:
     def warnings(self) -> list[str]:
         if self.in_view < MAP_USE_MIN_FRAMES or self.found >= MAP_USE_MIN_FOUND * self.in_view:
             return []
-        return [f"landmarks were found again in only {self.found} of the {self.in_view} frames that had one in view "
-                f"({100.0 * self.found / self.in_view:.0f} %): the map corrects little of the odometry's drift, and the "
-                "position's error may outgrow its covariance. Common causes: a seabed whose appearance changes "
-                "between passes (moving sunlight caustics in shallow water, turbidity, moving weed), or too little "
-                "texture for [landmark_templates] min_local_variance"]
+        return [
+            f"landmarks were found again in only {self.found} of the {self.in_view} frames that had one in view "
+            f"({100.0 * self.found / self.in_view:.0f} %): the map corrects little of the odometry's drift, and the "
+            "position's error may outgrow its covariance. Common causes: a seabed whose appearance changes "
+            "between passes (moving sunlight caustics in shallow water, turbidity, moving weed), or too little "
+            "texture for [landmark_templates] min_local_variance"
+        ]
 
     def summary(self) -> dict[str, Any]:
-        return {"frames_with_landmark_in_view": self.in_view, "frames_with_landmark_found": self.found,
-                "found_fraction": self.found / self.in_view if self.in_view else None}
+        return {
+            "frames_with_landmark_in_view": self.in_view,
+            "frames_with_landmark_found": self.found,
+            "found_fraction": self.found / self.in_view if self.in_view else None,
+        }
 
 
 # A frame interval longer than this many times the dive's median (and than TIME_GAP_MIN_S) is a gap.
@@ -95,10 +107,12 @@ class TimeGaps:
         if not gaps:
             return []
         big = max(gaps, key=lambda g: g["gap_s"])
-        return [f"{len(gaps)} gap(s) in the frame times, the longest {big['gap_s']:g} s before frame {big['frame']} "
-                f"(t = {big['t_s']:g} s), against a usual {float(np.median(self._dt_s)):g} s: the position's uncertainty "
-                "grows across a gap; if the frames on either side are consecutive, the times (frames.csv t_s, the "
-                "bag's stamps) are wrong and the speed across the gap is too small"]
+        return [
+            f"{len(gaps)} gap(s) in the frame times, the longest {big['gap_s']:g} s before frame {big['frame']} "
+            f"(t = {big['t_s']:g} s), against a usual {float(np.median(self._dt_s)):g} s: the position's uncertainty "
+            "grows across a gap; if the frames on either side are consecutive, the times (frames.csv t_s, the "
+            "bag's stamps) are wrong and the speed across the gap is too small"
+        ]
 
 
 class SourceTally:
@@ -120,8 +134,13 @@ class SourceTally:
         if res.skipped_reason is not None:
             return
         alt_input = self.description.altitude_input or "sonar"
-        alt = {"laser": "laser", "laser+sonar": f"laser+{alt_input}", "sonar": alt_input,
-               "fixed": ASSUMED_ALTITUDE, "held": HELD_ALTITUDE}.get(res.altitude_source, res.altitude_source)
+        alt = {
+            "laser": "laser",
+            "laser+sonar": f"laser+{alt_input}",
+            "sonar": alt_input,
+            "fixed": ASSUMED_ALTITUDE,
+            "held": HELD_ALTITUDE,
+        }.get(res.altitude_source, res.altitude_source)
         self.altitude[alt] = self.altitude.get(alt, 0) + 1
         has_heading = math.isfinite(frame.heading_rad) and self.description.heading_input is not None
         head = (self.description.heading_input or "compass") if has_heading else TOKENS_ONLY
@@ -132,12 +151,18 @@ class SourceTally:
 
         def part(counts: dict[str, int], details: dict[str, str]) -> dict[str, Any]:
             main = max(counts, key=lambda k: counts[k]) if counts else None
-            return {"source": main, "frames": dict(counts),
-                    "detail": "; ".join(f"{k}: {details[k]}" for k in counts if details.get(k))}
+            return {
+                "source": main,
+                "frames": dict(counts),
+                "detail": "; ".join(f"{k}: {details[k]}" for k in counts if details.get(k)),
+            }
 
-        alt_details = {"laser": "laser spots of the camera file's [[laser]] rig", ASSUMED_ALTITUDE: self.fallback_detail,
-                       HELD_ALTITUDE: "no laser spot and no altimeter reading in the frame: the altitude filter's "
-                                      "prediction from the readings before (its sigma growing)"}
+        alt_details = {
+            "laser": "laser spots of the camera file's [[laser]] rig",
+            ASSUMED_ALTITUDE: self.fallback_detail,
+            HELD_ALTITUDE: "no laser spot and no altimeter reading in the frame: the altitude filter's "
+            "prediction from the readings before (its sigma growing)",
+        }
         if d.altitude_input:
             alt_details[d.altitude_input] = d.altitude_detail
             alt_details[f"laser+{d.altitude_input}"] = f"laser spots fused with {d.altitude_detail}"
@@ -147,18 +172,24 @@ class SourceTally:
         warnings = []
         n_alt = sum(self.altitude.values())
         if self.altitude.get(ASSUMED_ALTITUDE):
-            warnings.append(f"altitude assumed constant ({self.fallback_detail}) in {self.altitude[ASSUMED_ALTITUDE]} of "
-                            f"{n_alt} frames: speeds and positions there scale with that value")
+            warnings.append(
+                f"altitude assumed constant ({self.fallback_detail}) in {self.altitude[ASSUMED_ALTITUDE]} of "
+                f"{n_alt} frames: speeds and positions there scale with that value"
+            )
         if self.rig_note:
             warnings.append(self.rig_note)
         if self.heading.get(TOKENS_ONLY):
-            warnings.append(f"no compass in {self.heading[TOKENS_ONLY]} of {sum(self.heading.values())} frames: the "
-                            "heading there is the integrated turn of the speed tokens, which drifts")
+            warnings.append(
+                f"no compass in {self.heading[TOKENS_ONLY]} of {sum(self.heading.values())} frames: the "
+                "heading there is the integrated turn of the speed tokens, which drifts"
+            )
         return {
             "input": {"kind": d.kind, "path": d.path},
             "altitude": part(self.altitude, alt_details),
             "heading": part(self.heading, head_details),
-            "attitude": {"source": "given" if d.attitude_detail else "none (level camera assumed)",
-                         "detail": d.attitude_detail or ""},
+            "attitude": {
+                "source": "given" if d.attitude_detail else "none (level camera assumed)",
+                "detail": d.attitude_detail or "",
+            },
             "warnings": warnings,
         }

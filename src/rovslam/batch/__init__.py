@@ -171,8 +171,13 @@ def _connect(scheduler: str | None, workers: int | None):
     # dashboard_address ":0": any free port (None means Dask's 8787: with another cluster on the machine,
     # Dask warned about it on stderr, around rovslam's own lines).
     with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environ()}):
-        cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR)
+        cluster = LocalCluster(
+            n_workers=workers or default_workers(),
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",
+            silence_logs=logging.ERROR,
+        )
     return Client(cluster), cluster
 
 
@@ -189,8 +194,15 @@ def _run_cells(client, todo, cells_dir, keep_sequences, rows, report, on_cell, s
     batch_id = uuid.uuid4().hex[:8]  # two batches on one scheduler never share a task
     for spec in todo:
         # Longest cells first, so the last ones to finish are short; pure=False: a re-run recomputes.
-        fut = client.submit(run_cell, spec, str(cells_dir), keep_sequences, key=f"rovslam-cell-{spec.cell_id}-{batch_id}",
-                            pure=False, priority=spec.frames or 0)
+        fut = client.submit(
+            run_cell,
+            spec,
+            str(cells_dir),
+            keep_sequences,
+            key=f"rovslam-cell-{spec.cell_id}-{batch_id}",
+            pure=False,
+            priority=spec.frames or 0,
+        )
         futures[fut] = spec
     for fut in as_completed(futures):
         spec = futures[fut]

@@ -40,7 +40,9 @@ def read_result(cell_dir: Path) -> dict[str, Any] | None:
         return None
 
 
-def run_cell(spec: CellSpec, cells_dir: str, keep_sequence: bool = False, opencv_threads: int | None = 1) -> dict[str, Any]:
+def run_cell(
+    spec: CellSpec, cells_dir: str, keep_sequence: bool = False, opencv_threads: int | None = 1
+) -> dict[str, Any]:
     """Run one cell and return its matrix row (``status`` ``ok`` or ``failed``). Never raises for a bad cell.
 
     ``opencv_threads``: OpenCV's thread count inside this worker (1: one core per worker, as
@@ -76,8 +78,13 @@ def run_cell(spec: CellSpec, cells_dir: str, keep_sequence: bool = False, opencv
 def failed_row(spec: CellSpec, exc: BaseException, wall_s: float = float("nan")) -> dict[str, Any]:
     """The matrix row of a cell that raised ``exc`` (its message on one line)."""
     message = " ".join(str(exc).split()) or type(exc).__name__
-    return {**_spec_columns(spec), "status": "failed", "error": f"{type(exc).__name__}: {message}", "wall_s": wall_s,
-            "failure": "input" if isinstance(exc, RovslamError) else "internal"}
+    return {
+        **_spec_columns(spec),
+        "status": "failed",
+        "error": f"{type(exc).__name__}: {message}",
+        "wall_s": wall_s,
+        "failure": "input" if isinstance(exc, RovslamError) else "internal",
+    }
 
 
 def pending_row(spec: CellSpec) -> dict[str, Any]:
@@ -86,8 +93,13 @@ def pending_row(spec: CellSpec) -> dict[str, Any]:
 
 
 def _spec_columns(spec: CellSpec) -> dict[str, Any]:
-    return {"cell": spec.cell_id, "group": spec.group, "scenario": spec.scenario or "", "seed": spec.seed,
-            "config": spec.config_path or ""}
+    return {
+        "cell": spec.cell_id,
+        "group": spec.group,
+        "scenario": spec.scenario or "",
+        "seed": spec.seed,
+        "config": spec.config_path or "",
+    }
 
 
 def _run(spec: CellSpec, cell_dir: Path, keep_sequence: bool) -> dict[str, Any]:
@@ -99,8 +111,14 @@ def _run(spec: CellSpec, cell_dir: Path, keep_sequence: bool) -> dict[str, Any]:
         from rovslam.sim import CalibrationErrors, simulate
 
         seq = cell_dir / "sequence"
-        simulate(spec.scenario, seq, frames=spec.frames, seed=spec.seed, image_format=spec.image_format,
-                 calibration=CalibrationErrors() if spec.calibration_errors else None)
+        simulate(
+            spec.scenario,
+            seq,
+            frames=spec.frames,
+            seed=spec.seed,
+            image_format=spec.image_format,
+            calibration=CalibrationErrors() if spec.calibration_errors else None,
+        )
         groundtruth = seq / "groundtruth.csv"
         max_frames = None
     else:
@@ -108,7 +126,9 @@ def _run(spec: CellSpec, cell_dir: Path, keep_sequence: bool) -> dict[str, Any]:
         if not seq.exists():
             raise SequenceFormatError(f"{seq}: sequence not found (a [[sequence]] path is relative to the matrix file)")
         if not groundtruth.is_file():
-            raise SequenceFormatError(f"{groundtruth}: ground truth not found; a matrix cell needs one (key groundtruth)")
+            raise SequenceFormatError(
+                f"{groundtruth}: ground truth not found; a matrix cell needs one (key groundtruth)"
+            )
     t1, c1 = time.perf_counter(), time.process_time()
     run_dir = cell_dir / "run"
     summary = run_sequence(seq, run_dir, spec.config, max_frames=max_frames)

@@ -115,17 +115,29 @@ def load_matrix(path: str | Path, scenarios: dict[str, Any] | None = None) -> Ma
             raise ConfigError(f"{where}: unknown scenario {name!r}; known: {', '.join(scenarios)}")
         label = _name(entry.get("label", name), f"{where}: label")
         frames = _frames(entry, scenarios[name], where)
-        cfg, cfg_path = _config(entry.get("config"), base, f"{where}: config", configs) if "config" in entry else default_cfg
+        cfg, cfg_path = (
+            _config(entry.get("config"), base, f"{where}: config", configs) if "config" in entry else default_cfg
+        )
         seeds = _seeds(entry["seeds"], f"{where}: seeds") if "seeds" in entry else default_seeds
         fmt = entry.get("format", "png")
         if fmt not in ("png", "jpg"):
-            raise ConfigError(f"{where}: format must be \"png\" or \"jpg\", got {fmt!r}")
+            raise ConfigError(f'{where}: format must be "png" or "jpg", got {fmt!r}')
         calibration = entry.get("calibration_errors", False)
         if not isinstance(calibration, bool):
             raise ConfigError(f"{where}: calibration_errors must be true or false, got {calibration!r}")
         cells += [
-            CellSpec(f"{label}_s{s}", label, scenario=name, seed=s, frames=frames, config=cfg, config_path=cfg_path,
-                     image_format=fmt, smooth=smooth, calibration_errors=calibration)
+            CellSpec(
+                f"{label}_s{s}",
+                label,
+                scenario=name,
+                seed=s,
+                frames=frames,
+                config=cfg,
+                config_path=cfg_path,
+                image_format=fmt,
+                smooth=smooth,
+                calibration_errors=calibration,
+            )
             for s in seeds
         ]
     for i, entry in enumerate(_tables(data, "sequence", p)):
@@ -139,11 +151,20 @@ def load_matrix(path: str | Path, scenarios: dict[str, Any] | None = None) -> Ma
         if gt is not None and not isinstance(gt, str):
             raise ConfigError(f"{where}: groundtruth must be a path (a string), got {gt!r}")
         frames = _positive_int(entry["frames"], f"{where}: frames") if "frames" in entry else None
-        cfg, cfg_path = _config(entry.get("config"), base, f"{where}: config", configs) if "config" in entry else default_cfg
+        cfg, cfg_path = (
+            _config(entry.get("config"), base, f"{where}: config", configs) if "config" in entry else default_cfg
+        )
         cells.append(
-            CellSpec(name, name, frames=frames, sequence_path=str(seq),
-                     groundtruth_path=str((base / gt).resolve() if gt else seq / "groundtruth.csv"),
-                     config=cfg, config_path=cfg_path, smooth=smooth)
+            CellSpec(
+                name,
+                name,
+                frames=frames,
+                sequence_path=str(seq),
+                groundtruth_path=str((base / gt).resolve() if gt else seq / "groundtruth.csv"),
+                config=cfg,
+                config_path=cfg_path,
+                smooth=smooth,
+            )
         )
     if not cells:
         raise ConfigError(f"{p}: no cells; add a [[scenario]] or a [[sequence]] table.")
@@ -198,9 +219,11 @@ def _frames(entry: dict, scenario: Any, where: str) -> int | None:
     from rovslam.sim.scenarios import MAX_FRAMES  # loaded already: the scenario is one of its presets
 
     if n > MAX_FRAMES:  # 1e12 frames asked 149 GiB and failed in the worker; 1e308 s overflowed
-        raise ConfigError(f"{where}: {n:.3g} frames to simulate, more than the {MAX_FRAMES:,} a cell may "
-                          f"hold ({MAX_FRAMES / scenario.frame_rate_hz / 3600:.0f} h of this preset); "
-                          "give a shorter duration_s or fewer frames")
+        raise ConfigError(
+            f"{where}: {n:.3g} frames to simulate, more than the {MAX_FRAMES:,} a cell may "
+            f"hold ({MAX_FRAMES / scenario.frame_rate_hz / 3600:.0f} h of this preset); "
+            "give a shorter duration_s or fewer frames"
+        )
     return max(1, round(n))
 
 
@@ -211,8 +234,10 @@ def _seeds(value: Any, where: str) -> tuple[int, ...]:
     if isinstance(value, (int, list)) and not isinstance(value, bool):
         n = value if isinstance(value, int) else len(value)
         if n > MAX_SEEDS:
-            raise ConfigError(f"{where}: {n} seeds, more than the {MAX_SEEDS} a matrix entry may hold; "
-                              "give a smaller count (seeds = 10 runs seeds 0 to 9).")
+            raise ConfigError(
+                f"{where}: {n} seeds, more than the {MAX_SEEDS} a matrix entry may hold; "
+                "give a smaller count (seeds = 10 runs seeds 0 to 9)."
+            )
     if isinstance(value, int) and not isinstance(value, bool):
         value = list(range(_positive_int(value, where)))
     if (

@@ -14,15 +14,50 @@ from pathlib import Path
 from typing import Any
 
 MATRIX_COLUMNS = (
-    "cell", "group", "scenario", "seed", "config", "status", "error",
-    "frames", "duration_s", "distance_m", "skipped_frames", "landmarks", "landmarks_found",
-    "ate_rmse_m", "ate_max_m", "final_error_m", "final_error_pct",
-    "coverage_2sigma", "nees_mean", "max_error_jump_sigma", "max_error_jump_t_s",
-    "max_error_jump_before_sigma", "max_error_jump_before_t_s", "speed_nees_mean", "speed_coverage_2sigma",
-    "dr_ate_rmse_m", "dr_ate_max_m", "dr_final_error_m", "dr_final_error_pct",
-    "pc_ate_rmse_m", "pc_ate_max_m", "pc_final_error_m", "pc_final_error_pct",
-    "dr_over_slam", "pc_over_slam",
-    "frames_per_s", "frames_per_cpu_s", "simulate_s", "run_s", "eval_s", "wall_s", "simulate_cpu_s", "run_cpu_s", "eval_cpu_s",
+    "cell",
+    "group",
+    "scenario",
+    "seed",
+    "config",
+    "status",
+    "error",
+    "frames",
+    "duration_s",
+    "distance_m",
+    "skipped_frames",
+    "landmarks",
+    "landmarks_found",
+    "ate_rmse_m",
+    "ate_max_m",
+    "final_error_m",
+    "final_error_pct",
+    "coverage_2sigma",
+    "nees_mean",
+    "max_error_jump_sigma",
+    "max_error_jump_t_s",
+    "max_error_jump_before_sigma",
+    "max_error_jump_before_t_s",
+    "speed_nees_mean",
+    "speed_coverage_2sigma",
+    "dr_ate_rmse_m",
+    "dr_ate_max_m",
+    "dr_final_error_m",
+    "dr_final_error_pct",
+    "pc_ate_rmse_m",
+    "pc_ate_max_m",
+    "pc_final_error_m",
+    "pc_final_error_pct",
+    "dr_over_slam",
+    "pc_over_slam",
+    "frames_per_s",
+    "frames_per_cpu_s",
+    "simulate_s",
+    "run_s",
+    "eval_s",
+    "wall_s",
+    "simulate_cpu_s",
+    "run_cpu_s",
+    "eval_cpu_s",
 )
 
 
@@ -154,7 +189,9 @@ def _cell(value: Any) -> str:
     return str(value)
 
 
-def write_tables(out_dir: Path, title: str, rows: Sequence[dict[str, Any]], groups: Sequence[str] | None = None) -> None:
+def write_tables(
+    out_dir: Path, title: str, rows: Sequence[dict[str, Any]], groups: Sequence[str] | None = None
+) -> None:
     """Write ``matrix.csv`` and ``matrix.md`` in ``out_dir`` (each atomically: a reader never sees half a table)."""
     import io
 

@@ -37,8 +37,8 @@ A new command ``NAME`` is a module ``rovslam/cli/NAME.py``::
         "What it does, in one line: rovslam --help shows it."
         from rovslam.runner import run_sequence  # heavy imports here, so --help stays fast
 
-plus one line at the end of this module, ``from rovslam.cli import NAME``: ``rovslam --help``
-lists the commands in the order of those lines. A command that reads a video, an image folder or
+plus its name in ``COMMAND_MODULES`` at the end of this module: ``rovslam --help`` lists the
+commands in that order. A command that reads a video, an image folder or
 a bag takes their options with ``@with_inputs`` (``rovslam.cli.inputs``) below ``@guard``.
 
 The modules with commands do not use ``from __future__ import annotations``: typer reads every
@@ -46,6 +46,7 @@ parameter's annotation at each start-up, and a string annotation is compiled aga
 (``rovslam --help`` and every command spent about 4 ms of CPU on it).
 """
 
+import importlib
 import sys
 
 import typer
@@ -71,7 +72,9 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def _main_options(
-    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version and exit."),
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
+    ),
 ) -> None:
     """Vision-based SLAM for ROVs: laser altimeter, optical-correlation speed, EKF landmark map."""
 
@@ -93,16 +96,7 @@ def main() -> None:
     sys.exit(code if isinstance(code, int) else 0)
 
 
-# The commands: importing a module registers its commands on `app`, listed by --help in this order.
-from rovslam.cli import (
-    batch,  # noqa: E402, F401
-    config,  # noqa: E402, F401
-    demo,  # noqa: E402, F401
-    evaluate,  # noqa: E402, F401  (eval)
-    navigate,  # noqa: E402, F401
-    report,  # noqa: E402, F401  (report, mosaic)
-    run,  # noqa: E402, F401  (run, import, topics)
-    simulate,  # noqa: E402, F401
-    sitl,  # noqa: E402, F401
-    smooth,  # noqa: E402, F401
-)
+# The commands: importing a module registers its commands on `app`; --help lists them in this order.
+COMMAND_MODULES = ("simulate", "run", "evaluate", "batch", "demo", "report", "config", "smooth", "navigate", "sitl")
+for _module in COMMAND_MODULES:
+    importlib.import_module(f"rovslam.cli.{_module}")

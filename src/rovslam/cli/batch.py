@@ -1,7 +1,6 @@
 """``rovslam batch``: a robustness matrix on Dask, one cell per scenario and seed, resumable."""
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -13,12 +12,14 @@ from rovslam.cli.errors import guard
 @app.command()
 @guard
 def batch(
-    matrix: Path = typer.Argument(..., help="Matrix file (TOML): scenarios x seeds and/or sequences with ground truth."),
+    matrix: Path = typer.Argument(
+        ..., help="Matrix file (TOML): scenarios x seeds and/or sequences with ground truth."
+    ),
     out: Path = typer.Option(..., "--out", "-o", help="Folder for the cells and the tables (matrix.csv, matrix.md)."),
-    scheduler: Optional[str] = typer.Option(
+    scheduler: str | None = typer.Option(
         None, "--scheduler", help="Address of an existing Dask scheduler (default: a local cluster)."
     ),
-    workers: Optional[int] = typer.Option(None, "--workers", "-w", help="Local cluster size (default: one per core)."),
+    workers: int | None = typer.Option(None, "--workers", "-w", help="Local cluster size (default: one per core)."),
     keep_sequences: bool = typer.Option(False, "--keep-sequences", help="Keep each cell's simulated images."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display."),
 ) -> None:
@@ -44,5 +45,7 @@ def batch(
         typer.echo("interrupted: the finished cells are kept; run the same command again to resume", err=True)
         raise typer.Exit(130)
     if report.failed:
-        typer.echo(f"{len(report.failed)} of {len(report.rows)} cells failed (see {out / 'cells'}/<cell>/error.log)", err=True)
+        typer.echo(
+            f"{len(report.failed)} of {len(report.rows)} cells failed (see {out / 'cells'}/<cell>/error.log)", err=True
+        )
         raise typer.Exit(report.exit_code)  # 2: every failed cell had bad input; 1: a bug

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 
 def check_output_file(path: Path, what: str) -> None:
@@ -23,7 +22,7 @@ def load_config(path: Path):
     return load_toml(path)
 
 
-def check_sequence_of_run(results: Path, seq: Optional[Path], option: str) -> None:
+def check_sequence_of_run(results: Path, seq: Path | None, option: str) -> None:
     """Refuse a --seq / --sequence that is clearly another dive's (name or frame count unlike summary.json's)."""
     if seq is not None:
         from rovslam.io.results import check_sequence_of_run as check

@@ -1,7 +1,6 @@
 """``rovslam demo``: simulate the paper's trial, run SLAM, evaluate and write the report, in one go."""
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -16,7 +15,7 @@ from rovslam.cli.evaluate import write_evaluation
 def demo(
     out: Path = typer.Option(Path("rovslam-demo"), "--out", "-o", help="Folder for everything the demo writes."),
     scenario: str = typer.Option("portofino-short", help="Scenario to simulate."),
-    frames: Optional[int] = typer.Option(None, help="Number of frames (default: the scenario's)."),
+    frames: int | None = typer.Option(None, help="Number of frames (default: the scenario's)."),
     seed: int = typer.Option(0, help="Simulation seed."),
     quiet: bool = typer.Option(False, "--quiet", "-q"),
 ) -> None:
@@ -35,7 +34,9 @@ def demo(
             from rovslam.errors import OutputError
 
             if not _is_simulated_sequence(seq):
-                raise OutputError(f"{seq}: exists and is not a sequence rovslam simulated; give the demo another --out.")
+                raise OutputError(
+                    f"{seq}: exists and is not a sequence rovslam simulated; give the demo another --out."
+                )
             shutil.rmtree(seq)  # the demo's own folder, from another scenario or seed
         with ProgressBar(quiet, "simulating") as bar:
             run_sim(scenario, seq, frames=frames, seed=seed, progress=bar)
@@ -64,7 +65,7 @@ def _is_simulated_sequence(seq: Path) -> bool:
     return isinstance(meta, dict) and meta.get("generator") == "rovslam.sim"
 
 
-def _same_simulation(seq: Path, scenario: str, frames: Optional[int], seed: int) -> bool:
+def _same_simulation(seq: Path, scenario: str, frames: int | None, seed: int) -> bool:
     """Whether ``seq`` is a complete simulation of this scenario, length and seed (the demo reuses it)."""
     from rovslam.errors import RovslamError
     from rovslam.io.sequence import open_sequence

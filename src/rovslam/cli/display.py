@@ -8,8 +8,6 @@ only when something is drawn.
 
 from __future__ import annotations
 
-from typing import Optional
-
 
 def plain_help(text: str) -> str:
     """Help text shown as written: rich would take ``[camera]`` for markup and drop it."""
@@ -47,7 +45,7 @@ class ProgressBar:
             return None
         started = False
 
-        def lazy(done: int, total: Optional[int] = None, **fields) -> None:
+        def lazy(done: int, total: int | None = None, **fields) -> None:
             # The bar appears with the first progress report, so an input error comes alone.
             # A display that fails (a closed terminal) turns the bar off; it never fails the run.
             nonlocal started
@@ -66,8 +64,12 @@ class ProgressBar:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-        cols = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                TextColumn("{task.fields[fps]:>6.0f} frames/s")]
+        cols = [
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[fps]:>6.0f} frames/s"),
+        ]
         if self.extra:
             cols.append(TextColumn("landmarks {task.fields[landmarks]}  tokens {task.fields[tokens]}"))
         cols.append(TimeRemainingColumn())
@@ -79,10 +81,10 @@ class ProgressBar:
 
         self._t0 = time.perf_counter()
         self._last = 0.0
-        self._total: Optional[int] = None
-        self._final: Optional[tuple] = None
+        self._total: int | None = None
+        self._final: tuple | None = None
 
-        def bar(done: int, total: Optional[int] = None, **fields) -> None:
+        def bar(done: int, total: int | None = None, **fields) -> None:
             now = time.perf_counter()
             self._final = (done, fields)
             if now - self._last < 0.1 and total is None and done != self._total:
@@ -116,7 +118,7 @@ class CellProgress:
         self.quiet = quiet
         self._p = None
 
-    def __enter__(self) -> "CellProgress":
+    def __enter__(self) -> CellProgress:
         return self
 
     def start(self, done: int, total: int) -> None:
@@ -125,8 +127,13 @@ class CellProgress:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        self._p = Progress(TextColumn("[bold]cells"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                           console=Console(stderr=True))
+        self._p = Progress(
+            TextColumn("[bold]cells"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            console=Console(stderr=True),
+        )
         self._p.start()
         self._task = self._p.add_task("cells", total=total, completed=done)
 
@@ -134,8 +141,10 @@ class CellProgress:
         if self._p is None:
             return
         if row.get("status") == "ok":
-            line = (f"ok      {row['cell']}: ATE {100 * row['ate_rmse_m']:.2f} cm, {row['frames']} frames, "
-                    f"{row['wall_s']:.0f} s")
+            line = (
+                f"ok      {row['cell']}: ATE {100 * row['ate_rmse_m']:.2f} cm, {row['frames']} frames, "
+                f"{row['wall_s']:.0f} s"
+            )
         else:
             line = f"FAILED  {row['cell']}: {row.get('error', '')}"
         self._p.console.print(line, markup=False, highlight=False)
@@ -183,27 +192,42 @@ def print_eval(f) -> None:
     t.add_row("inside 2-sigma ellipse", *(f"{100 * c.coverage_2sigma:.1f} %" for c in cons), *pad)
     t.add_row("NEES mean (2 dof)", *(f"{c.nees_mean:.2f}" for c in cons), *pad)
     t.add_row("largest error jump", *(jump(c.max_error_jump_sigma, c.max_error_jump_t_s) for c in cons), *pad)
-    t.add_row("... in sigmas of the ellipse before",
-              *(jump(c.max_error_jump_before_sigma, c.max_error_jump_before_t_s) for c in cons), *pad)
+    t.add_row(
+        "... in sigmas of the ellipse before",
+        *(jump(c.max_error_jump_before_sigma, c.max_error_jump_before_t_s) for c in cons),
+        *pad,
+    )
     if f.speed is not None:
         sp = f.speed
-        t.add_row("speed NEES mean (2 dof, per step)", f"{sp.nees_mean:.2f} over {sp.steps} steps", *[""] * (len(runs) - 1))
-        t.add_row("speed error / claimed sigma (RMS)",
-                  " ".join(f"{1e3 * e:.2f}/{1e3 * s:.2f}" for e, s in zip(sp.rms_error_mps, sp.rms_sigma_mps)) + " mm/s",
-                  *[""] * (len(runs) - 1))
+        t.add_row(
+            "speed NEES mean (2 dof, per step)", f"{sp.nees_mean:.2f} over {sp.steps} steps", *[""] * (len(runs) - 1)
+        )
+        t.add_row(
+            "speed error / claimed sigma (RMS)",
+            " ".join(f"{1e3 * e:.2f}/{1e3 * s:.2f}" for e, s in zip(sp.rms_error_mps, sp.rms_sigma_mps)) + " mm/s",
+            *[""] * (len(runs) - 1),
+        )
     t.add_row("skipped frames", str(f.skipped_frames), *[""] * (len(runs) - 1))
     console.print(t)
     for note in f.notes:
         console.print(f"n/a: {note}", markup=False, highlight=False)
     if f.groundtruth_shift_m != (0.0, 0.0):
         dx, dy = f.groundtruth_shift_m
-        console.print(f"note: the ground truth's first row is at x = {-dx:.3f} m, y = {-dy:.3f} m, not at the origin where "
-                      f"the run starts: it was shifted by ({dx:+.3f}, {dy:+.3f}) m to start there", markup=False, highlight=False)
+        console.print(
+            f"note: the ground truth's first row is at x = {-dx:.3f} m, y = {-dy:.3f} m, not at the origin where "
+            f"the run starts: it was shifted by ({dx:+.3f}, {dy:+.3f}) m to start there",
+            markup=False,
+            highlight=False,
+        )
     if f.partial_run is not None:
         console.print(f"note: {f.partial_run}", markup=False, highlight=False)
     if f.run_frame_turn_rad != 0.0:
-        console.print(f"note: no compass in this run: its frame is its first heading; the ground truth was turned "
-                      f"by {math.degrees(f.run_frame_turn_rad):+.2f} deg into it", markup=False, highlight=False)
+        console.print(
+            f"note: no compass in this run: its frame is its first heading; the ground truth was turned "
+            f"by {math.degrees(f.run_frame_turn_rad):+.2f} deg into it",
+            markup=False,
+            highlight=False,
+        )
     if f.table1_landmark0:
         t1 = Table(title="Table 1: vehicle position while tracking landmark 0 (displacement since its initialisation)")
         for col in ("time [s]", "x est [m]", "y est [m]", "x true [m]", "y true [m]"):
@@ -216,7 +240,7 @@ def print_eval(f) -> None:
             console.print(f"({len(rows) - 12} more passages over landmark 0 in eval.json)")
 
 
-def _fig(value: Optional[float], scale: float, unit: str, digits: int) -> str:
+def _fig(value: float | None, scale: float, unit: str, digits: int) -> str:
     """A figure for the tables: ``n/a`` when undefined (too short a run)."""
     return "n/a" if value is None else f"{value * scale:.{digits}f} {unit}"
 
@@ -229,8 +253,14 @@ def print_matrix(rows: list, groups) -> None:
     from rovslam.batch import SUMMARY_FIGURES, summarise
     from rovslam.batch.table import format_figure
 
-    short = {"ate_rmse_m": "ATE cm", "final_error_pct": "final % dist", "coverage_2sigma": "in 2-sigma %",
-             "max_error_jump_sigma": "jump sigma", "dr_ate_rmse_m": "DR ATE cm", "pc_ate_rmse_m": "PC ATE cm"}
+    short = {
+        "ate_rmse_m": "ATE cm",
+        "final_error_pct": "final % dist",
+        "coverage_2sigma": "in 2-sigma %",
+        "max_error_jump_sigma": "jump sigma",
+        "dr_ate_rmse_m": "DR ATE cm",
+        "pc_ate_rmse_m": "PC ATE cm",
+    }
     figures = [f for f in SUMMARY_FIGURES if f.key in short]
     t = Table(title="median / worst over seeds (all figures in matrix.md)")
     t.add_column("scenario", no_wrap=True)
@@ -238,6 +268,9 @@ def print_matrix(rows: list, groups) -> None:
     for f in figures:
         t.add_column(short[f.key], justify="right")
     for s in summarise(rows, groups):
-        t.add_row(s.group, f"{s.ok}/{s.cells}",
-                  *(f"{format_figure(s.median[f.key], f)} / {format_figure(s.worst[f.key], f)}" for f in figures))
+        t.add_row(
+            s.group,
+            f"{s.ok}/{s.cells}",
+            *(f"{format_figure(s.median[f.key], f)} / {format_figure(s.worst[f.key], f)}" for f in figures),
+        )
     Console().print(t)

@@ -1,7 +1,6 @@
 """``rovslam eval``: a run against the ground truth, the figures as JSON and as tables."""
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -16,8 +15,8 @@ from rovslam.cli.errors import guard
 def eval_cmd(
     results: Path = typer.Argument(..., help="The --out folder of `rovslam run`."),
     groundtruth: Path = typer.Option(..., "--groundtruth", "-g", help="groundtruth.csv of the sequence."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Where to write the figures (default OUT/eval.json)."),
-    sequence: Optional[Path] = typer.Option(
+    json_out: Path | None = typer.Option(None, "--json", help="Where to write the figures (default OUT/eval.json)."),
+    sequence: Path | None = typer.Option(
         None, "--sequence", "-s", help="The sequence that was run: adds the frame-to-frame phase-correlation baseline."
     ),
 ) -> None:
@@ -30,11 +29,13 @@ def eval_cmd(
     typer.echo(f"wrote {path}")
 
 
-def write_evaluation(results: Path, groundtruth: Path, json_path: Path, sequence: Optional[Path] = None) -> None:
+def write_evaluation(results: Path, groundtruth: Path, json_path: Path, sequence: Path | None = None) -> None:
     """Evaluate a run against the truth, write the figures as JSON and print them as tables."""
     from rovslam.eval import evaluate_run
     from rovslam.io.results import atomic_write_text, json_text
 
     figures = evaluate_run(results, groundtruth, sequence)
-    atomic_write_text(json_path, json_text(figures.to_dict()) + "\n")  # strict JSON: a figure that cannot be computed is null
+    atomic_write_text(
+        json_path, json_text(figures.to_dict()) + "\n"
+    )  # strict JSON: a figure that cannot be computed is null
     print_eval(figures)

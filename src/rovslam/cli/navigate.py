@@ -1,7 +1,6 @@
 """``rovslam navigate``: the closed loop in the simulator, steered to points of interest by the online estimate."""
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -14,14 +13,22 @@ from rovslam.cli.errors import error_line, fail, guard
 @app.command()
 @guard
 def navigate(
-    scenario: str = typer.Option(..., "--scenario", help="Simulator preset (rovslam simulate --list), e.g. portofino-relief."),
-    poi: Path = typer.Option(..., "--poi", help="Points of interest, CSV: name,x_m,y_m[,hold_s] or name,landmark_id[,hold_s]."),
+    scenario: str = typer.Option(
+        ..., "--scenario", help="Simulator preset (rovslam simulate --list), e.g. portofino-relief."
+    ),
+    poi: Path = typer.Option(
+        ..., "--poi", help="Points of interest, CSV: name,x_m,y_m[,hold_s] or name,landmark_id[,hold_s]."
+    ),
     out: Path = typer.Option(..., "--out", "-o", help="Folder for the results (new or empty, or see --overwrite)."),
     estimator: str = typer.Option("slam", help="What the controller steers by: slam or dead-reckoning."),
-    survey_s: float = typer.Option(0.0, "--survey-s", help="Fly a lawnmower survey this long first, to build the map (s)."),
-    hold_s: float = typer.Option(10.0, "--hold-s", help="Station keeping at each point, unless its hold_s says otherwise (s)."),
+    survey_s: float = typer.Option(
+        0.0, "--survey-s", help="Fly a lawnmower survey this long first, to build the map (s)."
+    ),
+    hold_s: float = typer.Option(
+        10.0, "--hold-s", help="Station keeping at each point, unless its hold_s says otherwise (s)."
+    ),
     seed: int = typer.Option(0, help="Random seed of the seabed, the current and the sensors."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML configuration of the pipeline."),
+    config: Path | None = typer.Option(None, "--config", "-c", help="TOML configuration of the pipeline."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the results of an earlier run in --out."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display."),
 ) -> None:
@@ -51,18 +58,32 @@ def navigate(
     rate = SCENARIOS[scenario].frame_rate_hz
     quiet_native_logs()
     with StopRequest() as late, ProgressBar(quiet, f"navigate ({estimator})", extra=True) as bar:
-        callbacks = {} if bar is None else {
-            "on_start": lambda s: bar(0, int(s * rate)),
-            "on_step": lambda st, done: bar(st.k + 1, None, landmarks=st.nav.result.n_landmarks,
-                                            tokens=f"{st.nav.result.tokens_tracked}  points {done}/{len(pois)}"),
-        }
+        callbacks = (
+            {}
+            if bar is None
+            else {
+                "on_start": lambda s: bar(0, int(s * rate)),
+                "on_step": lambda st, done: bar(
+                    st.k + 1,
+                    None,
+                    landmarks=st.nav.result.n_landmarks,
+                    tokens=f"{st.nav.result.tokens_tracked}  points {done}/{len(pois)}",
+                ),
+            }
+        )
         summary = fly(scenario, pois, out, estimator, survey_s, hold_s, seed, cfg, overwrite=overwrite, **callbacks)
         late.ignore_after = summary.status == "interrupted"
     rows = summary.arrivals
     errs = [r["true_err_m"] for r in rows if r["reached"]]
-    msg = (f"{summary.frames} frames, {summary.landmarks} landmarks, {len(errs)}/{len(pois)} points reached"
-           + (f", true arrival error mean {1e3 * sum(errs) / len(errs):.1f} mm, worst {1e3 * max(errs):.1f} mm"
-              if errs else "") + f" -> {out}")
+    msg = (
+        f"{summary.frames} frames, {summary.landmarks} landmarks, {len(errs)}/{len(pois)} points reached"
+        + (
+            f", true arrival error mean {1e3 * sum(errs) / len(errs):.1f} mm, worst {1e3 * max(errs):.1f} mm"
+            if errs
+            else ""
+        )
+        + f" -> {out}"
+    )
     if summary.status == "interrupted":
         error_line(f"{msg}; every file written is complete and readable", f"rovslam: stopped by {summary.signal}: ")
         raise typer.Exit(summary.exit_code)

@@ -2,7 +2,6 @@
 sequence folder) and ``rovslam topics`` (what a bag holds)."""
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -19,20 +18,30 @@ from rovslam.cli.inputs import with_inputs
 def run(
     sequence: Path = typer.Argument(..., help="Sequence folder (format v1), a video, a folder of images or a ROS bag."),
     out: Path = typer.Option(..., "--out", "-o", help="Folder for the results (new or empty, or see --overwrite)."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML configuration (defaults: the paper's)."),
-    max_frames: Optional[int] = typer.Option(None, help="Process only the first N frames (N >= 1)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the results of an earlier run in --out (only rovslam's own files)."),
-    min_usable_fraction: Optional[float] = typer.Option(
-        None, help=plain_help("Fail (exit 2) when fewer than this fraction of the frames were usable (0 to 1; "
-                              "default [run] of the config, 0.5).")
+    config: Path | None = typer.Option(None, "--config", "-c", help="TOML configuration (defaults: the paper's)."),
+    max_frames: int | None = typer.Option(None, help="Process only the first N frames (N >= 1)."),
+    overwrite: bool = typer.Option(
+        False, "--overwrite", help="Replace the results of an earlier run in --out (only rovslam's own files)."
     ),
-    max_distance_m: Optional[float] = typer.Option(
-        None, help=plain_help("Fail (exit 2) when the estimate goes farther than this from the start: it diverged "
-                              "(default [run], 1000 m).")
+    min_usable_fraction: float | None = typer.Option(
+        None,
+        help=plain_help(
+            "Fail (exit 2) when fewer than this fraction of the frames were usable (0 to 1; "
+            "default [run] of the config, 0.5)."
+        ),
+    ),
+    max_distance_m: float | None = typer.Option(
+        None,
+        help=plain_help(
+            "Fail (exit 2) when the estimate goes farther than this from the start: it diverged "
+            "(default [run], 1000 m)."
+        ),
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display."),
-    viewer: bool = typer.Option(False, "--viewer", help="Show the run live in the rerun viewer (saved to OUT/run.rrd without a display)."),
-    save_rrd: Optional[Path] = typer.Option(None, "--save-rrd", help="Save the live view as a rerun recording (.rrd)."),
+    viewer: bool = typer.Option(
+        False, "--viewer", help="Show the run live in the rerun viewer (saved to OUT/run.rrd without a display)."
+    ),
+    save_rrd: Path | None = typer.Option(None, "--save-rrd", help="Save the live view as a rerun recording (.rrd)."),
     inputs=None,
 ) -> None:
     """Run vision-based SLAM on a sequence folder, a video, a ROS bag or a folder of images: trajectory with
@@ -57,8 +66,15 @@ def run(
         # run was stopped, the process ignores further signals until it exits (nothing can be cut short).
         with StopRequest() as late, ProgressBar(quiet, "SLAM", extra=True) as bar:
             summary = run_sequence(
-                sequence, out, cfg, max_frames=max_frames, inputs=inputs, overwrite=overwrite,
-                min_usable_fraction=min_usable_fraction, max_distance_m=max_distance_m, on_frame_image=live,
+                sequence,
+                out,
+                cfg,
+                max_frames=max_frames,
+                inputs=inputs,
+                overwrite=overwrite,
+                min_usable_fraction=min_usable_fraction,
+                max_distance_m=max_distance_m,
+                on_frame_image=live,
                 **slam_callbacks(bar),
             )
             late.ignore_after = summary.interrupted
@@ -84,10 +100,12 @@ def run(
 @guard
 @with_inputs
 def import_cmd(
-    source: Path = typer.Argument(..., help="A video, a folder of images or a ROS bag (with the options that open it)."),
+    source: Path = typer.Argument(
+        ..., help="A video, a folder of images or a ROS bag (with the options that open it)."
+    ),
     out: Path = typer.Option(..., "--out", "-o", help="Sequence folder to write (new or empty)."),
     image_format: str = typer.Option("png", "--format", help="png (lossless) or jpg."),
-    max_frames: Optional[int] = typer.Option(None, help="Import only the first N frames (N >= 1)."),
+    max_frames: int | None = typer.Option(None, help="Import only the first N frames (N >= 1)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     inputs=None,
 ) -> None:
@@ -104,13 +122,24 @@ def import_cmd(
     quiet_native_logs()
     src = open_source(source, options=inputs)
     with StopRequest() as stop, ProgressBar(quiet, "import") as bar:
-        summary = import_source(src, out, describe_source(src), inputs.to_dict(), image_format, max_frames,
-                                on_frame=(lambda d, n: bar(d, n or None)) if bar else None,
-                                should_stop=lambda: stop.signum is not None)
+        summary = import_source(
+            src,
+            out,
+            describe_source(src),
+            inputs.to_dict(),
+            image_format,
+            max_frames,
+            on_frame=(lambda d, n: bar(d, n or None)) if bar else None,
+            should_stop=lambda: stop.signum is not None,
+        )
         stop.ignore_after = summary.stopped
     for note in summary.warnings:
         typer.echo(f"warning: {note}", err=True)
-    msg = f"wrote {out} ({summary.frames} frames" + (f", {summary.unreadable} unreadable left out" if summary.unreadable else "") + ")"
+    msg = (
+        f"wrote {out} ({summary.frames} frames"
+        + (f", {summary.unreadable} unreadable left out" if summary.unreadable else "")
+        + ")"
+    )
     if summary.stopped:
         error_line(f"{msg}; the frames written form a readable sequence", f"rovslam: stopped by {stop.name}: ")
         raise typer.Exit(128 + int(stop.signum))
@@ -120,7 +149,9 @@ def import_cmd(
 @app.command()
 @guard
 def topics(
-    bag: Path = typer.Argument(..., help="A ROS 1 .bag file or a ROS 2 bag folder (sqlite3 or MCAP, with metadata.yaml)."),
+    bag: Path = typer.Argument(
+        ..., help="A ROS 1 .bag file or a ROS 2 bag folder (sqlite3 or MCAP, with metadata.yaml)."
+    ),
 ) -> None:
     """List a bag's topics: type, message count, mean rate, and the `rovslam run` option that takes each."""
     from rich.console import Console
@@ -132,8 +163,13 @@ def topics(
     kind, path, rows = list_topics(bag)
     t = Table(title=escape(f"{path} ({kind})"))
     widths = {"topic": max([5] + [len(r.topic) for r in rows]), "type": max([4] + [len(r.msgtype) for r in rows])}
-    for col, just in (("topic", "left"), ("type", "left"), ("messages", "right"), ("rate [Hz]", "right"),
-                      ("option of rovslam run", "left")):
+    for col, just in (
+        ("topic", "left"),
+        ("type", "left"),
+        ("messages", "right"),
+        ("rate [Hz]", "right"),
+        ("option of rovslam run", "left"),
+    ):
         t.add_column(escape(col), justify=just, overflow="fold", min_width=widths.get(col))  # type: ignore[arg-type]
     for r in rows:
         rate = f"{r.rate_hz:.2f}" if r.rate_hz is not None else "-"
@@ -152,7 +188,7 @@ def _report_run(summary) -> None:
         typer.echo(f"warning: {note}", err=True)
 
 
-def _live_viewer(spawn: bool, save_rrd: Optional[Path], out: Path):
+def _live_viewer(spawn: bool, save_rrd: Path | None, out: Path):
     """The rerun live viewer of `run --viewer / --save-rrd` (rerun is imported only here)."""
     from rovslam.viz.viewer import RerunViewer, display_available
 

@@ -2,7 +2,6 @@
 
 import math
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -16,15 +15,19 @@ from rovslam.cli.errors import guard
 def simulate(
     scenario: str = typer.Option("portofino-short", help="Scenario preset (see --list)."),
     out: Path = typer.Option(Path("sim-seq"), "--out", "-o", help="Sequence folder to write."),
-    frames: Optional[int] = typer.Option(None, help="Number of frames (default: the scenario's)."),
+    frames: int | None = typer.Option(None, help="Number of frames (default: the scenario's)."),
     seed: int = typer.Option(0, help="Random seed; the same seed writes byte-identical files."),
-    image_format: Optional[str] = typer.Option(None, "--format", help="png or jpg (default: the scenario's)."),
-    texture: Optional[Path] = typer.Option(None, help="Seabed photo/orthomosaic to use instead of the procedural texture."),
-    texture_mm_per_px: Optional[float] = typer.Option(None, help="Scale of --texture (millimetres per pixel)."),
+    image_format: str | None = typer.Option(None, "--format", help="png or jpg (default: the scenario's)."),
+    texture: Path | None = typer.Option(
+        None, help="Seabed photo/orthomosaic to use instead of the procedural texture."
+    ),
+    texture_mm_per_px: float | None = typer.Option(None, help="Scale of --texture (millimetres per pixel)."),
     calibration_errors: bool = typer.Option(
-        False, "--calibration-errors",
+        False,
+        "--calibration-errors",
         help="Draw the seed's lasting sensor errors (compass deviation 0.5 deg, laser-rig baseline 0.76 %, sonar offset "
-             "1 cm, one sigma) and record them in sequence.toml; default: exact sensors."),
+        "1 cm, one sigma) and record them in sequence.toml; default: exact sensors.",
+    ),
     list_scenarios: bool = typer.Option(False, "--list", help="List the scenarios and exit."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
@@ -43,16 +46,24 @@ def simulate(
         raise SimulationError(f"--frames must be a positive number of frames, got {frames}")
     with ProgressBar(quiet, "simulating") as bar:
         summary = run_sim(
-            scenario, out, frames=frames, seed=seed, image_format=image_format, texture_path=texture,
-            texture_mm_per_px=texture_mm_per_px, progress=bar,
+            scenario,
+            out,
+            frames=frames,
+            seed=seed,
+            image_format=image_format,
+            texture_path=texture,
+            texture_mm_per_px=texture_mm_per_px,
+            progress=bar,
             calibration=CalibrationErrors() if calibration_errors else None,
         )
     typer.echo(f"wrote {out} ({_describe(summary)})")
     d = summary.calibration
     if d is not None:
-        typer.echo(f"calibration errors of seed {seed}: compass {math.degrees(d.compass_deviation_rad):+.2f} deg, "
-                   f"laser rig {100 * d.laser_baseline_error:+.2f} %, sonar {100 * d.sonar_offset_m:+.2f} cm "
-                   "(sequence.toml [metadata])")
+        typer.echo(
+            f"calibration errors of seed {seed}: compass {math.degrees(d.compass_deviation_rad):+.2f} deg, "
+            f"laser rig {100 * d.laser_baseline_error:+.2f} %, sonar {100 * d.sonar_offset_m:+.2f} cm "
+            "(sequence.toml [metadata])"
+        )
 
 
 def _describe(summary) -> str:

@@ -30,8 +30,7 @@ def smooth(
     cfg = dataclasses.replace(smoother_config_for_run(results), robust=robust, robust_k=robust_k)
     try:
         with ProgressBar(quiet, "smoothing") as bar:
-            callbacks = {} if bar is None else {
-                "on_start": lambda n: bar(0, n), "on_frame": lambda n: bar(n, None)}
+            callbacks = {} if bar is None else {"on_start": lambda n: bar(0, n), "on_frame": lambda n: bar(n, None)}
             summary = smooth_run(results, cfg, **callbacks)
     except KeyboardInterrupt:
         typer.echo("interrupted: nothing written (the measurement files are untouched)", err=True)

@@ -175,7 +175,9 @@ def true_body_speed_mps(xy_m: np.ndarray, heading_rad: np.ndarray, t_s: np.ndarr
     psi = np.asarray(heading_rad, dtype=np.float64)
     t = np.asarray(t_s, dtype=np.float64)
     if xy.ndim != 2 or xy.shape[1] != 2 or psi.shape != (len(xy),) or t.shape != (len(xy),):
-        raise InvalidArgumentError(f"need (N, 2) positions and (N,) headings and times, got {xy.shape}, {psi.shape}, {t.shape}")
+        raise InvalidArgumentError(
+            f"need (N, 2) positions and (N,) headings and times, got {xy.shape}, {psi.shape}, {t.shape}"
+        )
     d = np.diff(xy, axis=0)
     mid = step_mean_heading_rad(psi)
     c, s = np.cos(mid), np.sin(mid)
@@ -206,7 +208,9 @@ def speed_consistency(err_mps: np.ndarray, cov_mps2: np.ndarray) -> SpeedConsist
     e = np.asarray(err_mps, dtype=np.float64)
     q = np.asarray(cov_mps2, dtype=np.float64)
     if e.ndim != 2 or e.shape[1] != 2 or q.shape != (len(e), 2, 2) or len(e) == 0:
-        raise InvalidArgumentError(f"need (K, 2) errors and (K, 2, 2) covariances with K >= 1, got {e.shape}, {q.shape}")
+        raise InvalidArgumentError(
+            f"need (K, 2) errors and (K, 2, 2) covariances with K >= 1, got {e.shape}, {q.shape}"
+        )
     n = nees(e, q)
     return SpeedConsistency(
         steps=int(len(e)),
@@ -314,8 +318,13 @@ class Evaluation:
     smoothed_consistency: Consistency | None = None  # its marginal covariances against the truth
     run_frame_turn_rad: float = 0.0  # a run without compass: the ground truth was turned by this into its frame
     partial_run: str | None = None  # how a run that stopped before its end stopped (interrupted, unusable, failed)
-    groundtruth_shift_m: tuple[float, float] = (0.0, 0.0)  # a ground truth not starting at x = y = 0: its first row, subtracted
-    speed: SpeedConsistency | None = None  # the odometry's Q against the true speed, per measured step (None: no Q in trajectory.csv)
+    groundtruth_shift_m: tuple[float, float] = (
+        0.0,
+        0.0,
+    )  # a ground truth not starting at x = y = 0: its first row, subtracted
+    speed: SpeedConsistency | None = (
+        None  # the odometry's Q against the true speed, per measured step (None: no Q in trajectory.csv)
+    )
 
     @property
     def dead_reckoning_over_slam_rmse(self) -> float | None:
@@ -382,9 +391,12 @@ def groundtruth_start_m(gt: GroundTruth, tol_m: float = 1e-6) -> np.ndarray:
 def partial_run(summary: dict[str, Any], frames: int) -> str | None:
     """What a run that did not complete covers (from its summary.json), or None for a complete run."""
     status = summary.get("status")
-    how = {"interrupted": f"interrupted by {summary.get('signal') or 'a signal'}", "unusable": "judged unusable",
-           "failed": f"stopped by an error ({failure_of_run(summary)})",
-           "running": "cut off (summary.json still says running: killed or a power loss)"}
+    how = {
+        "interrupted": f"interrupted by {summary.get('signal') or 'a signal'}",
+        "unusable": "judged unusable",
+        "failed": f"stopped by an error ({failure_of_run(summary)})",
+        "running": "cut off (summary.json still says running: killed or a power loss)",
+    }
     if status not in how:
         return None
     total = summary.get("frames_in_sequence")

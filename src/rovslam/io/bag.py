@@ -69,14 +69,25 @@ MAX_WARNINGS = 20
 
 # ROS encodings -> (channels, dtype, OpenCV conversion to RGB or None)
 _ENCODINGS: dict[str, tuple[int, str, str | None]] = {
-    "mono8": (1, "u1", None), "8UC1": (1, "u1", None), "mono16": (1, "u2", None), "16UC1": (1, "u2", None),
-    "rgb8": (3, "u1", "RGB"), "bgr8": (3, "u1", "BGR"), "rgba8": (4, "u1", "RGBA"), "bgra8": (4, "u1", "BGRA"),
-    "rgb16": (3, "u2", "RGB"), "bgr16": (3, "u2", "BGR"),
+    "mono8": (1, "u1", None),
+    "8UC1": (1, "u1", None),
+    "mono16": (1, "u2", None),
+    "16UC1": (1, "u2", None),
+    "rgb8": (3, "u1", "RGB"),
+    "bgr8": (3, "u1", "BGR"),
+    "rgba8": (4, "u1", "RGBA"),
+    "bgra8": (4, "u1", "BGRA"),
+    "rgb16": (3, "u2", "RGB"),
+    "bgr16": (3, "u2", "BGR"),
     # ROS names the 2x2 pattern from its top-left pixel; OpenCV 5 has the same names (BayerRGGB...).
-    "bayer_rggb8": (1, "u1", "BayerRGGB"), "bayer_bggr8": (1, "u1", "BayerBGGR"),
-    "bayer_gbrg8": (1, "u1", "BayerGBRG"), "bayer_grbg8": (1, "u1", "BayerGRBG"),
-    "bayer_rggb16": (1, "u2", "BayerRGGB"), "bayer_bggr16": (1, "u2", "BayerBGGR"),
-    "bayer_gbrg16": (1, "u2", "BayerGBRG"), "bayer_grbg16": (1, "u2", "BayerGRBG"),
+    "bayer_rggb8": (1, "u1", "BayerRGGB"),
+    "bayer_bggr8": (1, "u1", "BayerBGGR"),
+    "bayer_gbrg8": (1, "u1", "BayerGBRG"),
+    "bayer_grbg8": (1, "u1", "BayerGRBG"),
+    "bayer_rggb16": (1, "u2", "BayerRGGB"),
+    "bayer_bggr16": (1, "u2", "BayerBGGR"),
+    "bayer_gbrg16": (1, "u2", "BayerGBRG"),
+    "bayer_grbg16": (1, "u2", "BayerGRBG"),
 }
 
 
@@ -240,9 +251,16 @@ def list_topics(path: str | Path) -> tuple[str, Path, list[TopicSummary]]:
         for topic, t in r.raw_times():
             first.setdefault(topic, t)
             last[topic] = t
-        out = [TopicSummary(name, msgtype, count, first[name] / 1e9 if name in first else None,
-                            last[name] / 1e9 if name in last else None)
-               for name, (msgtype, count) in sorted(r.topics.items())]
+        out = [
+            TopicSummary(
+                name,
+                msgtype,
+                count,
+                first[name] / 1e9 if name in first else None,
+                last[name] / 1e9 if name in last else None,
+            )
+            for name, (msgtype, count) in sorted(r.topics.items())
+        ]
         return r.kind, r.path, out
 
 
@@ -268,8 +286,9 @@ def check_topics(path: Path, topics: dict[str, tuple[str, int]], options: InputO
 # --------------------------------------------------------------------------- images
 
 
-def image_from_msg(msg: Any, msgtype: str, where: str, camera: Camera | None = None,
-                   bit_depth: int | None = None) -> np.ndarray:
+def image_from_msg(
+    msg: Any, msgtype: str, where: str, camera: Camera | None = None, bit_depth: int | None = None
+) -> np.ndarray:
     """``(H, W, 3) uint8`` RGB of a sensor_msgs/Image or CompressedImage; :class:`ImageReadError` if it cannot be."""
     if msgtype.endswith("CompressedImage"):
         fmt = str(getattr(msg, "format", "")).lower()
@@ -280,13 +299,17 @@ def image_from_msg(msg: Any, msgtype: str, where: str, camera: Camera | None = N
 
     enc = str(msg.encoding)
     if enc not in _ENCODINGS:
-        raise ImageReadError(f"{where}: image encoding '{enc}' is not read by rovslam; it reads {', '.join(_ENCODINGS)}.")
+        raise ImageReadError(
+            f"{where}: image encoding '{enc}' is not read by rovslam; it reads {', '.join(_ENCODINGS)}."
+        )
     channels, kind, conv = _ENCODINGS[enc]
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     size = 2 if kind == "u2" else 1
     data = np.asarray(msg.data, dtype=np.uint8)
     if h <= 0 or w <= 0 or step < w * channels * size or data.size < step * h:
-        raise ImageReadError(f"{where}: {w}x{h} px with a row step of {step} bytes does not fit its {data.size} bytes of data.")
+        raise ImageReadError(
+            f"{where}: {w}x{h} px with a row step of {step} bytes does not fit its {data.size} bytes of data."
+        )
     rows = data[: step * h].reshape(h, step)[:, : w * channels * size]
     dtype = np.dtype(kind).newbyteorder(">" if msg.is_bigendian and size == 2 else "<")
     img = np.ascontiguousarray(rows).view(dtype).reshape(h, w, channels).astype(np.dtype(kind).newbyteorder("="))
@@ -356,7 +379,9 @@ def read_bag_navigation(reader: _Reader, options: InputOptions, t0_ns: int) -> N
             keep = np.isfinite(v)
             _require_samples(reader, name, "heading", t[keep])
             heading = NavTrack(t[keep], np.asarray(v)[keep], angle=True)
-            details["heading"] = f"topic {name} ({msgtype}, {'degrees' if options.heading_degrees else 'radians'} from north towards east)"
+            details["heading"] = (
+                f"topic {name} ({msgtype}, {'degrees' if options.heading_degrees else 'radians'} from north towards east)"
+            )
         else:
             t, q, where = _series(reader, name, t0_ns, _orientation)
             _require_samples(reader, name, "heading", t)  # no message: said before the quaternions are read
@@ -380,24 +405,35 @@ def read_bag_navigation(reader: _Reader, options: InputOptions, t0_ns: int) -> N
                 r = float(m.range)
                 return r if math.isfinite(r) and float(m.min_range) <= r <= float(m.max_range) and r > 0 else math.nan
         else:
+
             def reading(m: Any, _t: str, _w: str) -> float:
                 v = float(m.data)
                 return v if math.isfinite(v) and v > 0 else math.nan
+
         t, v, _ = _series(reader, name, t0_ns, reading)
         v = np.asarray(v)  # type: ignore[assignment]
         keep = np.isfinite(v)
         if not np.any(keep):
-            raise NavigationError(f"{reader.path}: topic {name} ({msgtype}) holds no usable altitude (every reading is "
-                                  "outside its range, not positive or not finite).")
+            raise NavigationError(
+                f"{reader.path}: topic {name} ({msgtype}) holds no usable altitude (every reading is "
+                "outside its range, not positive or not finite)."
+            )
         altitude = NavTrack(t[keep], v[keep])
         details["altitude"] = f"topic {name} ({msgtype}, m)"
     tracks = [x for x in (heading, roll, pitch, altitude) if x is not None]
     if not tracks:
         return None
     return Navigation(
-        path=str(reader.path), heading=heading, roll=roll, pitch=pitch, altitude=altitude,
-        max_gap_s=default_max_gap_s(tracks), heading_detail=details["heading"], altitude_detail=details["altitude"],
-        attitude_detail=details["attitude"], altitude_input=altitude_input,
+        path=str(reader.path),
+        heading=heading,
+        roll=roll,
+        pitch=pitch,
+        altitude=altitude,
+        max_gap_s=default_max_gap_s(tracks),
+        heading_detail=details["heading"],
+        altitude_detail=details["altitude"],
+        attitude_detail=details["attitude"],
+        altitude_input=altitude_input,
     )
 
 
@@ -405,22 +441,26 @@ def camera_from_info(msg: Any, camera: Camera, where: str) -> Camera:
     """``camera`` with the focal lengths, principal point and distortion of a sensor_msgs/CameraInfo."""
     width, height = int(msg.width), int(msg.height)
     if (width, height) != (camera.width_px, camera.height_px):
-        raise BagError(f"{where}: CameraInfo is {width}x{height} px, the camera file says "
-                       f"{camera.width_px}x{camera.height_px}.")
+        raise BagError(
+            f"{where}: CameraInfo is {width}x{height} px, the camera file says {camera.width_px}x{camera.height_px}."
+        )
     k = np.asarray(getattr(msg, "k", getattr(msg, "K", ())), dtype=np.float64).ravel()
     d = [float(x) for x in np.asarray(getattr(msg, "d", getattr(msg, "D", ())), dtype=np.float64).ravel()]
     model = str(getattr(msg, "distortion_model", "")).strip()
     if k.size != 9 or k[0] <= 0 or k[4] <= 0:
-        raise BagError(f"{where}: CameraInfo holds no calibration (K = {k.tolist()}); leave out --camera-info-topic to use "
-                       "the camera file's.")
+        raise BagError(
+            f"{where}: CameraInfo holds no calibration (K = {k.tolist()}); leave out --camera-info-topic to use "
+            "the camera file's."
+        )
     if d and model not in ("plumb_bob", "rational_polynomial", ""):
         raise BagError(f"{where}: distortion model '{model}' is not read by rovslam (plumb_bob, rational_polynomial).")
     if any(d[8:]):
         raise BagError(f"{where}: {len(d)} distortion coefficients; rovslam reads up to 8 (k1 k2 p1 p2 k3 k4 k5 k6).")
-    d = d[:8] if len(d) in (4, 5) or len(d) >= 8 else (d + [0.0] * 8)[:8 if len(d) > 5 else 5]
+    d = d[:8] if len(d) in (4, 5) or len(d) >= 8 else (d + [0.0] * 8)[: 8 if len(d) > 5 else 5]
     try:
-        return dataclasses.replace(camera, fx_px=float(k[0]), fy_px=float(k[4]), cx_px=float(k[2]), cy_px=float(k[5]),
-                                   distortion=tuple(d))
+        return dataclasses.replace(
+            camera, fx_px=float(k[0]), fy_px=float(k[4]), cx_px=float(k[2]), cy_px=float(k[5]), distortion=tuple(d)
+        )
     except SequenceFormatError as exc:
         raise BagError(f"{where}: {exc}") from None
 
@@ -449,8 +489,9 @@ class BagSource:
             info = camera.info
             if options.camera_info_topic is not None:
                 _, msg, _ = next(r.messages(options.camera_info_topic))
-                info = dataclasses.replace(info, camera=camera_from_info(msg, info.camera,
-                                                                         f"{r.path}: {options.camera_info_topic}"))
+                info = dataclasses.replace(
+                    info, camera=camera_from_info(msg, info.camera, f"{r.path}: {options.camera_info_topic}")
+                )
             self.info: SequenceInfo = info
             bag_ns, first, msgtype = next(r.messages(self.image_topic))
             self.t0_ns = stamp_ns(first, bag_ns)
@@ -487,7 +528,9 @@ class BagSource:
                 try:
                     item = next(stream, None)
                 except Exception as exc:  # a damaged chunk or file end: what was read stands
-                    self._leave_out(f"{self.path}: the bag could not be read after frame {k} ({_why(exc)}); the rest is left out.")
+                    self._leave_out(
+                        f"{self.path}: the bag could not be read after frame {k} ({_why(exc)}); the rest is left out."
+                    )
                     return
                 if item is None:
                     return
@@ -508,8 +551,14 @@ class BagSource:
                         image, error = image_from_msg(msg, msgtype, where, cam, depth), None
                     except ImageReadError as exc:
                         image, error = None, str(exc)
-                    yield Frame(index=k, t_s=(ns - self.t0_ns) / 1e9, image=image, heading_rad=math.nan,
-                                source=where, error=error)
+                    yield Frame(
+                        index=k,
+                        t_s=(ns - self.t0_ns) / 1e9,
+                        image=image,
+                        heading_rad=math.nan,
+                        source=where,
+                        error=error,
+                    )
                 k += 1
 
 
@@ -520,6 +569,8 @@ def open_bag(path: str | Path, camera: CameraFile, options: InputOptions) -> Any
     src = BagSource(path, camera, options)
     if src.navigation is None:
         return src
-    hint = ("The image and navigation topics must share a clock: their header stamps (or, without a header, "
-            "the bag's receive times) are compared.")
+    hint = (
+        "The image and navigation topics must share a clock: their header stamps (or, without a header, "
+        "the bag's receive times) are compared."
+    )
     return NavigatedSource(src, src.navigation, src.span_s, "bag", hint)

@@ -17,7 +17,9 @@ from rovslam.core import SequenceInfo
 from rovslam.errors import SequenceFormatError
 from rovslam.io.sequence import info_from_toml, load_toml
 
-CAMERA_TABLES = "[camera] (width_px, height_px, fx_px, fy_px, cx_px, cy_px), optional [[laser]], [vehicle] altitude_m and [nav]"
+CAMERA_TABLES = (
+    "[camera] (width_px, height_px, fx_px, fy_px, cx_px, cy_px), optional [[laser]], [vehicle] altitude_m and [nav]"
+)
 
 
 @dataclass(frozen=True)

@@ -35,7 +35,9 @@ def natural_key(name: str) -> list[object]:
 
 def image_files(folder: Path) -> list[str]:
     """Names of the image files directly in ``folder``, in natural order."""
-    names = [e.name for e in os.scandir(folder) if e.name.lower().endswith(IMAGE_SUFFIXES) and not e.name.startswith(".")]
+    names = [
+        e.name for e in os.scandir(folder) if e.name.lower().endswith(IMAGE_SUFFIXES) and not e.name.startswith(".")
+    ]
     return sorted(names, key=natural_key)
 
 
@@ -50,7 +52,9 @@ def is_image_folder(folder: Path) -> bool:
 class ImageFolderSource:
     """The images of a folder, decoded one at a time, with times from a frame rate or a times file."""
 
-    def __init__(self, folder: str | Path, camera: CameraFile, fps: float | None = None, times_file: str | Path | None = None):
+    def __init__(
+        self, folder: str | Path, camera: CameraFile, fps: float | None = None, times_file: str | Path | None = None
+    ):
         self.folder = Path(folder)
         self.camera_file = camera
         self.info = camera.info
@@ -116,7 +120,9 @@ class ImageFolderSource:
         listed.sort()
         for (t0, _, _), (t1, _, where) in zip(listed, listed[1:]):
             if t1 <= t0:
-                raise SequenceFormatError(f"{where}: t_s={t1} repeats another image's time; every image needs its own time.")
+                raise SequenceFormatError(
+                    f"{where}: t_s={t1} repeats another image's time; every image needs its own time."
+                )
         unlisted = len(set(image_files(self.folder)) - seen)
         if unlisted:
             self.warnings.append(f"{unlisted} image file(s) of {self.folder} are not listed in {path}: left out.")

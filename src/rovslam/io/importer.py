@@ -48,8 +48,11 @@ def check_import_folder(out: Path) -> None:
 
 def import_metadata(description: SourceDescription, inputs: dict[str, Any]) -> dict[str, Any]:
     """The ``[metadata]`` keys of an imported sequence: where it came from, and its heading and altitude."""
-    meta: dict[str, Any] = {"generator": "rovslam import", "imported_from": description.path,
-                            "imported_kind": description.kind}
+    meta: dict[str, Any] = {
+        "generator": "rovslam import",
+        "imported_from": description.path,
+        "imported_kind": description.kind,
+    }
     for key in ("heading_input", "heading_detail", "altitude_input", "altitude_detail", "attitude_detail"):
         value = getattr(description, key)
         if value:
@@ -59,10 +62,16 @@ def import_metadata(description: SourceDescription, inputs: dict[str, Any]) -> d
     return meta
 
 
-def import_source(source: Any, out: str | Path, description: SourceDescription, inputs: dict[str, Any] | None = None,
-                  image_format: str = "png", max_frames: int | None = None,
-                  on_frame: Callable[[int, int], None] | None = None,
-                  should_stop: Callable[[], bool] | None = None) -> ImportSummary:
+def import_source(
+    source: Any,
+    out: str | Path,
+    description: SourceDescription,
+    inputs: dict[str, Any] | None = None,
+    image_format: str = "png",
+    max_frames: int | None = None,
+    on_frame: Callable[[int, int], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> ImportSummary:
     """Write ``source`` (see :mod:`rovslam.io.source`) as a sequence folder ``out``; returns what was written.
 
     ``on_frame(done, total)`` reports progress; ``should_stop()`` ends the import early (a signal):
@@ -77,8 +86,13 @@ def import_source(source: Any, out: str | Path, description: SourceDescription, 
     total = len(source) if max_frames is None else min(len(source) or max_frames, max_frames)
     frames = source.frames(stop=max_frames)
     try:
-        with SequenceWriter(out_dir, info, image_format=image_format, with_attitude=description.attitude_detail is not None,
-                            with_groundtruth=False) as writer:
+        with SequenceWriter(
+            out_dir,
+            info,
+            image_format=image_format,
+            with_attitude=description.attitude_detail is not None,
+            with_groundtruth=False,
+        ) as writer:
             for frame in frames:
                 if frame.image is None:
                     summary.unreadable += 1
@@ -87,8 +101,12 @@ def import_source(source: Any, out: str | Path, description: SourceDescription, 
                 else:
                     att = frame.has_attitude
                     writer.write_frame(
-                        frame.t_s, frame.image, frame.heading_rad if math.isfinite(frame.heading_rad) else math.nan,
-                        frame.sonar_altitude_m, frame.roll_rad if att else None, frame.pitch_rad if att else None,
+                        frame.t_s,
+                        frame.image,
+                        frame.heading_rad if math.isfinite(frame.heading_rad) else math.nan,
+                        frame.sonar_altitude_m,
+                        frame.roll_rad if att else None,
+                        frame.pitch_rad if att else None,
                     )
                     summary.frames += 1
                 if on_frame is not None:
@@ -100,6 +118,8 @@ def import_source(source: Any, out: str | Path, description: SourceDescription, 
         frames.close()
     summary.warnings += list(getattr(source, "warnings", []))
     if summary.frames == 0:
-        raise ImageReadError(f"{description.path}: no frame could be decoded, so {out_dir} holds no usable sequence"
-                             + (f" (first: {summary.warnings[0]})." if summary.warnings else "."))
+        raise ImageReadError(
+            f"{description.path}: no frame could be decoded, so {out_dir} holds no usable sequence"
+            + (f" (first: {summary.warnings[0]})." if summary.warnings else ".")
+        )
     return summary

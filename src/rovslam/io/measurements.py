@@ -118,20 +118,48 @@ class MeasurementWriter:
     def write(self, meas: FrameMeasurements) -> None:
         """Append one frame: its observations first, then its row."""
         if not isinstance(meas, FrameMeasurements):
-            raise InvalidMeasurementError(f"MeasurementWriter.write takes a FrameMeasurements, got {type(meas).__name__}")
+            raise InvalidMeasurementError(
+                f"MeasurementWriter.write takes a FrameMeasurements, got {type(meas).__name__}"
+            )
         for ob in meas.landmarks:
             r = ob.noise_px2
             self._obs.writerow(
-                [meas.index, ob.landmark_id, ob.kind, _num(ob.mn_px[0]), _num(ob.mn_px[1]), _num(r[0, 0]),
-                 _num(r[0, 1]), _num(r[1, 1]), int(ob.accepted_by_online)]
+                [
+                    meas.index,
+                    ob.landmark_id,
+                    ob.kind,
+                    _num(ob.mn_px[0]),
+                    _num(ob.mn_px[1]),
+                    _num(r[0, 0]),
+                    _num(r[0, 1]),
+                    _num(r[1, 1]),
+                    int(ob.accepted_by_online),
+                ]
             )
         q = meas.speed_cov_mps2
         self._frames.writerow(
-            [meas.index, _num(meas.t_s), _num(meas.dt_s), _num(meas.speed_mps[0]), _num(meas.speed_mps[1]),
-             _num(q[0, 0]), _num(q[0, 1]), _num(q[1, 1]), int(meas.speed_ok), _num(meas.heading_rad),
-             _num(meas.heading_sigma_rad), _num(meas.compass_rad), _num(meas.compass_sigma_rad),
-             _num(meas.heading_step_rad), _num(meas.heading_step_sigma_rad), _num(meas.altitude_m),
-             _num(meas.altitude_sigma_m), _num(meas.focal_px), len(meas.landmarks), _num(meas.attitude_sigma_rad)]
+            [
+                meas.index,
+                _num(meas.t_s),
+                _num(meas.dt_s),
+                _num(meas.speed_mps[0]),
+                _num(meas.speed_mps[1]),
+                _num(q[0, 0]),
+                _num(q[0, 1]),
+                _num(q[1, 1]),
+                int(meas.speed_ok),
+                _num(meas.heading_rad),
+                _num(meas.heading_sigma_rad),
+                _num(meas.compass_rad),
+                _num(meas.compass_sigma_rad),
+                _num(meas.heading_step_rad),
+                _num(meas.heading_step_sigma_rad),
+                _num(meas.altitude_m),
+                _num(meas.altitude_sigma_m),
+                _num(meas.focal_px),
+                len(meas.landmarks),
+                _num(meas.attitude_sigma_rad),
+            ]
         )
         self._n += 1
         if self._n % self.flush_every == 0:
@@ -255,7 +283,9 @@ def _read_observations(table: _Table) -> dict[int, list[tuple[int, LandmarkMeasu
         table.check_width(line, cells)
         frame = table.integer(line, cells, "frame")
         if frame < last:
-            raise ResultsFormatError(f"{table.where(line, 'frame')}: frame {frame} after frame {last}; rows must be in frame order")
+            raise ResultsFormatError(
+                f"{table.where(line, 'frame')}: frame {frame} after frame {last}; rows must be in frame order"
+            )
         last = frame
         f = {c: table.number(line, cells, c) for c in ("m_px", "n_px", "var_m_px2", "cov_mn_px2", "var_n_px2")}
         try:
@@ -272,18 +302,29 @@ def _read_observations(table: _Table) -> dict[int, list[tuple[int, LandmarkMeasu
     return by_frame
 
 
-def _frame_from_row(table: _Table, line: int, cells: list[str], obs: tuple[LandmarkMeasurement, ...]) -> FrameMeasurements:
+def _frame_from_row(
+    table: _Table, line: int, cells: list[str], obs: tuple[LandmarkMeasurement, ...]
+) -> FrameMeasurements:
     v = {c: table.number(line, cells, c) for c in MEASUREMENT_COLUMNS if c not in ("frame", "speed_ok", "observations")}
     q = np.array([[v["var_surge_mps2"], v["cov_surge_sway_mps2"]], [v["cov_surge_sway_mps2"], v["var_sway_mps2"]]])
     try:
         return FrameMeasurements(
-            index=table.integer(line, cells, "frame"), t_s=v["t_s"], dt_s=v["dt_s"],
-            speed_mps=np.array([v["surge_mps"], v["sway_mps"]]), speed_cov_mps2=q,
-            speed_ok=table.flag(line, cells, "speed_ok"), heading_rad=v["heading_rad"],
-            heading_sigma_rad=v["heading_sigma_rad"], compass_rad=v["compass_rad"],
-            compass_sigma_rad=v["compass_sigma_rad"], heading_step_rad=v["heading_step_rad"],
-            heading_step_sigma_rad=v["heading_step_sigma_rad"], altitude_m=v["altitude_m"],
-            altitude_sigma_m=v["altitude_sigma_m"], focal_px=v["focal_px"], landmarks=obs,
+            index=table.integer(line, cells, "frame"),
+            t_s=v["t_s"],
+            dt_s=v["dt_s"],
+            speed_mps=np.array([v["surge_mps"], v["sway_mps"]]),
+            speed_cov_mps2=q,
+            speed_ok=table.flag(line, cells, "speed_ok"),
+            heading_rad=v["heading_rad"],
+            heading_sigma_rad=v["heading_sigma_rad"],
+            compass_rad=v["compass_rad"],
+            compass_sigma_rad=v["compass_sigma_rad"],
+            heading_step_rad=v["heading_step_rad"],
+            heading_step_sigma_rad=v["heading_step_sigma_rad"],
+            altitude_m=v["altitude_m"],
+            altitude_sigma_m=v["altitude_sigma_m"],
+            focal_px=v["focal_px"],
+            landmarks=obs,
             attitude_sigma_rad=v["attitude_sigma_rad"],
         )
     except InvalidMeasurementError as exc:

@@ -132,8 +132,12 @@ _NUMBERS = ("time_offset_s", "max_gap_s")
 _BOOLS = ("attitude", "drop_repeated_rows")
 
 
-def nav_mapping(table: dict[str, Any] | None = None, where: str = "[nav]",
-                overrides: tuple[tuple[str, str], ...] = (), time_offset_s: float | None = None) -> NavMapping:
+def nav_mapping(
+    table: dict[str, Any] | None = None,
+    where: str = "[nav]",
+    overrides: tuple[tuple[str, str], ...] = (),
+    time_offset_s: float | None = None,
+) -> NavMapping:
     """A validated :class:`NavMapping` from a ``[nav]`` table, ``--nav-map`` overrides and ``--nav-time-offset``.
 
     Raises :class:`~rovslam.errors.NavigationError` naming the key and where it was given.
@@ -186,8 +190,9 @@ def _mapping_value(key: str, value: Any, where: str) -> Any:
         return float(value)
     if key == "quaternion":
         if not (isinstance(value, list) and len(value) == 4 and all(isinstance(c, str) and c.strip() for c in value)):
-            raise NavigationError(f"{where}: expected the four column names x, y, z, w, e.g. [\"qx\", \"qy\", \"qz\", \"qw\"], "
-                                  f"got {value!r}.")
+            raise NavigationError(
+                f'{where}: expected the four column names x, y, z, w, e.g. ["qx", "qy", "qz", "qw"], got {value!r}.'
+            )
         return tuple(c.strip() for c in value)
     if not isinstance(value, str) or not value.strip():
         raise NavigationError(f"{where}: expected a text value (a column name or a choice), got {value!r}.")
@@ -200,8 +205,9 @@ def _mapping_value(key: str, value: Any, where: str) -> Any:
 # --------------------------------------------------------------------------- rotations
 
 
-def ned_frd_from_quaternions(q_xyzw: np.ndarray, world: str = "enu", body: str = "flu",
-                             rotates: str = "body-to-world") -> np.ndarray:
+def ned_frd_from_quaternions(
+    q_xyzw: np.ndarray, world: str = "enu", body: str = "flu", rotates: str = "body-to-world"
+) -> np.ndarray:
     """(N, 3, 3) rotations of rovslam's body (FRD) into a north-east-down world, from (N, 4) quaternions x, y, z, w.
 
     ``q_xyzw`` must hold unit quaternions (normalised here); see the module notes for the conventions.
@@ -224,8 +230,9 @@ def heading_roll_pitch(r_ned_frd: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     return heading, roll, pitch
 
 
-def quaternions_to_heading(q_xyzw: np.ndarray, where: list[str], world: str, body: str,
-                           rotates: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def quaternions_to_heading(
+    q_xyzw: np.ndarray, where: list[str], world: str, body: str, rotates: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Heading, roll, pitch (rad) of (N, 4) quaternions; ``where[i]`` names row i in errors.
 
     Refuses a quaternion that is not of unit length (columns in the wrong order or mixed up) and
@@ -383,7 +390,9 @@ class Navigation:
         heading = value(self.heading)
         return NavSample(
             heading_rad=math.nan if heading is None else heading,
-            roll_rad=value(self.roll), pitch_rad=value(self.pitch), altitude_m=value(self.altitude),
+            roll_rad=value(self.roll),
+            pitch_rad=value(self.pitch),
+            altitude_m=value(self.altitude),
         )
 
     def check_overlap(self, frames_span_s: tuple[float, float] | None, what: str, offset_hint: str) -> None:
@@ -407,8 +416,10 @@ def default_max_gap_s(tracks: list[NavTrack]) -> float:
 
 # --------------------------------------------------------------------------- NAV.csv
 
-OFFSET_HINT = ("Align the clocks with --nav-time-offset S or [nav] time_offset_s (the navigation's time at the "
-               "first frame; a row at time T belongs to the frame at T - S).")
+OFFSET_HINT = (
+    "Align the clocks with --nav-time-offset S or [nav] time_offset_s (the navigation's time at the "
+    "first frame; a row at time T belongs to the frame at T - S)."
+)
 
 
 def read_nav_csv(path: str | Path, mapping: NavMapping = NavMapping()) -> Navigation:
@@ -432,8 +443,9 @@ def read_nav_csv(path: str | Path, mapping: NavMapping = NavMapping()) -> Naviga
         if not t[i] > t[i - 1]:
             raise NavigationError(
                 f"{where[i]}: time {rows[i][1][mapping.time].strip()} is not after the previous row's; rows must be in "
-                "strictly increasing time" + ("" if mapping.drop_repeated_rows else
-                                              " (a log that repeats rows: [nav] drop_repeated_rows = true)") + "."
+                "strictly increasing time"
+                + ("" if mapping.drop_repeated_rows else " (a log that repeats rows: [nav] drop_repeated_rows = true)")
+                + "."
             )
     heading = roll = pitch = None
     heading_detail = attitude_detail = ""
@@ -441,10 +453,17 @@ def read_nav_csv(path: str | Path, mapping: NavMapping = NavMapping()) -> Naviga
     if mapping.quaternion is not None:
         q = np.column_stack([_numbers(rows, c, where) for c in mapping.quaternion])
         have = np.all(np.isfinite(q), axis=1)
-        h, r, pt = quaternions_to_heading(q[have], [w for w, k in zip(where, have) if k], mapping.quaternion_world,
-                                          mapping.body, mapping.quaternion_rotates)
-        qdesc = (f"quaternion {','.join(mapping.quaternion)} ({mapping.quaternion_world} world, {mapping.body} body, "
-                 f"{mapping.quaternion_rotates})")
+        h, r, pt = quaternions_to_heading(
+            q[have],
+            [w for w, k in zip(where, have) if k],
+            mapping.quaternion_world,
+            mapping.body,
+            mapping.quaternion_rotates,
+        )
+        qdesc = (
+            f"quaternion {','.join(mapping.quaternion)} ({mapping.quaternion_world} world, {mapping.body} body, "
+            f"{mapping.quaternion_rotates})"
+        )
         heading = _track(p, t[have], h, "quaternion", angle=True)
         heading_detail = f"{p.name}, {qdesc}"
         if mapping.attitude:
@@ -467,8 +486,10 @@ def read_nav_csv(path: str | Path, mapping: NavMapping = NavMapping()) -> Naviga
         for name, v in ((cols["roll"], r), (cols["pitch"], pt)):
             bad = np.nonzero(np.abs(v) >= MAX_ATTITUDE_RAD)[0]
             if len(bad):
-                raise NavigationError(f"{where[bad[0]]}: column '{name}' is {v[bad[0]]:.4g} rad, beyond +-90 degrees: "
-                                      f"check angle_unit (now {unit}).")
+                raise NavigationError(
+                    f"{where[bad[0]]}: column '{name}' is {v[bad[0]]:.4g} rad, beyond +-90 degrees: "
+                    f"check angle_unit (now {unit})."
+                )
         have = np.isfinite(r) & np.isfinite(pt)
         roll, pitch = _track(p, t[have], r[have], cols["roll"]), _track(p, t[have], pt[have], cols["pitch"])
         attitude_detail = f"{p.name}, columns {cols['roll']}, {cols['pitch']} ({unit})"
@@ -492,9 +513,15 @@ def read_nav_csv(path: str | Path, mapping: NavMapping = NavMapping()) -> Naviga
             "file's [nav] table (heading, quaternion, roll, pitch, altitude) or with --nav-map KEY=VALUE."
         )
     return Navigation(
-        path=str(p), heading=heading, roll=roll, pitch=pitch, altitude=altitude,
+        path=str(p),
+        heading=heading,
+        roll=roll,
+        pitch=pitch,
+        altitude=altitude,
         max_gap_s=mapping.max_gap_s or default_max_gap_s(tracks),
-        heading_detail=heading_detail, altitude_detail=altitude_detail, attitude_detail=attitude_detail,
+        heading_detail=heading_detail,
+        altitude_detail=altitude_detail,
+        attitude_detail=attitude_detail,
     )
 
 
@@ -504,7 +531,9 @@ def _columns(p: Path, header: list[str], m: NavMapping) -> dict[str, Any]:
     def named(key: str, name: str | None, default: tuple[str, ...]) -> str | None:
         if name is not None:
             if name not in header:
-                raise NavigationError(f"{p}: [nav] {key} = {name!r} is not a column; the header has: {', '.join(header)}.")
+                raise NavigationError(
+                    f"{p}: [nav] {key} = {name!r} is not a column; the header has: {', '.join(header)}."
+                )
             return name
         return next((d for d in default if d in header), None)
 
@@ -512,7 +541,9 @@ def _columns(p: Path, header: list[str], m: NavMapping) -> dict[str, Any]:
     if m.quaternion is not None:
         missing = [c for c in m.quaternion if c not in header]
         if missing:
-            raise NavigationError(f"{p}: [nav] quaternion column(s) {', '.join(missing)} not in the header: {', '.join(header)}.")
+            raise NavigationError(
+                f"{p}: [nav] quaternion column(s) {', '.join(missing)} not in the header: {', '.join(header)}."
+            )
         cols["heading"] = m.quaternion
     else:
         cols["heading"] = named("heading", m.heading, ("heading_rad", "heading_deg"))
@@ -530,14 +561,18 @@ def _angle_unit(m: NavMapping, column: str) -> str:
     return "deg" if column.lower().endswith(("_deg", "deg")) else "rad"
 
 
-def _numbers(rows: list[tuple[int, dict[str, str]]], column: str, where: list[str], required: bool = False) -> np.ndarray:
+def _numbers(
+    rows: list[tuple[int, dict[str, str]]], column: str, where: list[str], required: bool = False
+) -> np.ndarray:
     """(N,) values of a column; an empty cell or ``nan`` is NaN (no value), unless ``required``."""
     out = np.empty(len(rows))
     for i, (_, row) in enumerate(rows):
         text = (row.get(column) or "").strip()
         if text == "" or text.lower() == "nan":
             if required:
-                raise NavigationError(f"{where[i]}: column '{column}' is {'empty' if not text else 'nan'}; it needs a number.")
+                raise NavigationError(
+                    f"{where[i]}: column '{column}' is {'empty' if not text else 'nan'}; it needs a number."
+                )
             out[i] = math.nan
             continue
         try:
@@ -579,8 +614,14 @@ class NavigatedSource:
     longer than its ``max_gap_s`` keep no value there (no compass for that frame: NaN heading).
     """
 
-    def __init__(self, source: Any, nav: Navigation, frames_span_s: tuple[float, float] | None, what: str,
-                 offset_hint: str = OFFSET_HINT):
+    def __init__(
+        self,
+        source: Any,
+        nav: Navigation,
+        frames_span_s: tuple[float, float] | None,
+        what: str,
+        offset_hint: str = OFFSET_HINT,
+    ):
         nav.check_overlap(frames_span_s, what, offset_hint)
         self.source = source
         self.nav = nav
@@ -605,14 +646,20 @@ class NavigatedSource:
         out = list(getattr(self.source, "warnings", []))
         lo, hi = self.nav.times_s  # the file's own first and last times (frames within max_gap_s / 2 still take them)
         if self._before_n:
-            out.append(f"{self._before_n} frame(s) from t = {self._before[0]:.6g} to {self._before[-1]:.6g} s come before the "
-                       f"navigation starts ({self.nav.path}, t = {lo:.6g} s on the frames' clock): left out.")
+            out.append(
+                f"{self._before_n} frame(s) from t = {self._before[0]:.6g} to {self._before[-1]:.6g} s come before the "
+                f"navigation starts ({self.nav.path}, t = {lo:.6g} s on the frames' clock): left out."
+            )
         if self._after_n:
-            out.append(f"{self._after_n} frame(s) from t = {self._after[0]:.6g} to {self._after[-1]:.6g} s come after the "
-                       f"navigation ends ({self.nav.path}, t = {hi:.6g} s on the frames' clock): left out.")
+            out.append(
+                f"{self._after_n} frame(s) from t = {self._after[0]:.6g} to {self._after[-1]:.6g} s come after the "
+                f"navigation ends ({self.nav.path}, t = {hi:.6g} s on the frames' clock): left out."
+            )
         if self._gaps:
-            out.append(f"{self._gaps} frame(s) fall in gaps of the navigation longer than {self.nav.max_gap_s:g} s: "
-                       "processed without its values there (no compass: the tokens' turn).")
+            out.append(
+                f"{self._gaps} frame(s) fall in gaps of the navigation longer than {self.nav.max_gap_s:g} s: "
+                "processed without its values there (no compass: the tokens' turn)."
+            )
         return out
 
     @property
@@ -670,5 +717,7 @@ class NavigatedSource:
             changes["sonar_altitude_m"] = s.altitude_m
         if nav.roll is not None:
             have = s.roll_rad is not None and s.pitch_rad is not None
-            changes.update(roll_rad=s.roll_rad if have else 0.0, pitch_rad=s.pitch_rad if have else 0.0, has_attitude=have)
+            changes.update(
+                roll_rad=s.roll_rad if have else 0.0, pitch_rad=s.pitch_rad if have else 0.0, has_attitude=have
+            )
         return dataclasses.replace(f, **changes)

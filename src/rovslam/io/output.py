@@ -87,13 +87,16 @@ def _resolve_link(path: Path, what: str) -> Path:
     """The final target of the symbolic link ``path``, or OutputError for a link to nothing."""
     target = Path(os.path.realpath(path))
     if _lstat(target) is None:
-        raise OutputError(f"{path}: is a symbolic link to {target}, which does not exist; rovslam does not create "
-                          f"files through a dangling link: give {what} the real path.")
+        raise OutputError(
+            f"{path}: is a symbolic link to {target}, which does not exist; rovslam does not create "
+            f"files through a dangling link: give {what} the real path."
+        )
     return target
 
 
-def check_output_file(path: str | Path, what: str = "the output", *, parent_must_exist: bool = True,
-                      example: str = "FILE") -> Path:
+def check_output_file(
+    path: str | Path, what: str = "the output", *, parent_must_exist: bool = True, example: str = "FILE"
+) -> Path:
     """The path to write the file ``path`` at, or :class:`OutputError` saying why it cannot be one.
 
     Refused: a folder, a device, a FIFO, a socket (an existing path that is not a regular
@@ -113,8 +116,10 @@ def check_output_file(path: str | Path, what: str = "the output", *, parent_must
     if st is not None and stat.S_ISDIR(st.st_mode):
         raise OutputError(f"{shown}: is a folder; {what} needs a file name (e.g. {Path(path) / example}).")
     if st is not None and not stat.S_ISREG(st.st_mode):
-        raise OutputError(f"{shown}: is {file_kind(st.st_mode)}, not a regular file; rovslam never writes into or "
-                          f"replaces one; give {what} the path of a regular file.")
+        raise OutputError(
+            f"{shown}: is {file_kind(st.st_mode)}, not a regular file; rovslam never writes into or "
+            f"replaces one; give {what} the path of a regular file."
+        )
     if parent_must_exist:
         parent = p.parent
         if not parent.is_dir():
@@ -319,8 +324,11 @@ class SpaceReserve:
 
     def _try(self, size: int) -> bool:
         try:
-            fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_NOFOLLOW", 0)
-                         | getattr(os, "O_CLOEXEC", 0), 0o600)
+            fd = os.open(
+                self.path,
+                os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0),
+                0o600,
+            )
         except OSError:
             return False
         try:

@@ -36,9 +36,13 @@ def read_poi_csv(path: str | Path) -> list[Goal]:
     has_xy = "x_m" in header and "y_m" in header
     if not has_xy and "landmark_id" not in header:
         if "x_m" in header or "y_m" in header:
-            raise PoiFormatError(f"{p}: the header has only one of x_m, y_m; a point needs both (name,x_m,y_m[,hold_s]).")
-        raise PoiFormatError(f"{p}: the header needs x_m,y_m or landmark_id beside name "
-                             "(name,x_m,y_m[,hold_s] or name,landmark_id[,hold_s]).")
+            raise PoiFormatError(
+                f"{p}: the header has only one of x_m, y_m; a point needs both (name,x_m,y_m[,hold_s])."
+            )
+        raise PoiFormatError(
+            f"{p}: the header needs x_m,y_m or landmark_id beside name "
+            "(name,x_m,y_m[,hold_s] or name,landmark_id[,hold_s])."
+        )
     goals: list[Goal] = []
     seen: dict[str, int] = {}
     for line, row in rows:
@@ -46,8 +50,10 @@ def read_poi_csv(path: str | Path) -> list[Goal]:
         goals.append(_row_goal(row, where, has_xy, "landmark_id" in header))
         name = goals[-1].name
         if name in seen:
-            raise PoiFormatError(f"{where}, column 'name': {name!r} is already the name of the point on line "
-                                 f"{seen[name]}; give each point its own name.")
+            raise PoiFormatError(
+                f"{where}, column 'name': {name!r} is already the name of the point on line "
+                f"{seen[name]}; give each point its own name."
+            )
         seen[name] = line
     if not goals:
         raise PoiFormatError(f"{p}: no point of interest (only the header); add one row per point.")
@@ -79,6 +85,8 @@ def _row_goal(row: dict[str, str], where: str, has_xy: bool, has_landmark: bool)
     y = float_cell(row, "y_m", where, error=PoiFormatError)
     for key, v in (("x_m", x), ("y_m", y)):
         if abs(v) > MAX_POI_DISTANCE_M:  # type: ignore[arg-type]
-            raise PoiFormatError(f"{where}, column '{key}': {v:g} m is more than {MAX_POI_DISTANCE_M:g} m from the "
-                                 "start; coordinates are metres in the map frame.")
+            raise PoiFormatError(
+                f"{where}, column '{key}': {v:g} m is more than {MAX_POI_DISTANCE_M:g} m from the "
+                "start; coordinates are metres in the map frame."
+            )
     return Goal(name, np.array([x, y]), hold_s=hold)

@@ -127,13 +127,32 @@ def _finite_or_null(o: Any) -> Any:
 # Everything rovslam writes into a results folder (run, eval, report), so --overwrite knows what
 # it may delete. Other writers of the folder add their names here.
 RESULT_FILES = frozenset(
-    {"trajectory.csv", "trajectory.tum", "observations.csv", "landmarks.csv", "summary.json", "config.toml",
-     "eval.json", "tokens.csv", "run.rrd", "mosaic.png", "mosaic.pgw", "mosaic_truth.png", "mosaic_truth.pgw",
-     "measurements.csv", "landmark_measurements.csv", "trajectory_smoothed.tum", "trajectory_smoothed.csv",
-     "landmarks_smoothed.csv",
-     # rovslam navigate
-     "groundtruth.csv", "navigation.csv", "arrivals.csv", "navigation.png",
-     RESERVE_NAME}
+    {
+        "trajectory.csv",
+        "trajectory.tum",
+        "observations.csv",
+        "landmarks.csv",
+        "summary.json",
+        "config.toml",
+        "eval.json",
+        "tokens.csv",
+        "run.rrd",
+        "mosaic.png",
+        "mosaic.pgw",
+        "mosaic_truth.png",
+        "mosaic_truth.pgw",
+        "measurements.csv",
+        "landmark_measurements.csv",
+        "trajectory_smoothed.tum",
+        "trajectory_smoothed.csv",
+        "landmarks_smoothed.csv",
+        # rovslam navigate
+        "groundtruth.csv",
+        "navigation.csv",
+        "arrivals.csv",
+        "navigation.png",
+        RESERVE_NAME,
+    }
 )
 # Folders rovslam writes, with the pattern of their files' paths relative to the folder.
 RESULT_DIRS = {
@@ -263,12 +282,29 @@ class ResultWriter:
         try:  # one try for the three files (an OSError names the one being written)
             self._traj.writerow(
                 [
-                    _f(r.t_s), _f(r.x_m), _f(r.y_m), _f(cov[0, 0]), _f(cov[0, 1]), _f(cov[1, 1]),
-                    _f(r.altitude_m), _f(r.surge_mps), _f(r.sway_mps), r.tokens_tracked, r.landmarks_tracked,
-                    _f(r.heading_rad), _f(r.altitude_sigma_m), r.altitude_source, int(r.speed_ok),
-                    _f(r.dr_x_m), _f(r.dr_y_m), int(r.skipped_reason is not None),
-                    _f(r.speed_cov_mps2[0, 0]), _f(r.speed_cov_mps2[0, 1]), _f(r.speed_cov_mps2[1, 1]),
-                    r.tokens_inliers, int(getattr(r, "recovery", None) is not None),
+                    _f(r.t_s),
+                    _f(r.x_m),
+                    _f(r.y_m),
+                    _f(cov[0, 0]),
+                    _f(cov[0, 1]),
+                    _f(cov[1, 1]),
+                    _f(r.altitude_m),
+                    _f(r.surge_mps),
+                    _f(r.sway_mps),
+                    r.tokens_tracked,
+                    r.landmarks_tracked,
+                    _f(r.heading_rad),
+                    _f(r.altitude_sigma_m),
+                    r.altitude_source,
+                    int(r.speed_ok),
+                    _f(r.dr_x_m),
+                    _f(r.dr_y_m),
+                    int(r.skipped_reason is not None),
+                    _f(r.speed_cov_mps2[0, 0]),
+                    _f(r.speed_cov_mps2[0, 1]),
+                    _f(r.speed_cov_mps2[1, 1]),
+                    r.tokens_inliers,
+                    int(getattr(r, "recovery", None) is not None),
                 ]
             )
             name = "trajectory.tum"
@@ -277,9 +313,19 @@ class ResultWriter:
             name = "observations.csv"
             if r.observations:
                 self._obs.writerows(
-                    [_f(r.t_s), r.index, ob.landmark_id, ob.kind, _f(ob.uv_px[0]), _f(ob.uv_px[1]),
-                     _f(ob.score), _f(ob.nis), int(ob.accepted), getattr(ob, "reason", ""),
-                     int(getattr(ob, "tentative", False))]
+                    [
+                        _f(r.t_s),
+                        r.index,
+                        ob.landmark_id,
+                        ob.kind,
+                        _f(ob.uv_px[0]),
+                        _f(ob.uv_px[1]),
+                        _f(ob.score),
+                        _f(ob.nis),
+                        int(ob.accepted),
+                        getattr(ob, "reason", ""),
+                        int(getattr(ob, "tentative", False)),
+                    ]
                     for ob in r.observations
                 )
         except OSError as exc:  # a row too long for the memory buffer, written at once
@@ -359,8 +405,16 @@ class ResultWriter:
         from rovslam import __version__
 
         with contextlib.suppress(OutputError):
-            self.write_summary({"software": {"name": "rovslam", "version": __version__}, "status": "failed",
-                                "complete": False, "interrupted": False, "reason": reason, "frames_processed": 0})
+            self.write_summary(
+                {
+                    "software": {"name": "rovslam", "version": __version__},
+                    "status": "failed",
+                    "complete": False,
+                    "interrupted": False,
+                    "reason": reason,
+                    "frames_processed": 0,
+                }
+            )
 
     def close(self, quiet: bool = False) -> None:
         """Flush and close the streamed files; ``quiet``: after an error, close without raising.
@@ -404,8 +458,21 @@ class ResultWriter:
 _COMPACT_LIST_ITEMS = 20
 
 
-_MINIMAL_KEYS = ("software", "sequence", "sequence_name", "frames_in_sequence", "status", "complete", "interrupted",
-                 "signal", "reason", "frames_processed", "frames_usable", "frames_written", "landmarks")
+_MINIMAL_KEYS = (
+    "software",
+    "sequence",
+    "sequence_name",
+    "frames_in_sequence",
+    "status",
+    "complete",
+    "interrupted",
+    "signal",
+    "reason",
+    "frames_processed",
+    "frames_usable",
+    "frames_written",
+    "landmarks",
+)
 
 
 def compact_summary(summary: dict[str, Any], minimal: bool = False) -> dict[str, Any]:
@@ -448,7 +515,9 @@ class GalleryWriter:
     def write_frame(self, image: np.ndarray | None, r: Any) -> None:
         """Record one frame: ``image`` (H, W, 3) uint8 RGB (None when unreadable), ``r`` its FrameResult."""
         t = _f(r.t_s)
-        uv = np.asarray(getattr(r, "token_uv_px", np.zeros((0, 2)))).reshape(-1, 2).tolist()  # Python floats: faster to format
+        uv = (
+            np.asarray(getattr(r, "token_uv_px", np.zeros((0, 2)))).reshape(-1, 2).tolist()
+        )  # Python floats: faster to format
         if uv:
             with output_errors(self._path):
                 self._w.writerows([t, r.index, _f(u), _f(v)] for u, v in uv)
@@ -561,7 +630,9 @@ class RunResults:
         return np.column_stack([self.trajectory["dr_x_m"], self.trajectory["dr_y_m"]])
 
 
-def _cov_table(t: dict[str, np.ndarray], names: tuple[str, str, str] = ("var_x_m2", "cov_xy_m2", "var_y_m2")) -> np.ndarray:
+def _cov_table(
+    t: dict[str, np.ndarray], names: tuple[str, str, str] = ("var_x_m2", "cov_xy_m2", "var_y_m2")
+) -> np.ndarray:
     """(N, 2, 2) covariances from the ``(var_a, cov_ab, var_b)`` columns ``names`` of a table."""
     var_a, cov_ab, var_b = (t[n] for n in names)
     c = np.empty((len(t["t_s"]), 2, 2))
@@ -598,8 +669,14 @@ def _read_table(
                 [
                     math.nan if v is None else v
                     for v in (
-                        float_cell(row, name, f"{path}, line {line}", optional=name not in finite,
-                                   allow_nan=name not in finite, error=ResultsFormatError)
+                        float_cell(
+                            row,
+                            name,
+                            f"{path}, line {line}",
+                            optional=name not in finite,
+                            allow_nan=name not in finite,
+                            error=ResultsFormatError,
+                        )
                         for line, row in rows
                     )
                 ],
@@ -680,8 +757,17 @@ def check_sequence_of_run(results_dir: Path, seq: Path, option: str) -> None:
 
 # The keys of summary.json that eval, report and mosaic read, and their JSON types (null allowed).
 _SUMMARY_TYPES: dict[str, type] = {
-    "software": dict, "source": dict, "sources": dict, "map_use": dict, "config": dict, "inputs": dict,
-    "sequence": str, "camera_file": str, "sequence_name": str, "heading_source": str, "altitude_source": str,
+    "software": dict,
+    "source": dict,
+    "sources": dict,
+    "map_use": dict,
+    "config": dict,
+    "inputs": dict,
+    "sequence": str,
+    "camera_file": str,
+    "sequence_name": str,
+    "heading_source": str,
+    "altitude_source": str,
 }
 
 
@@ -698,8 +784,10 @@ def read_results(out_dir: str | Path) -> RunResults:
     traj, lines = _read_table(traj_path, TRAJECTORY_COLUMNS, ("altitude_source",))
     if len(traj["t_s"]) == 0:
         failed = failure_of_run(read_summary(out / "summary.json"))
-        raise ResultsFormatError(f"{traj_path}: no rows (only a header): the run wrote no frame"
-                                 + (f"; it failed: {failed}" if failed else "."))
+        raise ResultsFormatError(
+            f"{traj_path}: no rows (only a header): the run wrote no frame"
+            + (f"; it failed: {failed}" if failed else ".")
+        )
     _check_time(traj_path, traj, lines, strict=True)
     obs: dict[str, np.ndarray] = {}
     obs_path = out / "observations.csv"
@@ -783,6 +871,9 @@ def write_smoothed(
     atomic_write_text(out / "trajectory_smoothed.csv", "\n".join(csv_rows) + "\n")
     lm = [",".join(SMOOTHED_LANDMARK_COLUMNS)]
     for row in landmark_rows:
-        lm.append(",".join(str(row[c]) if isinstance(row[c], (int, np.integer)) else _f(row[c])
-                           for c in SMOOTHED_LANDMARK_COLUMNS))
+        lm.append(
+            ",".join(
+                str(row[c]) if isinstance(row[c], (int, np.integer)) else _f(row[c]) for c in SMOOTHED_LANDMARK_COLUMNS
+            )
+        )
     atomic_write_text(out / "landmarks_smoothed.csv", "\n".join(lm) + "\n")

@@ -55,7 +55,9 @@ FORMAT_V1 = "rovslam-sequence/1"
 FRAMES_COLUMNS = ("t_s", "image", "heading_rad", "sonar_altitude_m")
 ATTITUDE_COLUMNS = ("roll_rad", "pitch_rad")
 GROUNDTRUTH_COLUMNS = ("t_s", "x_m", "y_m", "altitude_m", "heading_rad")
-RELIEF_COLUMN = "relief_m"  # optional: seabed height above the mean plane under the camera (altitude_m is above the plane)
+RELIEF_COLUMN = (
+    "relief_m"  # optional: seabed height above the mean plane under the camera (altitude_m is above the plane)
+)
 _CAMERA_REQUIRED = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
 _CAMERA_OPTIONAL = ("distortion", "yaw_offset_rad", "readout_s", "bit_depth")
 _LASER_KEYS = ("origin_m", "direction")
@@ -94,9 +96,7 @@ def _number(value: Any, where: str, *, positive: bool = False) -> float:
         raise SequenceFormatError(f"{where}: expected a number, got {value!r}")
     v = float(value)
     if not math.isfinite(v) or (positive and v <= 0):
-        raise SequenceFormatError(
-            f"{where}: expected a {'positive ' if positive else ''}finite number, got {value!r}"
-        )
+        raise SequenceFormatError(f"{where}: expected a {'positive ' if positive else ''}finite number, got {value!r}")
     return v
 
 
@@ -126,8 +126,9 @@ def load_toml(path: Path) -> dict[str, Any]:
         raise SequenceFormatError(f"{path}: not valid TOML: {exc}") from None
 
 
-def info_from_toml(data: dict[str, Any], path: Path, *, require_format: bool = True,
-                   extra_keys: tuple[str, ...] = ()) -> SequenceInfo:
+def info_from_toml(
+    data: dict[str, Any], path: Path, *, require_format: bool = True, extra_keys: tuple[str, ...] = ()
+) -> SequenceInfo:
     """Validate the tables of a ``sequence.toml`` (or of a camera file: ``require_format=False``).
 
     ``extra_keys``: further top-level keys the caller reads itself (a camera file's ``nav``).
@@ -135,14 +136,12 @@ def info_from_toml(data: dict[str, Any], path: Path, *, require_format: bool = T
     fmt = data.get("format")
     if fmt != FORMAT_V1 and (require_format or fmt is not None):
         raise SequenceFormatError(
-            f"{path}: key 'format' must be \"{FORMAT_V1}\", got {fmt!r}. Add format = \"{FORMAT_V1}\"."
+            f'{path}: key \'format\' must be "{FORMAT_V1}", got {fmt!r}. Add format = "{FORMAT_V1}".'
         )
     known = _TOP_KEYS + extra_keys
     for key in data:
         if key not in known:
-            raise SequenceFormatError(
-                f"{path}: unknown key '{key}'. Known keys: {', '.join(known)}."
-            )
+            raise SequenceFormatError(f"{path}: unknown key '{key}'. Known keys: {', '.join(known)}.")
     cam = data.get("camera")
     if not isinstance(cam, dict):
         raise SequenceFormatError(f"{path}: missing [camera] table (width_px, height_px, fx_px, fy_px, cx_px, cy_px).")
@@ -165,7 +164,9 @@ def info_from_toml(data: dict[str, Any], path: Path, *, require_format: bool = T
             f"{path}: camera.distortion must list 4, 5 or 8 OpenCV coefficients (k1 k2 p1 p2 k3), got {dist!r}"
         )
     bit_depth = cam.get("bit_depth")
-    if bit_depth is not None and (isinstance(bit_depth, bool) or not isinstance(bit_depth, int) or not 8 <= bit_depth <= 16):
+    if bit_depth is not None and (
+        isinstance(bit_depth, bool) or not isinstance(bit_depth, int) or not 8 <= bit_depth <= 16
+    ):
         raise SequenceFormatError(
             f"{path}: camera.bit_depth must be a whole number of bits from 8 to 16 (12 for a 12-bit sensor "
             f"in 16-bit files), got {bit_depth!r}"
@@ -234,8 +235,15 @@ def _meant_as_known_columns(header: abc.Sequence[str]) -> list[str]:
     other units (``roll_deg``). Read as extra, they would be ignored without a word; any other extra
     column (a navigation log's ``depth_m``, ``lat``) is ignored, as the format allows."""
     known = FRAMES_COLUMNS + ATTITUDE_COLUMNS
-    return [c for c in header if c not in known and (
-        c.strip().lower().startswith(_KNOWN_STEMS) or difflib.get_close_matches(c.strip().lower(), known, n=1, cutoff=0.75))]
+    return [
+        c
+        for c in header
+        if c not in known
+        and (
+            c.strip().lower().startswith(_KNOWN_STEMS)
+            or difflib.get_close_matches(c.strip().lower(), known, n=1, cutoff=0.75)
+        )
+    ]
 
 
 def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list[FrameRow]:
@@ -278,8 +286,13 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
                 f"the folders of {folder}."
             ) from None
         if not present:
-            why = ("is a folder, not an image file" if resolved.is_dir() else
-                   "is not a regular file (a pipe, socket or device)" if resolved.exists() else "not found")
+            why = (
+                "is a folder, not an image file"
+                if resolved.is_dir()
+                else "is not a regular file (a pipe, socket or device)"
+                if resolved.exists()
+                else "not found"
+            )
             raise SequenceFormatError(f"{where}: image file '{image}' {why} in {folder}.")
         text = (row.get("heading_rad") or "").strip()
         if text == "":
@@ -326,14 +339,16 @@ def angle_unit_warnings(rows: abc.Sequence[FrameRow], where: str = "frames.csv")
             out.append(
                 f"{where}: heading_rad changes by {step:.2f} rad ({math.degrees(step):.0f} degrees) from one frame to "
                 f"the next (median over {len(heading)} readings): is the column in degrees? headings are in radians "
-                "(multiply degrees by pi/180)")
+                "(multiply degrees by pi/180)"
+            )
     for key in ATTITUDE_COLUMNS:
         v = np.array([getattr(r, key) for r in rows if getattr(r, key) is not None], dtype=np.float64)
         if len(v) and float(np.median(np.abs(v))) > DEGREES_LIKE_ATTITUDE_RAD:
             size = float(np.median(np.abs(v)))
             out.append(
                 f"{where}: {key} is {size:.2f} rad ({math.degrees(size):.0f} degrees) on half of the frames: is the "
-                "column in degrees? attitudes are in radians (multiply degrees by pi/180)")
+                "column in degrees? attitudes are in radians (multiply degrees by pi/180)"
+            )
     return out
 
 
@@ -386,8 +401,9 @@ def to_uint8(img: np.ndarray, bit_depth: int | None = None, where: str = "image"
     raise ImageReadError(f"{where}: {img.dtype} pixels; rovslam reads 8- or 16-bit unsigned images.")
 
 
-def read_image(path: Path, camera: Camera | None = None, bit_depth: int | None = None,
-               camera_source: str = "sequence.toml") -> np.ndarray:
+def read_image(
+    path: Path, camera: Camera | None = None, bit_depth: int | None = None, camera_source: str = "sequence.toml"
+) -> np.ndarray:
     """Decode an 8- or 16-bit image file to ``(H, W, 3) uint8`` RGB (grey is replicated; see :func:`to_uint8`).
 
     ``camera_source`` names where ``camera`` comes from in a size error.
@@ -408,8 +424,13 @@ def read_image(path: Path, camera: Camera | None = None, bit_depth: int | None =
     return decode_image(data, str(path), camera, bit_depth, camera_source)
 
 
-def decode_image(data: bytes, where: str, camera: Camera | None = None, bit_depth: int | None = None,
-                 camera_source: str = "the camera file") -> np.ndarray:
+def decode_image(
+    data: bytes,
+    where: str,
+    camera: Camera | None = None,
+    bit_depth: int | None = None,
+    camera_source: str = "the camera file",
+) -> np.ndarray:
     """Decode the bytes of a PNG, JPEG or TIFF file to ``(H, W, 3) uint8`` RGB; ``where`` names it in errors."""
     import cv2
 
@@ -425,8 +446,14 @@ def decode_image(data: bytes, where: str, camera: Camera | None = None, bit_dept
     return to_rgb(img, where, camera, bit_depth, camera_source, owned=True)
 
 
-def to_rgb(img: np.ndarray, where: str, camera: Camera | None = None, bit_depth: int | None = None,
-           camera_source: str = "the camera file", owned: bool = False) -> np.ndarray:
+def to_rgb(
+    img: np.ndarray,
+    where: str,
+    camera: Camera | None = None,
+    bit_depth: int | None = None,
+    camera_source: str = "the camera file",
+    owned: bool = False,
+) -> np.ndarray:
     """``(H, W, 3) uint8`` RGB from OpenCV's decoded grey, BGR or BGRA, 8 or 16 bits (see :func:`to_uint8`).
 
     ``owned``: ``img`` belongs to the caller alone (freshly decoded), so BGR is turned into RGB in
@@ -480,7 +507,8 @@ class Sequence:
         heading = text("heading_input", "compass")
         altitude = text("altitude_input", "sonar")
         return SourceDescription(
-            "sequence folder", str(self.folder),
+            "sequence folder",
+            str(self.folder),
             altitude_input=altitude if altitude in ALTITUDE_INPUTS else "sonar",
             altitude_detail=text("altitude_detail", "frames.csv sonar_altitude_m") or "",
             heading_input=heading if heading in HEADING_INPUTS else "compass",

@@ -18,8 +18,15 @@ from pathlib import Path
 from rovslam.errors import RovslamError, SequenceFormatError
 
 __all__ = [
-    "MAX_TEXT_BYTES", "MAX_TIME_S", "float_cell", "inside_folder", "is_number", "not_a_file", "read_csv_table",
-    "read_text", "time_cell",
+    "MAX_TEXT_BYTES",
+    "MAX_TIME_S",
+    "float_cell",
+    "inside_folder",
+    "is_number",
+    "not_a_file",
+    "read_csv_table",
+    "read_text",
+    "time_cell",
 ]
 
 MAX_TEXT_BYTES = 512 * 2**20  # a frames.csv of a million frames is ~80 MB
@@ -37,7 +44,9 @@ def read_text(path: Path, error: type[RovslamError] = SequenceFormatError) -> st
             raise error(f"{path}: {not_a_file(path)}.")
         size = st.st_size
         if size > MAX_TEXT_BYTES:
-            raise error(f"{path}: {size} bytes, more than the {MAX_TEXT_BYTES // 2**20} MiB a text file of rovslam may hold.")
+            raise error(
+                f"{path}: {size} bytes, more than the {MAX_TEXT_BYTES // 2**20} MiB a text file of rovslam may hold."
+            )
         data = path.read_bytes()
     except OSError as exc:
         raise error(f"{path}: cannot be read ({exc.strerror or exc}).") from None
@@ -55,7 +64,11 @@ def read_text(path: Path, error: type[RovslamError] = SequenceFormatError) -> st
 
 
 def read_csv_table(
-    path: Path, required: tuple[str, ...], error: type[RovslamError] = SequenceFormatError, *, drop_torn_last_line: bool = False
+    path: Path,
+    required: tuple[str, ...],
+    error: type[RovslamError] = SequenceFormatError,
+    *,
+    drop_torn_last_line: bool = False,
 ) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
     """Read a UTF-8 CSV whose header holds ``required``: (header, [(line number, row dict)]).
 
@@ -74,16 +87,22 @@ def read_csv_table(
         if not any(header):
             raise error(f"{path}: empty file; the first line must be the header {','.join(required)}.")
         if not set(required) & set(header) and is_number(header[0]):
-            raise error(f"{path}, line 1: holds values ({','.join(header)[:60]}), not the header; "
-                        f"add the header line {','.join(required)} above the first row.")
+            raise error(
+                f"{path}, line 1: holds values ({','.join(header)[:60]}), not the header; "
+                f"add the header line {','.join(required)} above the first row."
+            )
         dup = sorted({h for h in header if header.count(h) > 1})
         if dup:
             raise error(f"{path}: header names column(s) {', '.join(dup)} more than once.")
         missing = [c for c in required if c not in header]
         if missing:
             read = ",".join(header)
-            sep = next((f" It is separated by {n}: use commas." for c, n in ((";", "';'"), ("\t", "tabs")) if c in read), "")
-            case = " Column names are lower case." if not sep and any(c.lower() in read.lower() for c in missing) else ""
+            sep = next(
+                (f" It is separated by {n}: use commas." for c, n in ((";", "';'"), ("\t", "tabs")) if c in read), ""
+            )
+            case = (
+                " Column names are lower case." if not sep and any(c.lower() in read.lower() for c in missing) else ""
+            )
             raise error(
                 f"{path}: header is missing column(s) {', '.join(missing)}. "
                 f"The header must start with: {','.join(required)}; it reads {read[:80]!r}.{sep}{case}"
@@ -121,7 +140,12 @@ def not_a_file(path: Path) -> str:
 
 
 def float_cell(
-    row: dict[str, str], key: str, where: str, *, optional: bool = False, allow_nan: bool = False,
+    row: dict[str, str],
+    key: str,
+    where: str,
+    *,
+    optional: bool = False,
+    allow_nan: bool = False,
     error: type[RovslamError] = SequenceFormatError,
 ) -> float | None:
     """The number in column ``key`` of a CSV row; empty gives None when ``optional``, NaN only when ``allow_nan``."""
@@ -148,8 +172,10 @@ def time_cell(row: dict[str, str], where: str, key: str = "t_s") -> float:
     """The time in column ``key`` (seconds): a finite number of at most :data:`MAX_TIME_S` in size."""
     t = float(float_cell(row, key, where))  # type: ignore[arg-type]
     if abs(t) > MAX_TIME_S:
-        raise SequenceFormatError(f"{where}: column '{key}' = {t:g} s is no clock's time (more than {MAX_TIME_S:g} s "
-                                  "from 0); give times in seconds (UNIX times or from the start of the dive).")
+        raise SequenceFormatError(
+            f"{where}: column '{key}' = {t:g} s is no clock's time (more than {MAX_TIME_S:g} s "
+            "from 0); give times in seconds (UNIX times or from the start of the dive)."
+        )
     return t
 
 

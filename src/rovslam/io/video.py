@@ -36,10 +36,45 @@ from rovslam.io.source import SourceDescription
 
 MAX_WARNINGS = 20
 FALLBACK_RATE_HZ = 25.0  # frame rate assumed for times when a stream declares none and has no time stamps
-VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi", ".m4v", ".webm", ".mpg", ".mpeg", ".ts", ".mts", ".m2ts", ".mxf",
-                  ".flv", ".wmv", ".3gp", ".ogv", ".nut", ".y4m", ".h264", ".h265", ".hevc")
-NOT_VIDEO_SUFFIXES = (".csv", ".txt", ".toml", ".yaml", ".yml", ".json", ".png", ".jpg", ".jpeg", ".tif", ".tiff",
-                      ".db3", ".mcap", ".bag")
+VIDEO_SUFFIXES = (
+    ".mp4",
+    ".mov",
+    ".mkv",
+    ".avi",
+    ".m4v",
+    ".webm",
+    ".mpg",
+    ".mpeg",
+    ".ts",
+    ".mts",
+    ".m2ts",
+    ".mxf",
+    ".flv",
+    ".wmv",
+    ".3gp",
+    ".ogv",
+    ".nut",
+    ".y4m",
+    ".h264",
+    ".h265",
+    ".hevc",
+)
+NOT_VIDEO_SUFFIXES = (
+    ".csv",
+    ".txt",
+    ".toml",
+    ".yaml",
+    ".yml",
+    ".json",
+    ".png",
+    ".jpg",
+    ".jpeg",
+    ".tif",
+    ".tiff",
+    ".db3",
+    ".mcap",
+    ".bag",
+)
 
 
 class VideoSource:
@@ -136,7 +171,9 @@ class VideoSource:
                 try:
                     packet = next(packets, None)
                 except (av.error.FFmpegError, EOFError) as exc:
-                    self._leave_out(f"{self.path}: the stream could not be read after frame {k} ({exc}); the rest is left out.")
+                    self._leave_out(
+                        f"{self.path}: the stream could not be read after frame {k} ({exc}); the rest is left out."
+                    )
                     return
                 if packet is None:
                     break
@@ -154,11 +191,17 @@ class VideoSource:
                     if k >= start:
                         error = None
                         if (vf.width, vf.height) != (cam.width_px, cam.height_px):
-                            error = (f"{self.path}#{k}: frame is {vf.width}x{vf.height} px, the camera file says "
-                                     f"{cam.width_px}x{cam.height_px}.")
+                            error = (
+                                f"{self.path}#{k}: frame is {vf.width}x{vf.height} px, the camera file says "
+                                f"{cam.width_px}x{cam.height_px}."
+                            )
                         yield Frame(
-                            index=k, t_s=t - t_first, image=None if error else vf.to_ndarray(format="rgb24"),
-                            heading_rad=self.heading_rad, source=f"{self.path}#{k}", error=error,
+                            index=k,
+                            t_s=t - t_first,
+                            image=None if error else vf.to_ndarray(format="rgb24"),
+                            heading_rad=self.heading_rad,
+                            source=f"{self.path}#{k}",
+                            error=error,
                         )
                     k += 1
         for message in clock.notes(str(self.path)):
@@ -207,17 +250,24 @@ class _FrameClock:
 
     def notes(self, where: str) -> list[str]:
         """One line per kind of repair made, for the run's warnings."""
-        rate = (f"the stream's frame rate ({1.0 / self.period_s:g} Hz)" if self.rate_declared
-                else f"{FALLBACK_RATE_HZ:g} frames per second (the stream declares no rate)")
+        rate = (
+            f"the stream's frame rate ({1.0 / self.period_s:g} Hz)"
+            if self.rate_declared
+            else f"{FALLBACK_RATE_HZ:g} frames per second (the stream declares no rate)"
+        )
         out = []
         if self.reordered:
             k, own, t = self.first_reordered  # type: ignore[misc]
-            out.append(f"{where}: {self.reordered} frames carry time stamps out of order in the container (frame {k} "
-                       f"says {own:g} s, its place in the stream {t:g} s); every frame is kept in the decoder's order, "
-                       "timed by the container's time stamps sorted, as video players show it.")
+            out.append(
+                f"{where}: {self.reordered} frames carry time stamps out of order in the container (frame {k} "
+                f"says {own:g} s, its place in the stream {t:g} s); every frame is kept in the decoder's order, "
+                "timed by the container's time stamps sorted, as video players show it."
+            )
         if self.repeated:
-            out.append(f"{where}: {self.repeated} frames repeat or go back on the previous frame's time stamp; "
-                       f"they are kept, timed one period of {rate} after the frame before.")
+            out.append(
+                f"{where}: {self.repeated} frames repeat or go back on the previous frame's time stamp; "
+                f"they are kept, timed one period of {rate} after the frame before."
+            )
         if self.missing:
             out.append(f"{where}: {self.missing} frames have no time stamp; they are timed by {rate}.")
         return out

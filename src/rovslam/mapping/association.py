@@ -34,8 +34,18 @@ from rovslam.camera import rot2
 from rovslam.config import AssociationConfig
 from rovslam.errors import InvalidArgumentError
 
-__all__ = ["MatchCandidate", "MatchDecision", "RecoveryEvent", "RecoveryMonitor", "ToldOffset", "associate",
-           "jointly_compatible", "recovery_inflation_m2", "strong_refusals", "told_offset_m"]
+__all__ = [
+    "MatchCandidate",
+    "MatchDecision",
+    "RecoveryEvent",
+    "RecoveryMonitor",
+    "ToldOffset",
+    "associate",
+    "jointly_compatible",
+    "recovery_inflation_m2",
+    "strong_refusals",
+    "told_offset_m",
+]
 
 REASON_GATE = "innovation test"
 REASON_JOINT = "joint compatibility"
@@ -111,8 +121,17 @@ def associate(candidates: Sequence[MatchCandidate]) -> tuple[MatchDecision, ...]
     for c in candidates:
         accepted = c.updated and c.accepted
         reason = c.refused if c.refused else ("" if accepted else REASON_GATE)
-        out.append(MatchDecision(c.landmark_id, accepted, reason, c.nis if c.updated else math.nan, not c.confirmed,
-                                 not c.refused or c.refused == REASON_JOINT, reason != REASON_LASER))
+        out.append(
+            MatchDecision(
+                c.landmark_id,
+                accepted,
+                reason,
+                c.nis if c.updated else math.nan,
+                not c.confirmed,
+                not c.refused or c.refused == REASON_JOINT,
+                reason != REASON_LASER,
+            )
+        )
     return tuple(out)
 
 
@@ -122,8 +141,11 @@ def strong_refusals(candidates: Sequence[MatchCandidate], strong_correlation: fl
     Strong: a correlation of at least ``strong_correlation``. ``accepted_older``: a confirmed
     landmark older (lower id) than every refused one was accepted (see :meth:`RecoveryMonitor.refusals`).
     """
-    strong = [k for k, c in enumerate(candidates) if c.updated and not c.accepted and c.confirmed
-              and c.score >= strong_correlation]
+    strong = [
+        k
+        for k, c in enumerate(candidates)
+        if c.updated and not c.accepted and c.confirmed and c.score >= strong_correlation
+    ]
     oldest_refused = min((candidates[k].landmark_id for k in strong), default=-1)
     accepted_older = any(c.accepted for c in candidates if c.updated and c.confirmed and c.landmark_id < oldest_refused)
     return strong, accepted_older
@@ -223,7 +245,9 @@ class RecoveryMonitor:
             self.refused_streak = 0
             return None
         self.refused_streak += 1
-        self.told.extend(ToldOffset(t_s, int(i), np.asarray(o, dtype=np.float64)) for i, o in zip(landmark_ids, offsets_m))
+        self.told.extend(
+            ToldOffset(t_s, int(i), np.asarray(o, dtype=np.float64)) for i, o in zip(landmark_ids, offsets_m)
+        )
         streak = np.array([o.offset_m for o in self._streak_told()][-cfg.recovery_after_frames * 4 :])
         centre = np.median(streak, axis=0)
         tol = cfg.recovery_offset_agreement_m

@@ -57,14 +57,21 @@ class LandmarkRecord:
     @classmethod
     def cut(
         cls, landmark_id: int, track_img: np.ndarray, template: Template, heading_rad: float, t_s: float, frame: int
-    ) -> "LandmarkRecord":
+    ) -> LandmarkRecord:
         """A new landmark (step 7) from ``template`` found in the ``(H, W) float32`` tracking image."""
         size = template.patch.shape[0]
         wide = wide_patch_size_px(size)
         centre = tuple(float(c) for c in template.centre_uv_px)
         return cls(
-            landmark_id, template.patch, float(template.local_variance), t_s, frame, heading_rad=heading_rad,
-            patch_wide=cv2.getRectSubPix(track_img, (wide, wide), centre), observations=1, last_seen_t_s=t_s,
+            landmark_id,
+            template.patch,
+            float(template.local_variance),
+            t_s,
+            frame,
+            heading_rad=heading_rad,
+            patch_wide=cv2.getRectSubPix(track_img, (wide, wide), centre),
+            observations=1,
+            last_seen_t_s=t_s,
             self_similarity=float(template.self_similarity),
         )
 

@@ -57,8 +57,15 @@ class Navigator:
     every frame. ``survey_until_s``: survey goals still ahead at that time are dropped.
     """
 
-    def __init__(self, info, goals: list[Goal], estimator: str = "slam", config: RunConfig = RunConfig(),
-                 guidance: GuidanceConfig = GuidanceConfig(), survey_until_s: float | None = None) -> None:
+    def __init__(
+        self,
+        info,
+        goals: list[Goal],
+        estimator: str = "slam",
+        config: RunConfig = RunConfig(),
+        guidance: GuidanceConfig = GuidanceConfig(),
+        survey_until_s: float | None = None,
+    ) -> None:
         self.estimator = check_estimator(estimator)
         self.pipeline = SlamPipeline(info, config)
         self.mission = Mission(goals, guidance, self.landmark_xy_m, survey_until_s)

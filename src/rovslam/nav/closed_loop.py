@@ -30,11 +30,22 @@ from rovslam.sim.live import LiveSimulator, TrueState
 from rovslam.sim.scenarios import SCENARIOS, Scenario
 from rovslam.sim.vehicle import GridPattern
 
-__all__ = ["ARRIVAL_COLUMNS", "ArrivalBook", "ClosedLoop", "LoopStep", "mission_area_m", "survey_goals",
-           "survey_grid"]
+__all__ = ["ARRIVAL_COLUMNS", "ArrivalBook", "ClosedLoop", "LoopStep", "mission_area_m", "survey_goals", "survey_grid"]
 
-ARRIVAL_COLUMNS = ("name", "x_m", "y_m", "arrival_t_s", "est_err_m", "true_err_m", "hold_rms_true_m",
-                   "landmark_id", "confident", "reached", "ellipse_m", "note")
+ARRIVAL_COLUMNS = (
+    "name",
+    "x_m",
+    "y_m",
+    "arrival_t_s",
+    "est_err_m",
+    "true_err_m",
+    "hold_rms_true_m",
+    "landmark_id",
+    "confident",
+    "reached",
+    "ellipse_m",
+    "note",
+)
 
 
 @dataclass(frozen=True)
@@ -77,11 +88,16 @@ def mission_area_m(sc: Scenario, goals: list[Goal], margin_m: float = 0.15) -> t
     """(north min, north max, east min, east max) the camera may see: the goals, the start and the footprint."""
     pts = np.array([[0.0, 0.0]] + [g.xy_m for g in goals if g.xy_m is not None])
     cam = sc.camera
-    half_diag = math.hypot(max(cam.cx_px, cam.width_px - cam.cx_px) / cam.fx_px,
-                           max(cam.cy_px, cam.height_px - cam.cy_px) / cam.fy_px)
+    half_diag = math.hypot(
+        max(cam.cx_px, cam.width_px - cam.cx_px) / cam.fx_px, max(cam.cy_px, cam.height_px - cam.cy_px) / cam.fy_px
+    )
     reach = (sc.vehicle.altitude_m + 0.1) * half_diag + margin_m
-    return (float(pts[:, 0].min()) - reach, float(pts[:, 0].max()) + reach,
-            float(pts[:, 1].min()) - reach, float(pts[:, 1].max()) + reach)
+    return (
+        float(pts[:, 0].min()) - reach,
+        float(pts[:, 0].max()) + reach,
+        float(pts[:, 1].min()) - reach,
+        float(pts[:, 1].max()) + reach,
+    )
 
 
 class ClosedLoop:
@@ -114,15 +130,19 @@ class ClosedLoop:
             raise InvalidArgumentError(f"survey_s must be a number of seconds >= 0, got {survey_s!r}")
         self.guidance = guidance if guidance is not None else GuidanceConfig()
         # The survey flies at the preset's speed, the points of interest at the guidance's.
-        self.survey_guidance = replace(self.guidance,
-                                       cruise_speed_mps=min(sc.vehicle.cruise_speed_mps, self.guidance.max_speed_mps))
+        self.survey_guidance = replace(
+            self.guidance, cruise_speed_mps=min(sc.vehicle.cruise_speed_mps, self.guidance.max_speed_mps)
+        )
         points = np.array([g.xy_m for g in pois if g.xy_m is not None]).reshape(-1, 2)
         survey = survey_goals(survey_grid(sc.grid, points), survey_s, sc.vehicle.cruise_speed_mps)
         goals = survey + list(pois)
         self.max_s = max_s
         self.sim = LiveSimulator(sc, seed, area_m=mission_area_m(sc, goals))
-        self.vehicle = SimulatedVehicle(dynamics if dynamics is not None else DynamicsParams.from_vehicle(sc.vehicle),
-                                        seed, heading_rad=sc.vehicle.heading_rad)
+        self.vehicle = SimulatedVehicle(
+            dynamics if dynamics is not None else DynamicsParams.from_vehicle(sc.vehicle),
+            seed,
+            heading_rad=sc.vehicle.heading_rad,
+        )
         self.navigator = Navigator(self.sim.info, goals, estimator, config, self.guidance, survey_until_s=survey_s)
 
     def __iter__(self) -> Iterator[LoopStep]:
@@ -166,19 +186,36 @@ class ArrivalBook:
             if isinstance(ev, Arrival):
                 self._current, self._target, self._hold = ev.name, ev.target_xy_m, []
                 self.rows[ev.name] = {
-                    "name": ev.name, "x_m": float(ev.target_xy_m[0]), "y_m": float(ev.target_xy_m[1]),
-                    "arrival_t_s": ev.t_s, "est_err_m": float(np.hypot(*(ev.est_xy_m - ev.target_xy_m))),
-                    "true_err_m": float(np.hypot(*(true_xy - ev.target_xy_m))), "hold_rms_true_m": math.nan,
-                    "landmark_id": self._landmarks.get(ev.name), "confident": int(ev.confident), "reached": 1,
-                    "ellipse_m": ev.ellipse_m, "note": "" if ev.confident else "ellipse still too wide at arrival",
+                    "name": ev.name,
+                    "x_m": float(ev.target_xy_m[0]),
+                    "y_m": float(ev.target_xy_m[1]),
+                    "arrival_t_s": ev.t_s,
+                    "est_err_m": float(np.hypot(*(ev.est_xy_m - ev.target_xy_m))),
+                    "true_err_m": float(np.hypot(*(true_xy - ev.target_xy_m))),
+                    "hold_rms_true_m": math.nan,
+                    "landmark_id": self._landmarks.get(ev.name),
+                    "confident": int(ev.confident),
+                    "reached": 1,
+                    "ellipse_m": ev.ellipse_m,
+                    "note": "" if ev.confident else "ellipse still too wide at arrival",
                 }
             elif isinstance(ev, HoldEnd) and ev.name in self._names:
                 row = self.rows.get(ev.name)
                 if row is None or not ev.reached:
-                    row = {"name": ev.name, "x_m": math.nan, "y_m": math.nan, "arrival_t_s": math.nan,
-                           "est_err_m": math.nan, "true_err_m": math.nan, "hold_rms_true_m": math.nan,
-                           "landmark_id": self._landmarks.get(ev.name), "confident": 0, "reached": 0,
-                           "ellipse_m": math.nan, "note": ev.reason}
+                    row = {
+                        "name": ev.name,
+                        "x_m": math.nan,
+                        "y_m": math.nan,
+                        "arrival_t_s": math.nan,
+                        "est_err_m": math.nan,
+                        "true_err_m": math.nan,
+                        "hold_rms_true_m": math.nan,
+                        "landmark_id": self._landmarks.get(ev.name),
+                        "confident": 0,
+                        "reached": 0,
+                        "ellipse_m": math.nan,
+                        "note": ev.reason,
+                    }
                     self.rows[ev.name] = row
                 elif self._hold:
                     row["hold_rms_true_m"] = math.sqrt(float(np.mean(np.square(self._hold))))

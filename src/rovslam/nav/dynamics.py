@@ -62,13 +62,29 @@ class DynamicsParams:
     substeps: int = 4  # integration steps per frame
 
     def __post_init__(self) -> None:
-        for name in ("surge_tau_s", "sway_tau_s", "yaw_tau_s", "max_speed_mps", "max_yaw_rate_radps", "current_tau_s",
-                     "yaw_disturbance_tau_s", "altitude_m", "altitude_tau_s", "altitude_noise_tau_s", "attitude_tau_s"):
+        for name in (
+            "surge_tau_s",
+            "sway_tau_s",
+            "yaw_tau_s",
+            "max_speed_mps",
+            "max_yaw_rate_radps",
+            "current_tau_s",
+            "yaw_disturbance_tau_s",
+            "altitude_m",
+            "altitude_tau_s",
+            "altitude_noise_tau_s",
+            "attitude_tau_s",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InvalidArgumentError(f"DynamicsParams.{name} must be a finite number > 0, got {v!r}")
-        for name in ("current_mean_mps", "current_wander_mps", "yaw_disturbance_rad", "altitude_noise_m",
-                     "attitude_sigma_rad"):
+        for name in (
+            "current_mean_mps",
+            "current_wander_mps",
+            "yaw_disturbance_rad",
+            "altitude_noise_m",
+            "attitude_sigma_rad",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InvalidArgumentError(f"DynamicsParams.{name} must be a finite number >= 0, got {v!r}")
@@ -76,14 +92,19 @@ class DynamicsParams:
             raise InvalidArgumentError(f"DynamicsParams.substeps must be a whole number >= 1, got {self.substeps!r}")
 
     @classmethod
-    def from_vehicle(cls, vehicle) -> "DynamicsParams":
+    def from_vehicle(cls, vehicle) -> DynamicsParams:
         """The disturbances of a simulator preset's :class:`~rovslam.sim.vehicle.VehicleParams` (same current, noise)."""
         return cls(
-            current_mean_mps=vehicle.current_mean_mps, current_wander_mps=vehicle.current_wander_mps,
-            current_tau_s=vehicle.current_tau_s, yaw_disturbance_rad=vehicle.heading_wander_rad,
-            yaw_disturbance_tau_s=vehicle.heading_wander_tau_s, altitude_m=vehicle.altitude_m,
-            altitude_noise_m=vehicle.altitude_noise_m, altitude_noise_tau_s=vehicle.altitude_noise_tau_s,
-            attitude_sigma_rad=vehicle.attitude_sigma_rad, attitude_tau_s=vehicle.attitude_tau_s,
+            current_mean_mps=vehicle.current_mean_mps,
+            current_wander_mps=vehicle.current_wander_mps,
+            current_tau_s=vehicle.current_tau_s,
+            yaw_disturbance_rad=vehicle.heading_wander_rad,
+            yaw_disturbance_tau_s=vehicle.heading_wander_tau_s,
+            altitude_m=vehicle.altitude_m,
+            altitude_noise_m=vehicle.altitude_noise_m,
+            altitude_noise_tau_s=vehicle.altitude_noise_tau_s,
+            attitude_sigma_rad=vehicle.attitude_sigma_rad,
+            attitude_tau_s=vehicle.attitude_tau_s,
         )
 
 
@@ -114,8 +135,14 @@ def _clip(v: float, limit: float) -> float:
     return max(-limit, min(limit, v))
 
 
-def step_vehicle(state: VehicleState, command: Command, current_mps: np.ndarray, altitude_target_m: float,
-                 dt_s: float, params: DynamicsParams) -> VehicleState:
+def step_vehicle(
+    state: VehicleState,
+    command: Command,
+    current_mps: np.ndarray,
+    altitude_target_m: float,
+    dt_s: float,
+    params: DynamicsParams,
+) -> VehicleState:
     """One integration step of the model over ``dt_s``: the command saturated, the responses, the current."""
     p = params
     u = _first_order(state.u_water_mps, _clip(command.surge_mps, p.max_speed_mps), p.surge_tau_s, dt_s)
@@ -127,8 +154,13 @@ def step_vehicle(state: VehicleState, command: Command, current_mps: np.ndarray,
     vel = rot2(psi_mid) @ w_mid + np.asarray(current_mps, dtype=np.float64)
     psi = state.heading_rad + 0.5 * (state.yaw_rate_radps + r) * dt_s
     return VehicleState(
-        t_s=state.t_s + dt_s, x_m=state.x_m + float(vel[0]) * dt_s, y_m=state.y_m + float(vel[1]) * dt_s,
-        heading_rad=(psi + math.pi) % (2.0 * math.pi) - math.pi, u_water_mps=u, v_water_mps=v, yaw_rate_radps=r,
+        t_s=state.t_s + dt_s,
+        x_m=state.x_m + float(vel[0]) * dt_s,
+        y_m=state.y_m + float(vel[1]) * dt_s,
+        heading_rad=(psi + math.pi) % (2.0 * math.pi) - math.pi,
+        u_water_mps=u,
+        v_water_mps=v,
+        yaw_rate_radps=r,
         altitude_m=_first_order(state.altitude_m, altitude_target_m, p.altitude_tau_s, dt_s),
     )
 
@@ -160,12 +192,16 @@ class SimulatedVehicle:
         self.params = p = params
         direction = rng(0).uniform(0.0, 2.0 * math.pi)
         self._current_mean = p.current_mean_mps * np.array([math.cos(direction), math.sin(direction)])
-        self._cx, self._cy = _OU(rng(1), p.current_wander_mps, p.current_tau_s), _OU(rng(2), p.current_wander_mps,
-                                                                                      p.current_tau_s)
+        self._cx, self._cy = (
+            _OU(rng(1), p.current_wander_mps, p.current_tau_s),
+            _OU(rng(2), p.current_wander_mps, p.current_tau_s),
+        )
         self._yaw = _OU(rng(3), p.yaw_disturbance_rad, p.yaw_disturbance_tau_s)
         self._alt = _OU(rng(4), p.altitude_noise_m, p.altitude_noise_tau_s)
-        self._roll, self._pitch = _OU(rng(5), p.attitude_sigma_rad, p.attitude_tau_s), _OU(rng(6), p.attitude_sigma_rad,
-                                                                                          p.attitude_tau_s)
+        self._roll, self._pitch = (
+            _OU(rng(5), p.attitude_sigma_rad, p.attitude_tau_s),
+            _OU(rng(6), p.attitude_sigma_rad, p.attitude_tau_s),
+        )
         self.state = VehicleState(0.0, 0.0, 0.0, float(heading_rad), altitude_m=p.altitude_m + self._alt.value)
 
     @property
@@ -197,6 +233,15 @@ class SimulatedVehicle:
         psi = (s.heading_rad + self._yaw.value + math.pi) % (2.0 * math.pi) - math.pi
         vel = s.ground_velocity_mps(self.current_mps)
         body = rot2(psi).T @ vel
-        return TrueState(t_s=s.t_s, x_m=s.x_m, y_m=s.y_m, altitude_m=s.altitude_m, heading_rad=psi,
-                         roll_rad=self._roll.value, pitch_rad=self._pitch.value, surge_mps=float(body[0]),
-                         sway_mps=float(body[1]), yaw_rate_radps=s.yaw_rate_radps)
+        return TrueState(
+            t_s=s.t_s,
+            x_m=s.x_m,
+            y_m=s.y_m,
+            altitude_m=s.altitude_m,
+            heading_rad=psi,
+            roll_rad=self._roll.value,
+            pitch_rad=self._pitch.value,
+            surge_mps=float(body[0]),
+            sway_mps=float(body[1]),
+            yaw_rate_radps=s.yaw_rate_radps,
+        )

@@ -58,8 +58,9 @@ class DepthModel:
         if pred is None or not pred[1] < assumed.sigma_m:
             return assumed
         z, sigma = pred
-        return dataclasses.replace(assumed, altitude_m=z, sigma_m=self.with_terrain_sigma_m(z, sigma, assumed),
-                                   source=SOURCE_HELD)
+        return dataclasses.replace(
+            assumed, altitude_m=z, sigma_m=self.with_terrain_sigma_m(z, sigma, assumed), source=SOURCE_HELD
+        )
 
     def terrain_sigma_m(self, altitude_m: float, alt: AltitudeEstimate) -> float:
         """How far the relief under the altimeter's points strays from the mean seabed (from the tokens' parallax)."""

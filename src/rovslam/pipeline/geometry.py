@@ -19,15 +19,27 @@ from rovslam.sensor.odometry import SpeedMeasurement
 from rovslam.sensor.shutter import mn_at_frame_time, mn_rate_px_s
 from rovslam.vision.tracking import TokenTracks
 
-__all__ = ["consensus_tokens", "covers_laser_spot", "inside_image", "landmark_mn_at_frame_time", "motion_hint",
-           "search_radius_px", "token_predictions", "yaw_rate_radps"]
+__all__ = [
+    "consensus_tokens",
+    "covers_laser_spot",
+    "inside_image",
+    "landmark_mn_at_frame_time",
+    "motion_hint",
+    "search_radius_px",
+    "token_predictions",
+    "yaw_rate_radps",
+]
 
 
 def inside_image(uv_px: np.ndarray, half_px: float, camera: Camera) -> bool:
     """Is the ``(2,)`` centre (u, v) finite and ``half_px`` inside the image's border? (Python floats: cheaper)"""
     u, v = float(uv_px[0]), float(uv_px[1])
-    return (math.isfinite(u) and math.isfinite(v) and half_px <= u <= camera.width_px - 1 - half_px
-            and half_px <= v <= camera.height_px - 1 - half_px)
+    return (
+        math.isfinite(u)
+        and math.isfinite(v)
+        and half_px <= u <= camera.width_px - 1 - half_px
+        and half_px <= v <= camera.height_px - 1 - half_px
+    )
 
 
 def search_radius_px(innovation_cov_px2: np.ndarray, slack_px: float, lm: LandmarkTemplateConfig) -> int:
@@ -42,8 +54,13 @@ def covers_laser_spot(uv_px: np.ndarray, spots_uv_px: np.ndarray, size_px: int) 
     return bool(len(spots_uv_px)) and bool(np.any(np.max(np.abs(spots_uv_px - uv_px), axis=1) < half + 2))
 
 
-def motion_hint(g_shift: np.ndarray | None, g_conf: float, common: np.ndarray | None, offsets: np.ndarray | None,
-                min_confidence: float) -> np.ndarray:
+def motion_hint(
+    g_shift: np.ndarray | None,
+    g_conf: float,
+    common: np.ndarray | None,
+    offsets: np.ndarray | None,
+    min_confidence: float,
+) -> np.ndarray:
     """The image motion the tokens should survive: the phase correlation's when confident, else the predicted one.
 
     ``g_shift``, ``g_conf``: the phase correlation's ``(2,)`` shift and confidence
@@ -58,8 +75,14 @@ def motion_hint(g_shift: np.ndarray | None, g_conf: float, common: np.ndarray | 
 
 
 def token_predictions(
-    camera: Camera, uv0: np.ndarray, altitude_m: float, attitude_prev: tuple[float, float],
-    attitude: tuple[float, float], dpsi_rad: float, last_speed_mps: np.ndarray | None, dt_s: float,
+    camera: Camera,
+    uv0: np.ndarray,
+    altitude_m: float,
+    attitude_prev: tuple[float, float],
+    attitude: tuple[float, float],
+    dpsi_rad: float,
+    last_speed_mps: np.ndarray | None,
+    dt_s: float,
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Where the ``(N, 2)`` speed tokens ``uv0`` of the previous frame should be now: a common shift and per-token offsets.
 
@@ -99,8 +122,15 @@ def yaw_rate_radps(speed: SpeedMeasurement, prior: HeadingPrior, dt_s: float) ->
     return float(step) / dt_s if math.isfinite(step) else 0.0
 
 
-def landmark_mn_at_frame_time(camera: Camera, mn_px: np.ndarray, v_px: float, depth_m: float,
-                              speed: SpeedMeasurement | None, prior: HeadingPrior | None, dt_s: float) -> np.ndarray:
+def landmark_mn_at_frame_time(
+    camera: Camera,
+    mn_px: np.ndarray,
+    v_px: float,
+    depth_m: float,
+    speed: SpeedMeasurement | None,
+    prior: HeadingPrior | None,
+    dt_s: float,
+) -> np.ndarray:
     """A landmark's ``(2,)`` [m, n] seen at image row ``v_px`` moved to the frame's time (unchanged for a global shutter)."""
     if camera.readout_s == 0.0 or speed is None or prior is None:
         return mn_px

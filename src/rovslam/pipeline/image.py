@@ -27,7 +27,11 @@ MIN_TEXTURE_STD = 0.5
 
 
 def tracking_image(
-    image: np.ndarray, cfg: BandpassConfig, scale: ProcessingScale, wide_px: int, without_bright: bool,
+    image: np.ndarray,
+    cfg: BandpassConfig,
+    scale: ProcessingScale,
+    wide_px: int,
+    without_bright: bool,
 ) -> tuple[np.ndarray | None, np.ndarray | None, str | None]:
     """``(img, bright, reason)`` of a ``(H, W[, C])`` frame at the processing scale.
 
@@ -85,8 +89,15 @@ class SunlightWatch:
         share = moving_light_share(earlier[0], self.bright, earlier[1], uv1, size_px)
         return self.monitor.observe(share)
 
-    def watch(self, t_s: float, frame: int, uv0: np.ndarray, uv1: np.ndarray, size_px: int,
-              retrack: Callable[[], tuple[np.ndarray | None, str | None]]) -> np.ndarray | None:
+    def watch(
+        self,
+        t_s: float,
+        frame: int,
+        uv0: np.ndarray,
+        uv1: np.ndarray,
+        size_px: int,
+        retrack: Callable[[], tuple[np.ndarray | None, str | None]],
+    ) -> np.ndarray | None:
         """After step 6 of the ``frame``-th processed frame: is the sunlight to be taken out (or left in again)?
 
         ``uv0``, ``uv1``, ``size_px``: as for :meth:`changed`. When the monitor changes its mind,

@@ -82,8 +82,9 @@ class SlamPipeline:
         self.scale = processing_scale(info.camera, config.processing, self.altimeter_fallback)
         self.camera = self.scale.camera
         self.focal_px = self.camera.focal_px
-        self.altimeter = LaserAltimeter(info.camera, info.lasers, self.scale.laser_config(config.laser),
-                                        self.altimeter_fallback)
+        self.altimeter = LaserAltimeter(
+            info.camera, info.lasers, self.scale.laser_config(config.laser), self.altimeter_fallback
+        )
         self.altitude = AltitudeFilter(config.laser.altitude_accel_sigma_mps2)
         self.tokens = TokenTracker(config.speed_templates, config.tracker)
         self.speed = SpeedEstimator(config.odometry)
@@ -96,7 +97,9 @@ class SlamPipeline:
 
             self.smoother = Isam2Smoother(config.smoother)
         # The frames' records; what the reported covariance adds for the back end (rovslam.slam.apparent): fixed by the config.
-        self.records = FrameRecords(config, self.scale, self.ekf, apparent_sigmas(config, graph=self.smoother is not None))
+        self.records = FrameRecords(
+            config, self.scale, self.ekf, apparent_sigmas(config, graph=self.smoother is not None)
+        )
         self.landmarks: list[LandmarkRecord] = []
         self.recovery = RecoveryMonitor(config.association)
         self.search = LandmarkSearch(config, self.scale, self.ekf, self.landmarks, self.recovery)  # step 3
@@ -147,8 +150,15 @@ class SlamPipeline:
     def sunlight_warnings(self) -> list[str]:
         """One line for the run's warnings when the sunlight was taken out of any frame."""
         watch = self.sunlight_watch
-        return records.sunlight_warnings(self.config.bandpass.sunlight_px, watch.frames_removed, self._n, watch.events,
-                                         self._drag_frames, self._drag_sum_mps, self._drag_sigma_sum_mps)
+        return records.sunlight_warnings(
+            self.config.bandpass.sunlight_px,
+            watch.frames_removed,
+            self._n,
+            watch.events,
+            self._drag_frames,
+            self._drag_sum_mps,
+            self._drag_sigma_sum_mps,
+        )
 
     # ------------------------------------------------------------------ the loop
     def process(self, frame: Frame) -> FrameResult:
@@ -193,13 +203,28 @@ class SlamPipeline:
         self._prev_t_s, self._prev_altitude_m, self._prev_attitude = frame.t_s, alt.altitude_m, att
         self.sunlight_watch.end_frame(frame.t_s, *consensus)
         self._n += 1
-        return FrameStep(frame, dt_s, heading, alt.altitude_m, speed, self._dr.copy(), altitude=alt, tracks=tracks,
-                         visible=len(visible), observations=self.records.full_res(observations), new_id=new_id,
-                         recovery=event)
+        return FrameStep(
+            frame,
+            dt_s,
+            heading,
+            alt.altitude_m,
+            speed,
+            self._dr.copy(),
+            altitude=alt,
+            tracks=tracks,
+            visible=len(visible),
+            observations=self.records.full_res(observations),
+            new_id=new_id,
+            recovery=event,
+        )
 
     def _back_end(self, meas: FrameMeasurements, heading: HeadingEstimate) -> Estimate:
         """The estimate reported for the frame: the EKF's, or the iSAM2 smoother's once fed this frame's measurements."""
-        xy, cov, heading_map = self.ekf.vehicle_xy_m, self.ekf.vehicle_cov_m2, self.ekf.map_heading_rad(heading.heading_rad)
+        xy, cov, heading_map = (
+            self.ekf.vehicle_xy_m,
+            self.ekf.vehicle_cov_m2,
+            self.ekf.map_heading_rad(heading.heading_rad),
+        )
         if self.smoother is not None:
             est = self.smoother.add_frame(meas)
             xy, cov, heading_map = est.xy_m, est.cov_xy_m2, est.heading_rad
@@ -211,7 +236,9 @@ class SlamPipeline:
         if frame.image is None or frame.error is not None:
             return None, frame.error or "no image"
         watch = self.sunlight_watch
-        img, bright, reason = tracking_image(frame.image, self.config.bandpass, self.scale, watch.opening_px, watch.removing)
+        img, bright, reason = tracking_image(
+            frame.image, self.config.bandpass, self.scale, watch.opening_px, watch.removing
+        )
         if bright is not None:
             watch.bright = bright
         return img, reason
@@ -222,8 +249,9 @@ class SlamPipeline:
         This frame's tracking image when the sunlight was just taken out (or left in again), for
         steps 7 and 8; None when nothing changed (:meth:`rovslam.pipeline.image.SunlightWatch.watch`).
         """
-        return self.sunlight_watch.watch(frame.t_s, self._n, uv0, uv1, self.config.speed_templates.size_px,
-                                         lambda: self._tracking_image(frame))
+        return self.sunlight_watch.watch(
+            frame.t_s, self._n, uv0, uv1, self.config.speed_templates.size_px, lambda: self._tracking_image(frame)
+        )
 
     # ------------------------------------------------------------------ step 1
     def _measure_altitude(self, frame: Frame, att: tuple[float, float]) -> AltitudeEstimate:
@@ -239,8 +267,9 @@ class SlamPipeline:
     # ------------------------------------------------------------------ step 2
     def _inhibit_laser_spots(self, alt: AltitudeEstimate) -> np.ndarray:
         """Step 2: ``(H, W) bool`` mask of the pixels near the laser spots (no template there)."""
-        return inhibition_mask(self.camera.shape, self.scale.to_processed_px(alt.spots_uv_px),
-                               self.config.laser.inhibit_radius_px)
+        return inhibition_mask(
+            self.camera.shape, self.scale.to_processed_px(alt.spots_uv_px), self.config.laser.inhibit_radius_px
+        )
 
     # ------------------------------------------------------------------ step 3
     def _track_landmarks(
@@ -250,7 +279,9 @@ class SlamPipeline:
         the last speed. Returns the ids that passed (5) and the landmarks found (:meth:`LandmarkSearch.track`)."""
         return self.search.track(track_img, alt, att, prior, dt_s, self._last_speed_mps)
 
-    def _choose_new_landmark(self, track_img: np.ndarray, mask: np.ndarray, tracked: list[TrackedLandmark]) -> Template | None:
+    def _choose_new_landmark(
+        self, track_img: np.ndarray, mask: np.ndarray, tracked: list[TrackedLandmark]
+    ) -> Template | None:
         """Step 3, new-landmark test (6), when none is tracked: a strong template unlike its neighbourhood
         (:meth:`rovslam.pipeline.search.LandmarkSearch.choose_new`)."""
         return self.search.choose_new(track_img, mask, tracked)
@@ -265,12 +296,20 @@ class SlamPipeline:
 
     # ------------------------------------------------------------------ step 5
     def _measure_speed(
-        self, track_img: np.ndarray, mask: np.ndarray, alt: AltitudeEstimate, att: tuple[float, float],
-        prior: HeadingPrior, dt_s: float, has_attitude: bool,
+        self,
+        track_img: np.ndarray,
+        mask: np.ndarray,
+        alt: AltitudeEstimate,
+        att: tuple[float, float],
+        prior: HeadingPrior,
+        dt_s: float,
+        has_attitude: bool,
     ) -> tuple[TokenTracks, SpeedMeasurement | None]:
         """Step 5: track the previous frame's tokens (their windows follow the turn) -> surge, sway, turn."""
         common, offsets = self._token_predictions(prior.step_rad, att, dt_s)
-        hint = motion_hint(*self.tokens.motion_prior(track_img), common, offsets, self.config.tracker.min_global_confidence)
+        hint = motion_hint(
+            *self.tokens.motion_prior(track_img), common, offsets, self.config.tracker.min_global_confidence
+        )
         if self.tokens.reselect_for_motion(hint):
             common, offsets = self._token_predictions(prior.step_rad, att, dt_s)  # the tokens changed
         tracks = self.tokens.track(track_img, common, mask, offsets)
@@ -278,9 +317,17 @@ class SlamPipeline:
             return tracks, None
         uv_prev, uv_curr = tokens_at_frame_time(self.camera, tracks.uv_prev_px, tracks.uv_curr_px, dt_s)
         speed = self.speed.measure(
-            self.camera, uv_prev, uv_curr, self._prev_altitude_m, alt.altitude_m, dt_s,
-            dpsi_rad=prior.step_rad, altitude_sigma_m=alt.sigma_m, attitude_prev_rad=self._prev_attitude,
-            attitude_curr_rad=att, dpsi_sigma_rad=prior.step_sigma_rad,
+            self.camera,
+            uv_prev,
+            uv_curr,
+            self._prev_altitude_m,
+            alt.altitude_m,
+            dt_s,
+            dpsi_rad=prior.step_rad,
+            altitude_sigma_m=alt.sigma_m,
+            attitude_prev_rad=self._prev_attitude,
+            attitude_curr_rad=att,
+            dpsi_sigma_rad=prior.step_sigma_rad,
             altitude_samples=max(alt.n_spots, 1) if alt.source.startswith("laser") else 1,
             attitude_noise_rad=self.config.odometry.attitude_noise_sigma_rad if has_attitude else 0.0,
         )
@@ -294,20 +341,43 @@ class SlamPipeline:
         toks = self.tokens.tokens
         if not toks or self._prev_altitude_m is None:
             return None, None
-        return token_predictions(self.camera, np.array([t.centre_uv_px for t in toks]), self._prev_altitude_m,
-                                 self._prev_attitude, att, dpsi_rad, self._last_speed_mps, dt_s)
+        return token_predictions(
+            self.camera,
+            np.array([t.centre_uv_px for t in toks]),
+            self._prev_altitude_m,
+            self._prev_attitude,
+            att,
+            dpsi_rad,
+            self._last_speed_mps,
+            dt_s,
+        )
 
     def _landmarks_at_frame_time(
-        self, tracked: list[TrackedLandmark], speed: SpeedMeasurement | None, prior: HeadingPrior,
-        alt: AltitudeEstimate, dt_s: float,
+        self,
+        tracked: list[TrackedLandmark],
+        speed: SpeedMeasurement | None,
+        prior: HeadingPrior,
+        alt: AltitudeEstimate,
+        dt_s: float,
     ) -> list[TrackedLandmark]:
         """Step 5, rolling shutter: each landmark's [m, n] moved to the frame's time (:mod:`rovslam.sensor.shutter`)."""
         if self.camera.readout_s == 0.0 or speed is None:
             return tracked
-        return [dataclasses.replace(t, mn_px=landmark_mn_at_frame_time(
-            self.camera, t.mn_px, t.uv_px[1], alt.altitude_m - self.ekf.landmark_height_m(t.record.id), speed, prior,
-            dt_s))
-            for t in tracked]
+        return [
+            dataclasses.replace(
+                t,
+                mn_px=landmark_mn_at_frame_time(
+                    self.camera,
+                    t.mn_px,
+                    t.uv_px[1],
+                    alt.altitude_m - self.ekf.landmark_height_m(t.record.id),
+                    speed,
+                    prior,
+                    dt_s,
+                ),
+            )
+            for t in tracked
+        ]
 
     def _fuse_heading(self, prior: HeadingPrior, speed: SpeedMeasurement | None, dt_s: float) -> HeadingEstimate:
         """Step 5, heading: the compass smoothed with the turn the tokens measured."""
@@ -321,8 +391,14 @@ class SlamPipeline:
 
     # ------------------------------------------------------------------ step 6
     def _predict_and_update(
-        self, speed: SpeedMeasurement | None, tracked: list[TrackedLandmark], alt: AltitudeEstimate,
-        prior: HeadingPrior, heading: HeadingEstimate, dt_s: float, frame: Frame,
+        self,
+        speed: SpeedMeasurement | None,
+        tracked: list[TrackedLandmark],
+        alt: AltitudeEstimate,
+        prior: HeadingPrior,
+        heading: HeadingEstimate,
+        dt_s: float,
+        frame: Frame,
     ) -> list[Observation]:
         """Step 6: prediction (1), (2) with the measured speed, then the landmark updates (3).
 
@@ -334,15 +410,24 @@ class SlamPipeline:
             bias_sigma, bias_tau = self._altitude_bias_process(alt.altitude_m, alt)
             self._altitude_bias_sigmas_m.append(bias_sigma)
             walk = heading.walk_var_rad2  # without a compass: the integrated heading's error is eps's random walk
-            self._predict(speed, prior.previous_rad, dt_s, heading.sigma_rad if walk is None else 0.0, alt.altitude_m,
-                          bias_sigma, walk, bias_tau)
+            self._predict(
+                speed,
+                prior.previous_rad,
+                dt_s,
+                heading.sigma_rad if walk is None else 0.0,
+                alt.altitude_m,
+                bias_sigma,
+                walk,
+                bias_tau,
+            )
         assoc = self.config.association
         candidates = self._update_landmarks(tracked, alt, heading)
         candidates = self._recover(tracked, candidates, alt, heading, frame)
         return _counted(tracked, associate(candidates), frame.t_s, assoc.confirm_observations, self.recovery)
 
-    def _update_landmarks(self, tracked: list[TrackedLandmark], alt: AltitudeEstimate,
-                          heading: HeadingEstimate) -> list[MatchCandidate]:
+    def _update_landmarks(
+        self, tracked: list[TrackedLandmark], alt: AltitudeEstimate, heading: HeadingEstimate
+    ) -> list[MatchCandidate]:
         """Step 6: the joint compatibility test of the frame's matches, then the filter's update (3) of each kept one.
 
         A tentative landmark corrects only itself. Returns one :class:`~rovslam.mapping.association.MatchCandidate`
@@ -353,27 +438,44 @@ class SlamPipeline:
         live = [k for k, t in enumerate(tracked) if not t.refused]
         if assoc.joint_compatibility and len(live) > 1:
             args = [self._update_args(tracked[k], alt, heading) for k in live]
-            _, out = jointly_compatible(lambda ix: self.ekf.joint_nis([args[j] for j in ix]), len(live),
-                                        assoc.joint_quantile)
+            _, out = jointly_compatible(
+                lambda ix: self.ekf.joint_nis([args[j] for j in ix]), len(live), assoc.joint_quantile
+            )
             for j in out:
                 refused[live[j]] = REASON_JOINT
         candidates = []
         for t, why in zip(tracked, refused):
             candidate = MatchCandidate(t.record.id, t.record.confirmed, t.score, why)
             if not why:
-                res = self.ekf.update(*self._update_args(t, alt, heading), landmark_only=not t.record.confirmed
-                                      and assoc.confirm_observations > 0)
+                res = self.ekf.update(
+                    *self._update_args(t, alt, heading),
+                    landmark_only=not t.record.confirmed and assoc.confirm_observations > 0,
+                )
                 candidate = _judged(candidate, res)
             candidates.append(candidate)
         return candidates
 
     def _update_args(self, t: TrackedLandmark, alt: AltitudeEstimate, heading: HeadingEstimate) -> tuple:
         """The arguments of ``EkfSlam.update`` / ``joint_nis`` for one match."""
-        return (t.record.id, t.mn_px, heading.heading_rad, alt.altitude_m, self.focal_px, None, alt.sigma_m,
-                heading.observation_sigma_rad)
+        return (
+            t.record.id,
+            t.mn_px,
+            heading.heading_rad,
+            alt.altitude_m,
+            self.focal_px,
+            None,
+            alt.sigma_m,
+            heading.observation_sigma_rad,
+        )
 
-    def _recover(self, tracked: list[TrackedLandmark], candidates: list[MatchCandidate], alt: AltitudeEstimate,
-                 heading: HeadingEstimate, frame: Frame) -> list[MatchCandidate]:
+    def _recover(
+        self,
+        tracked: list[TrackedLandmark],
+        candidates: list[MatchCandidate],
+        alt: AltitudeEstimate,
+        heading: HeadingEstimate,
+        frame: Frame,
+    ) -> list[MatchCandidate]:
         """Strong, confirmed matches refused by the innovation test: the filter may be the one that is wrong.
 
         Each tells the vehicle offset that would explain it (:func:`~rovslam.mapping.association.told_offset_m`); when the
@@ -383,8 +485,15 @@ class SlamPipeline:
         """
         strong, accepted_older = strong_refusals(candidates, self.config.association.strong_correlation)
         theta = self.ekf.map_heading_rad(heading.heading_rad)
-        offsets = [told_offset_m(candidates[k].innovation_px, alt.altitude_m - self.ekf.landmark_height_m(
-            candidates[k].landmark_id), theta, self.focal_px) for k in strong]
+        offsets = [
+            told_offset_m(
+                candidates[k].innovation_px,
+                alt.altitude_m - self.ekf.landmark_height_m(candidates[k].landmark_id),
+                theta,
+                self.focal_px,
+            )
+            for k in strong
+        ]
         offset = self.recovery.refusals(frame.t_s, offsets, [candidates[k].landmark_id for k in strong], accepted_older)
         if offset is None:
             return candidates
@@ -392,8 +501,15 @@ class SlamPipeline:
         candidates = list(candidates)
         for k in strong:
             candidates[k] = _judged(candidates[k], self.ekf.update(*self._update_args(tracked[k], alt, heading)))
-        self.recovery.recovered(RecoveryEvent(frame.index, frame.t_s, (float(offset[0]), float(offset[1])),
-                                              tuple(candidates[k].landmark_id for k in strong), "refused matches"))
+        self.recovery.recovered(
+            RecoveryEvent(
+                frame.index,
+                frame.t_s,
+                (float(offset[0]), float(offset[1])),
+                tuple(candidates[k].landmark_id for k in strong),
+                "refused matches",
+            )
+        )
         return candidates
 
     def _speed_bias_sigma_mps(self) -> float:
@@ -402,13 +518,34 @@ class SlamPipeline:
         seen = cfg.speed_bias_when == "always" or (self.sunlight is not None and self.sunlight.active)
         return cfg.speed_bias_sigma_mps if seen else 0.0
 
-    def _predict(self, speed: SpeedMeasurement, heading_rad: float, dt_s: float, heading_sigma_rad: float | None,
-                 altitude_m: float | None = None, altitude_bias_sigma_m: float | None = None,
-                 heading_walk_var_rad2: float | None = None, altitude_bias_tau_s: float | None = None) -> None:
+    def _predict(
+        self,
+        speed: SpeedMeasurement,
+        heading_rad: float,
+        dt_s: float,
+        heading_sigma_rad: float | None,
+        altitude_m: float | None = None,
+        altitude_bias_sigma_m: float | None = None,
+        heading_walk_var_rad2: float | None = None,
+        altitude_bias_tau_s: float | None = None,
+    ) -> None:
         """Prediction (1) of the filter and of the dead reckoning reported beside it."""
         drag_sigma = self._speed_bias_sigma_mps()
-        self.ekf.predict(MotionInput(speed.surge_mps, speed.sway_mps, speed.cov_mps2, heading_rad, dt_s, heading_sigma_rad,
-                                     altitude_m, altitude_bias_sigma_m, heading_walk_var_rad2, drag_sigma, altitude_bias_tau_s))
+        self.ekf.predict(
+            MotionInput(
+                speed.surge_mps,
+                speed.sway_mps,
+                speed.cov_mps2,
+                heading_rad,
+                dt_s,
+                heading_sigma_rad,
+                altitude_m,
+                altitude_bias_sigma_m,
+                heading_walk_var_rad2,
+                drag_sigma,
+                altitude_bias_tau_s,
+            )
+        )
         if drag_sigma > 0.0:
             self._drag_frames += 1
             self._drag_sum_mps += self.ekf.speed_bias_mps
@@ -419,21 +556,34 @@ class SlamPipeline:
 
     # ------------------------------------------------------------------ step 7
     def _add_landmark(
-        self, track_img: np.ndarray, template: Template, alt: AltitudeEstimate, att: tuple[float, float],
-        heading: HeadingEstimate, frame: Frame, speed: SpeedMeasurement | None = None,
-        prior: HeadingPrior | None = None, dt_s: float = 0.0,
+        self,
+        track_img: np.ndarray,
+        template: Template,
+        alt: AltitudeEstimate,
+        att: tuple[float, float],
+        heading: HeadingEstimate,
+        frame: Frame,
+        speed: SpeedMeasurement | None = None,
+        prior: HeadingPrior | None = None,
+        dt_s: float = 0.0,
     ) -> tuple[int, Observation]:
         """Step 7: augment the state with the new landmark by (4) and keep its template."""
         mn = pixels_to_mn(self.camera, template.centre_uv_px, alt.altitude_m, *att)[0]
-        mn = landmark_mn_at_frame_time(self.camera, mn, template.centre_uv_px[1], alt.altitude_m, speed, prior,
-                                       dt_s)  # rolling shutter
+        mn = landmark_mn_at_frame_time(
+            self.camera, mn, template.centre_uv_px[1], alt.altitude_m, speed, prior, dt_s
+        )  # rolling shutter
         new_id = self.ekf.augment(
-            mn, heading.heading_rad, alt.altitude_m, self.focal_px, altitude_sigma_m=alt.sigma_m,
+            mn,
+            heading.heading_rad,
+            alt.altitude_m,
+            self.focal_px,
+            altitude_sigma_m=alt.sigma_m,
             heading_sigma_rad=heading.observation_sigma_rad,
         )
         self.landmarks.append(
-            LandmarkRecord.cut(new_id, track_img, template, self.ekf.map_heading_rad(heading.heading_rad),
-                               frame.t_s, frame.index)
+            LandmarkRecord.cut(
+                new_id, track_img, template, self.ekf.map_heading_rad(heading.heading_rad), frame.t_s, frame.index
+            )
         )
         return new_id, Observation(new_id, "init", template.centre_uv_px, mn, 1.0, 0.0, True)
 
@@ -461,11 +611,18 @@ class SlamPipeline:
 
 def _judged(candidate: MatchCandidate, res: UpdateResult) -> MatchCandidate:
     """A match with the outcome of the filter's update (3) on it."""
-    return dataclasses.replace(candidate, updated=True, accepted=res.accepted, nis=res.nis, innovation_px=res.innovation_px)
+    return dataclasses.replace(
+        candidate, updated=True, accepted=res.accepted, nis=res.nis, innovation_px=res.innovation_px
+    )
 
 
-def _counted(tracked: list[TrackedLandmark], decisions: tuple[MatchDecision, ...], t_s: float, confirm_after: int,
-             recovery: RecoveryMonitor) -> list[Observation]:
+def _counted(
+    tracked: list[TrackedLandmark],
+    decisions: tuple[MatchDecision, ...],
+    t_s: float,
+    confirm_after: int,
+    recovery: RecoveryMonitor,
+) -> list[Observation]:
     """Step 6: each match's decision counted in its landmark's record and by the recovery monitor; its observation."""
     observations = []
     for t, d in zip(tracked, decisions):
@@ -473,6 +630,7 @@ def _counted(tracked: list[TrackedLandmark], decisions: tuple[MatchDecision, ...
             t.record.observed(d.accepted, t_s, confirm_after)
         if t.record.confirmed and d.counts_search:  # found and refused still counts as missing
             recovery.searched(t.record.id, d.accepted)
-        observations.append(Observation(t.record.id, "track", t.uv_px, t.mn_px, t.score, d.nis, d.accepted, d.reason,
-                                        d.tentative))
+        observations.append(
+            Observation(t.record.id, "track", t.uv_px, t.mn_px, t.score, d.nis, d.accepted, d.reason, d.tentative)
+        )
     return observations

@@ -141,8 +141,9 @@ class FrameRecords:
     (:meth:`landmark_rows` reports the map in that frame's apparent frame).
     """
 
-    def __init__(self, config: RunConfig, scale: ProcessingScale, ekf: EkfSlam,
-                 apparent_sigmas: tuple[float, float, float]) -> None:
+    def __init__(
+        self, config: RunConfig, scale: ProcessingScale, ekf: EkfSlam, apparent_sigmas: tuple[float, float, float]
+    ) -> None:
         self.config = config
         self.scale = scale
         self.ekf = ekf
@@ -153,8 +154,10 @@ class FrameRecords:
         """Observations in full-resolution pixels: template centres, and [m, n] over the full focal length."""
         if self.scale.identity:
             return tuple(observations)
-        return tuple(dataclasses.replace(o, uv_px=self.scale.to_full_px(o.uv_px), mn_px=o.mn_px * self.scale.focal_ratio)
-                     for o in observations)
+        return tuple(
+            dataclasses.replace(o, uv_px=self.scale.to_full_px(o.uv_px), mn_px=o.mn_px * self.scale.focal_ratio)
+            for o in observations
+        )
 
     def measurements(self, step: FrameStep, compass_sigma_rad: float) -> FrameMeasurements:
         """This frame's measurements in plain numbers (:mod:`rovslam.slam.measurements`), for either back end."""
@@ -164,14 +167,22 @@ class FrameRecords:
         turn = speed is not None and speed.ok and math.isfinite(speed.dpsi_sigma_rad) and speed.dpsi_sigma_rad > 0
         landmarks = tuple(self._landmark_measurement(o, altitude_m, sigma_z) for o in step.observations)
         meas = FrameMeasurements(
-            index=frame.index, t_s=frame.t_s, dt_s=step.dt_s,
-            speed_mps=speed.speed_mps if speed else np.zeros(2), speed_cov_mps2=speed.cov_mps2 if speed else _NO_COV,
-            speed_ok=bool(speed.ok) if speed else False, heading_rad=heading.heading_rad,
+            index=frame.index,
+            t_s=frame.t_s,
+            dt_s=step.dt_s,
+            speed_mps=speed.speed_mps if speed else np.zeros(2),
+            speed_cov_mps2=speed.cov_mps2 if speed else _NO_COV,
+            speed_ok=bool(speed.ok) if speed else False,
+            heading_rad=heading.heading_rad,
             heading_sigma_rad=heading.sigma_rad if heading.sigma_rad is not None else slam.heading_sigma_rad,
-            compass_rad=frame.heading_rad, compass_sigma_rad=compass_sigma_rad,
+            compass_rad=frame.heading_rad,
+            compass_sigma_rad=compass_sigma_rad,
             heading_step_rad=speed.dpsi_rad if turn else math.nan,
             heading_step_sigma_rad=speed.dpsi_sigma_rad if turn else math.nan,
-            altitude_m=altitude_m, altitude_sigma_m=sigma_z, focal_px=self.scale.full.focal_px, landmarks=landmarks,
+            altitude_m=altitude_m,
+            altitude_sigma_m=sigma_z,
+            focal_px=self.scale.full.focal_px,
+            landmarks=landmarks,
             attitude_sigma_rad=self.config.odometry.attitude_sigma_rad if frame.has_attitude else 0.0,
         )
         self.last_measurements = meas
@@ -193,24 +204,43 @@ class FrameRecords:
 
         Pixels are reported in the full-resolution frame, whatever the processing scale.
         """
-        xy, altitude, speed, tracks, observations = estimate.xy_m, step.altitude, step.speed, step.tracks, step.observations
+        xy, altitude, speed, tracks, observations = (
+            estimate.xy_m,
+            step.altitude,
+            step.speed,
+            step.tracks,
+            step.observations,
+        )
         return FrameResult(
-            index=step.frame.index, t_s=step.frame.t_s, dt_s=step.dt_s, x_m=float(xy[0]), y_m=float(xy[1]),
+            index=step.frame.index,
+            t_s=step.frame.t_s,
+            dt_s=step.dt_s,
+            x_m=float(xy[0]),
+            y_m=float(xy[1]),
             cov_xy_m2=self.reported_cov(estimate.cov_xy_m2, xy, meas),
-            heading_rad=estimate.heading_rad, altitude_m=step.altitude_m,
+            heading_rad=estimate.heading_rad,
+            altitude_m=step.altitude_m,
             altitude_sigma_m=altitude.sigma_m if altitude else math.nan,
             altitude_source=altitude.source if altitude else "none",
             laser_spots_uv_px=altitude.spots_uv_px if altitude else _NO_POINTS,
-            surge_mps=speed.surge_mps if speed else 0.0, sway_mps=speed.sway_mps if speed else 0.0,
-            speed_ok=bool(speed.ok) if speed else False, speed_cov_mps2=speed.cov_mps2 if speed else _NO_COV,
-            tokens_given=tracks.n_given if tracks else 0, tokens_tracked=tracks.n_tracked if tracks else 0,
+            surge_mps=speed.surge_mps if speed else 0.0,
+            sway_mps=speed.sway_mps if speed else 0.0,
+            speed_ok=bool(speed.ok) if speed else False,
+            speed_cov_mps2=speed.cov_mps2 if speed else _NO_COV,
+            tokens_given=tracks.n_given if tracks else 0,
+            tokens_tracked=tracks.n_tracked if tracks else 0,
             tokens_inliers=speed.n_inliers if speed else 0,
             used_global_search=tracks.used_global_search if tracks else False,
             landmarks_visible=step.visible,
             landmarks_tracked=sum(o.accepted for o in observations if o.kind == "track"),
-            n_landmarks=self.ekf.n_landmarks, observations=observations, new_landmark_id=step.new_id,
-            dr_x_m=float(step.dr_m[0]), dr_y_m=float(step.dr_m[1]), skipped_reason=step.skipped_reason,
-            token_uv_px=self.scale.to_full_px(tracks.uv_curr_px) if tracks else _NO_POINTS, measurements=meas,
+            n_landmarks=self.ekf.n_landmarks,
+            observations=observations,
+            new_landmark_id=step.new_id,
+            dr_x_m=float(step.dr_m[0]),
+            dr_y_m=float(step.dr_m[1]),
+            skipped_reason=step.skipped_reason,
+            token_uv_px=self.scale.to_full_px(tracks.uv_curr_px) if tracks else _NO_POINTS,
+            measurements=meas,
             recovery=step.recovery,
         )
 
@@ -224,8 +254,12 @@ class FrameRecords:
         """
         heading_sigma_rad, altitude_sigma_m, altitude_scale = self.apparent_sigmas
         return np.asarray(cov_m2, dtype=np.float64) + apparent_frame_cov_m2(
-            xy_m, meas.altitude_m, meas.attitude_sigma_rad, heading_sigma_rad if meas.has_compass else 0.0,
-            altitude_offset_sigma_m(altitude_sigma_m, altitude_scale, meas.altitude_m) / meas.altitude_m)
+            xy_m,
+            meas.altitude_m,
+            meas.attitude_sigma_rad,
+            heading_sigma_rad if meas.has_compass else 0.0,
+            altitude_offset_sigma_m(altitude_sigma_m, altitude_scale, meas.altitude_m) / meas.altitude_m,
+        )
 
     def landmark_rows(self, landmarks: Sequence[LandmarkRecord]) -> list[dict]:
         """The map for landmarks.csv; covariances with the apparent frame's errors (at the last frame's altitude)."""
@@ -236,11 +270,22 @@ class FrameRecords:
             if self.last_measurements is not None:
                 c = self.reported_cov(c, xy, self.last_measurements)
             rows.append(
-                {"id": rec.id, "x_m": float(xy[0]), "y_m": float(xy[1]), "var_x_m2": float(c[0, 0]),
-                 "cov_xy_m2": float(c[0, 1]), "var_y_m2": float(c[1, 1]), "first_t_s": rec.first_t_s,
-                 "observations": rec.observations, "local_variance": rec.local_variance,
-                 "height_m": self.ekf.landmark_height_m(rec.id), "height_sigma_m": self.ekf.landmark_height_sigma_m(rec.id),
-                 "self_similarity": rec.self_similarity, "confirmed": int(rec.confirmed), "rejected": rec.rejected}
+                {
+                    "id": rec.id,
+                    "x_m": float(xy[0]),
+                    "y_m": float(xy[1]),
+                    "var_x_m2": float(c[0, 0]),
+                    "cov_xy_m2": float(c[0, 1]),
+                    "var_y_m2": float(c[1, 1]),
+                    "first_t_s": rec.first_t_s,
+                    "observations": rec.observations,
+                    "local_variance": rec.local_variance,
+                    "height_m": self.ekf.landmark_height_m(rec.id),
+                    "height_sigma_m": self.ekf.landmark_height_sigma_m(rec.id),
+                    "self_similarity": rec.self_similarity,
+                    "confirmed": int(rec.confirmed),
+                    "rejected": rec.rejected,
+                }
             )
         return rows
 
@@ -248,9 +293,11 @@ class FrameRecords:
 # ---------------------------------------------------------------------- summary.json
 def sunlight_summary(opening_px: int, sunlit_frames: int, events: Sequence[SunlightEvent]) -> dict:
     """What ``summary.json`` says of the sunlight: frames it was taken out of, and when it changed."""
-    return {"opening_px": opening_px,
-            "frames_removed": int(sunlit_frames),
-            "changes": [{"frame": e.frame, "t_s": e.t_s, "removed": e.removed, "share": e.share} for e in events]}
+    return {
+        "opening_px": opening_px,
+        "frames_removed": int(sunlit_frames),
+        "changes": [{"frame": e.frame, "t_s": e.t_s, "removed": e.removed, "share": e.share} for e in events],
+    }
 
 
 def drag_means_mps(frames: int, sum_mps: np.ndarray, sigma_sum_mps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -272,20 +319,32 @@ def altitude_bias_summary(sigmas_m: Sequence[float]) -> dict:
     sig = np.asarray(sigmas_m, dtype=float)
     if sig.size == 0:
         return {"predictions": 0, "sigma_median_m": None, "sigma_p95_m": None}
-    return {"predictions": int(sig.size), "sigma_median_m": float(np.median(sig)),
-            "sigma_p95_m": float(np.percentile(sig, 95))}
+    return {
+        "predictions": int(sig.size),
+        "sigma_median_m": float(np.median(sig)),
+        "sigma_p95_m": float(np.percentile(sig, 95)),
+    }
 
 
-def sunlight_warnings(sunlight_px: int, sunlit_frames: int, n_frames: int, events: Sequence[SunlightEvent],
-                      drag_frames: int, drag_sum_mps: np.ndarray, drag_sigma_sum_mps: np.ndarray) -> list[str]:
+def sunlight_warnings(
+    sunlight_px: int,
+    sunlit_frames: int,
+    n_frames: int,
+    events: Sequence[SunlightEvent],
+    drag_frames: int,
+    drag_sum_mps: np.ndarray,
+    drag_sigma_sum_mps: np.ndarray,
+) -> list[str]:
     """One line for the run's warnings when the sunlight was taken out of any frame (of ``n_frames`` processed)."""
     if not sunlit_frames:
         return []
     first = next(e for e in events if e.removed)
-    return [f"bright light that does not move with the seabed (sunlight caustics) was seen from t = "
-            f"{first.t_s:.1f} s: bright structures narrower than {sunlight_px} px were "
-            f"removed from {sunlit_frames} of {n_frames} frames before tracking ([bandpass] sunlight_px; "
-            "0 turns this off)" + _drag_note(drag_frames, drag_sum_mps, drag_sigma_sum_mps)]
+    return [
+        f"bright light that does not move with the seabed (sunlight caustics) was seen from t = "
+        f"{first.t_s:.1f} s: bright structures narrower than {sunlight_px} px were "
+        f"removed from {sunlit_frames} of {n_frames} frames before tracking ([bandpass] sunlight_px; "
+        "0 turns this off)" + _drag_note(drag_frames, drag_sum_mps, drag_sigma_sum_mps)
+    ]
 
 
 def _drag_note(frames: int, sum_mps: np.ndarray, sigma_sum_mps: np.ndarray) -> str:
@@ -293,5 +352,7 @@ def _drag_note(frames: int, sum_mps: np.ndarray, sigma_sum_mps: np.ndarray) -> s
         return ""
     mean, sigma = drag_means_mps(frames, sum_mps, sigma_sum_mps)
     (wx, wy), (sx, sy) = mean * 1e3, sigma * 1e3
-    return (f"; the drag it leaves on the speed, as the filter estimated it (mean over those frames): "
-            f"{wx:+.1f} +- {sx:.1f} mm/s north, {wy:+.1f} +- {sy:.1f} mm/s east ([slam] speed_bias_sigma_mps)")
+    return (
+        f"; the drag it leaves on the speed, as the filter estimated it (mean over those frames): "
+        f"{wx:+.1f} +- {sx:.1f} mm/s north, {wy:+.1f} +- {sy:.1f} mm/s east ([slam] speed_bias_sigma_mps)"
+    )

@@ -35,8 +35,14 @@ __all__ = ["LandmarkSearch"]
 class LandmarkSearch:
     """Where each landmark should be in this frame, what its template matched there, and new landmarks."""
 
-    def __init__(self, config: RunConfig, scale: ProcessingScale, ekf: EkfSlam, landmarks: list[LandmarkRecord],
-                 recovery: RecoveryMonitor) -> None:
+    def __init__(
+        self,
+        config: RunConfig,
+        scale: ProcessingScale,
+        ekf: EkfSlam,
+        landmarks: list[LandmarkRecord],
+        recovery: RecoveryMonitor,
+    ) -> None:
         self.config = config
         self.scale = scale
         self.camera = scale.camera
@@ -46,11 +52,18 @@ class LandmarkSearch:
         self.recovery = recovery
         # The tracker settings of a wide search (built once: a checked dataclass costs 50 us to build)
         self._strict_tracker = dataclasses.replace(
-            config.tracker, min_correlation=config.association.strong_correlation,
-            max_second_peak_ratio=min(config.tracker.max_second_peak_ratio, 0.9))
+            config.tracker,
+            min_correlation=config.association.strong_correlation,
+            max_second_peak_ratio=min(config.tracker.max_second_peak_ratio, 0.9),
+        )
 
     def track(
-        self, track_img: np.ndarray, alt: AltitudeEstimate, att: tuple[float, float], prior: HeadingPrior, dt_s: float,
+        self,
+        track_img: np.ndarray,
+        alt: AltitudeEstimate,
+        att: tuple[float, float],
+        prior: HeadingPrior,
+        dt_s: float,
         last_speed_mps: np.ndarray | None,
     ) -> tuple[np.ndarray, list[TrackedLandmark]]:
         """Search the landmarks that pass the visibility gate (5) around their predicted position.
@@ -74,9 +87,14 @@ class LandmarkSearch:
         psi_map = self.ekf.map_heading_rad(psi)
         half = lm.size_px / 2.0
         assoc = self.config.association
-        inside = [k for k, uv in enumerate(uv_pred)
-                  if not self.landmarks[int(visible[k])].dead and inside_image(uv, half - 2, self.camera)]
-        wide = self.recovery.wide_candidates(int(visible[k]) for k in inside if self.landmarks[int(visible[k])].confirmed)
+        inside = [
+            k
+            for k, uv in enumerate(uv_pred)
+            if not self.landmarks[int(visible[k])].dead and inside_image(uv, half - 2, self.camera)
+        ]
+        wide = self.recovery.wide_candidates(
+            int(visible[k]) for k in inside if self.landmarks[int(visible[k])].confirmed
+        )
         # A landmark lost for several frames: a wider window, and only clear, unambiguous matches.
         strict = self._strict_tracker
         tracked = []
@@ -86,24 +104,30 @@ class LandmarkSearch:
             if i in wide:
                 m = match_template(track_img, oriented_patch(rec, psi_map), uv, assoc.wide_search_radius_px, strict)
             else:
-                m = match_template(track_img, oriented_patch(rec, psi_map), uv, search_radius_px(s, slack_px, lm),
-                                   self.config.tracker)
+                m = match_template(
+                    track_img, oriented_patch(rec, psi_map), uv, search_radius_px(s, slack_px, lm), self.config.tracker
+                )
             if not (m.ok and inside_image(m.uv_px, half, self.camera)):
                 if rec.confirmed:
                     self.recovery.searched(i, False)
                 continue
             spots_px = self.scale.to_processed_px(alt.spots_uv_px)
             refused = REASON_LASER if covers_laser_spot(m.uv_px, spots_px, lm.size_px) else ""
-            tracked.append(TrackedLandmark(rec, m.uv_px, pixels_to_mn(self.camera, m.uv_px, z, *att)[0], m.score, refused))
+            tracked.append(
+                TrackedLandmark(rec, m.uv_px, pixels_to_mn(self.camera, m.uv_px, z, *att)[0], m.score, refused)
+            )
         return visible, tracked
 
-    def _expected_motion(self, prior: HeadingPrior, altitude_m: float, dt_s: float,
-                         last_speed_mps: np.ndarray | None) -> tuple[np.ndarray, float]:
+    def _expected_motion(
+        self, prior: HeadingPrior, altitude_m: float, dt_s: float, last_speed_mps: np.ndarray | None
+    ) -> tuple[np.ndarray, float]:
         """Vehicle displacement since the last frame by (1) with the last speed, and the search slack in pixels."""
         px_per_m = self.focal_px / altitude_m
         if last_speed_mps is not None and dt_s > 0:
             heading = self.ekf.map_heading_rad(prior.previous_rad)
-            return motion_step_m(last_speed_mps, heading, dt_s), px_per_m * self.config.odometry.gap_speed_sigma_mps * dt_s
+            return motion_step_m(
+                last_speed_mps, heading, dt_s
+            ), px_per_m * self.config.odometry.gap_speed_sigma_mps * dt_s
         # No speed measured yet: the survey speed bounds the motion either way.
         return np.zeros(2), px_per_m * self.config.odometry.survey_speed_mps * dt_s
 
@@ -120,8 +144,15 @@ class LandmarkSearch:
             return None
         lm, assoc = self.config.landmark_templates, self.config.association
         cands = extract_templates(
-            track_img, local_variance(track_img, lm.size_px), lm.size_px, assoc.candidates, lm.min_local_variance,
-            lm.border_px, mask, None, assoc.max_self_similarity if assoc.max_self_similarity < 1.0 else None,
+            track_img,
+            local_variance(track_img, lm.size_px),
+            lm.size_px,
+            assoc.candidates,
+            lm.min_local_variance,
+            lm.border_px,
+            mask,
+            None,
+            assoc.max_self_similarity if assoc.max_self_similarity < 1.0 else None,
             assoc.similarity_radius_px,
         )
         return most_distinctive(cands)

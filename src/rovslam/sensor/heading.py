@@ -68,8 +68,15 @@ class HeadingFilter:
     of a step is ``dpsi_sigma^2`` times the scale the windows show (never less than 1).
     """
 
-    def __init__(self, compass_sigma_rad: float, learn_noise: bool = False, gate_sigmas: float = 0.0,
-                 gate_max_readings: int = 0, learn_turn_noise: bool = False, turn_window_steps: int = 25):
+    def __init__(
+        self,
+        compass_sigma_rad: float,
+        learn_noise: bool = False,
+        gate_sigmas: float = 0.0,
+        gate_max_readings: int = 0,
+        learn_turn_noise: bool = False,
+        turn_window_steps: int = 25,
+    ):
         self.compass_sigma_rad = float(compass_sigma_rad)
         self.learn_turn_noise = bool(learn_turn_noise)
         self.turn_window_steps = int(turn_window_steps)
@@ -164,8 +171,9 @@ class HeadingFilter:
             return 1.0
         return 1.0 + excess * excess / (excess * excess + se * se) * excess / claimed
 
-    def _learn_turn_noise(self, previous_compass_rad: float | None, compass_rad: float, dpsi_rad: float,
-                          dpsi_var_rad2: float) -> None:
+    def _learn_turn_noise(
+        self, previous_compass_rad: float | None, compass_rad: float, dpsi_rad: float, dpsi_var_rad2: float
+    ) -> None:
         """One measured step whose reading was taken (``previous_compass_rad``: the step's first reading,
         None when it was not taken): one single-step sample; slide the window, add its sample when full."""
         if previous_compass_rad is None:
@@ -217,8 +225,13 @@ class HeadingFilter:
         self.refused_last = True
         return True
 
-    def update(self, compass_rad: float, dpsi_rad: float | None = None, dpsi_sigma_rad: float = math.inf,
-               unmeasured_sigma_rad: float = NO_COMPASS_STEP_SIGMA_RAD) -> float:
+    def update(
+        self,
+        compass_rad: float,
+        dpsi_rad: float | None = None,
+        dpsi_sigma_rad: float = math.inf,
+        unmeasured_sigma_rad: float = NO_COMPASS_STEP_SIGMA_RAD,
+    ) -> float:
         """One step: the compass reading of this frame and the measured change since the last one.
 
         A NaN compass (a video without navigation) leaves the tokens alone: the heading is
@@ -330,11 +343,14 @@ class HeadingTracker:
     def __init__(self, odometry: OdometryConfig = OdometryConfig(), slam: SlamConfig = SlamConfig()):
         self.odometry = odometry
         self.slam = slam
-        self.filter = HeadingFilter(odometry.compass_sigma_rad, learn_noise=odometry.compass_sigma_learned,
-                                    gate_sigmas=odometry.compass_gate_sigmas,
-                                    gate_max_readings=odometry.compass_gate_max_readings,
-                                    learn_turn_noise=odometry.turn_noise_learned,
-                                    turn_window_steps=odometry.turn_noise_window_steps)
+        self.filter = HeadingFilter(
+            odometry.compass_sigma_rad,
+            learn_noise=odometry.compass_sigma_learned,
+            gate_sigmas=odometry.compass_gate_sigmas,
+            gate_max_readings=odometry.compass_gate_max_readings,
+            learn_turn_noise=odometry.turn_noise_learned,
+            turn_window_steps=odometry.turn_noise_window_steps,
+        )
         self._previous_rad: float | None = None  # filtered heading of the previous frame
         self._previous_compass_rad: float | None = None
         self.has_compass = True  # whether the last frame had a compass reading
@@ -351,26 +367,37 @@ class HeadingTracker:
     def compass_summary(self) -> dict:
         """What ``summary.json`` says of the compass noise: configured and learned (degrees; None: not learned)."""
         learned = self.filter.learned_compass_sigma_rad
-        return {"sigma_configured_deg": math.degrees(self.odometry.compass_sigma_rad),
-                "sigma_learned_deg": None if learned is None else math.degrees(learned),
-                "sigma_used_deg": math.degrees(self.compass_sigma_rad), "learning": self.filter.learn_noise,
-                "readings_refused": self.filter.refused_readings,
-                "token_turn_noise_scale": self.filter.turn_noise_scale}
+        return {
+            "sigma_configured_deg": math.degrees(self.odometry.compass_sigma_rad),
+            "sigma_learned_deg": None if learned is None else math.degrees(learned),
+            "sigma_used_deg": math.degrees(self.compass_sigma_rad),
+            "learning": self.filter.learn_noise,
+            "readings_refused": self.filter.refused_readings,
+            "token_turn_noise_scale": self.filter.turn_noise_scale,
+        }
 
     def compass_warnings(self) -> list[str]:
         """One line when the compass was found much noisier than configured, one when readings were refused."""
         out = []
         if self.filter.refused_readings:
-            out.append(f"{self.filter.refused_readings} compass reading(s) refused as glitches: more than "
-                       f"{self.odometry.compass_gate_sigmas:g} sigma from the heading the tokens' turn predicts "
-                       "([odometry] compass_gate_sigmas; 0 keeps every reading)")
+            out.append(
+                f"{self.filter.refused_readings} compass reading(s) refused as glitches: more than "
+                f"{self.odometry.compass_gate_sigmas:g} sigma from the heading the tokens' turn predicts "
+                "([odometry] compass_gate_sigmas; 0 keeps every reading)"
+            )
         learned, configured = self.filter.learned_compass_sigma_rad, self.odometry.compass_sigma_rad
         if learned is None or configured == 0 or learned < COMPASS_NOISIER_WARNING * configured:
             return out
-        return out + [f"the compass readings scatter by {math.degrees(learned):.2f} deg against the turns the tokens "
-                f"measure, more than the {math.degrees(configured):.2f} deg configured ([odometry] compass_sigma_rad "
-                f"= {configured:g}); " + ("the learned value was used" if self.filter.learn_noise else
-                                          f"set compass_sigma_rad = {learned:.4f} or compass_sigma_learned = true")]
+        return out + [
+            f"the compass readings scatter by {math.degrees(learned):.2f} deg against the turns the tokens "
+            f"measure, more than the {math.degrees(configured):.2f} deg configured ([odometry] compass_sigma_rad "
+            f"= {configured:g}); "
+            + (
+                "the learned value was used"
+                if self.filter.learn_noise
+                else f"set compass_sigma_rad = {learned:.4f} or compass_sigma_learned = true"
+            )
+        ]
 
     def prior(self, compass_rad: float, dt_s: float | None = None) -> HeadingPrior:
         """The heading before the tokens: previous heading and compass step (first frame: the compass, or 0).
@@ -396,8 +423,9 @@ class HeadingTracker:
             step, step_sigma = 0.0, turn_sigma  # a glitch: the tokens alone find this turn
         return HeadingPrior(compass_rad, previous, step, step_sigma)
 
-    def update(self, prior: HeadingPrior, dpsi_rad: float | None, dpsi_sigma_rad: float,
-               dt_s: float | None = None) -> HeadingEstimate:
+    def update(
+        self, prior: HeadingPrior, dpsi_rad: float | None, dpsi_sigma_rad: float, dt_s: float | None = None
+    ) -> HeadingEstimate:
         """Fuse the compass with the turn the tokens measured (``dpsi_rad`` None: not measured).
 
         ``dt_s``: the step's duration, which bounds an unmeasured turn without a compass

@@ -49,8 +49,9 @@ def tokens_at_frame_time(
     return a - rate * ta[:, None], b - rate * tb[:, None]
 
 
-def mn_rate_px_s(mn_px: np.ndarray, speed_mps: np.ndarray, yaw_rate_radps: float, depth_m: float,
-                 focal_px: float) -> np.ndarray:
+def mn_rate_px_s(
+    mn_px: np.ndarray, speed_mps: np.ndarray, yaw_rate_radps: float, depth_m: float, focal_px: float
+) -> np.ndarray:
     """How fast a seabed point's ``[m, n]`` of (3) moves in the image, pixels per second.
 
     Differentiating (3), ``[m, n] = f / Z R(psi)^T (X - x)``, with the vehicle moving at

@@ -55,7 +55,10 @@ SUNLIGHT_BASELINE_S = 0.2
 
 
 def moving_light_share(
-    bright_prev: np.ndarray, bright_curr: np.ndarray, uv_prev_px: np.ndarray, uv_curr_px: np.ndarray,
+    bright_prev: np.ndarray,
+    bright_curr: np.ndarray,
+    uv_prev_px: np.ndarray,
+    uv_curr_px: np.ndarray,
     size_px: int = 16,
 ) -> float:
     """How much of the bright structures around the tokens did not move with them.
@@ -122,8 +125,13 @@ def _similarity_lsq(p: np.ndarray, q: np.ndarray) -> np.ndarray:
 def _windows(img: np.ndarray, centres: np.ndarray, off: np.ndarray) -> np.ndarray:
     """``(N, S*S) float32``: ``img`` sampled (bilinear, border replicated) at each centre plus the offsets."""
     pts = (centres[:, None, :] + off[None, :, :]).astype(np.float32)  # (N, S*S, 2)
-    out = cv2.remap(img, np.ascontiguousarray(pts[..., 0]), np.ascontiguousarray(pts[..., 1]), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE)
+    out = cv2.remap(
+        img,
+        np.ascontiguousarray(pts[..., 0]),
+        np.ascontiguousarray(pts[..., 1]),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    )
     return out.astype(np.float32, copy=False)
 
 
@@ -203,11 +211,16 @@ class SunlightMonitor:
     then the usual average.
     """
 
-    def __init__(self, on_share: float = SUNLIGHT_ON_SHARE, off_share: float = SUNLIGHT_OFF_SHARE,
-                 smoothing: float = SUNLIGHT_SMOOTHING):
+    def __init__(
+        self,
+        on_share: float = SUNLIGHT_ON_SHARE,
+        off_share: float = SUNLIGHT_OFF_SHARE,
+        smoothing: float = SUNLIGHT_SMOOTHING,
+    ):
         if not (0.0 < off_share < on_share and 0.0 < smoothing <= 1.0):
-            raise ValueError(f"need 0 < off_share < on_share and smoothing in (0, 1]; got "
-                             f"{off_share}, {on_share}, {smoothing}")
+            raise ValueError(
+                f"need 0 < off_share < on_share and smoothing in (0, 1]; got {off_share}, {on_share}, {smoothing}"
+            )
         self.on_share, self.off_share = float(on_share), float(off_share)
         self.smoothing = float(smoothing)
         self.share = 0.0

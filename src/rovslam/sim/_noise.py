@@ -76,9 +76,9 @@ def _bspline_weights(frac: np.ndarray) -> np.ndarray:
     f = frac
     f2 = f * f
     f3 = f2 * f
-    return np.stack(
-        [(1.0 - f) ** 3, 3.0 * f3 - 6.0 * f2 + 4.0, -3.0 * f3 + 3.0 * f2 + 3.0 * f + 1.0, f3], axis=-1
-    ) * (1.0 / 6.0)
+    return np.stack([(1.0 - f) ** 3, 3.0 * f3 - 6.0 * f2 + 4.0, -3.0 * f3 + 3.0 * f2 + 3.0 * f + 1.0, f3], axis=-1) * (
+        1.0 / 6.0
+    )
 
 
 def _layer_offset(key: np.uint64) -> tuple[float, float]:

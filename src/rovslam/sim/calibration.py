@@ -47,8 +47,10 @@ class CalibrationErrors:
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise SimulationError(f"CalibrationErrors.{name} must be a finite number >= 0, got {value!r}")
         if self.laser_baseline_sigma >= 0.1:
-            raise SimulationError(f"CalibrationErrors.laser_baseline_sigma must be below 0.1 (10 % of the rig), "
-                                  f"got {self.laser_baseline_sigma}")
+            raise SimulationError(
+                f"CalibrationErrors.laser_baseline_sigma must be below 0.1 (10 % of the rig), "
+                f"got {self.laser_baseline_sigma}"
+            )
 
 
 @dataclass(frozen=True)
@@ -67,8 +69,10 @@ class DrawnCalibration:
             if not (isinstance(value, (int, float)) and math.isfinite(value)):
                 raise SimulationError(f"DrawnCalibration.{name} must be a finite number, got {value!r}")
         if abs(self.laser_baseline_error) >= 0.5:
-            raise SimulationError(f"DrawnCalibration.laser_baseline_error must be within +-0.5 (50 % of the rig), "
-                                  f"got {self.laser_baseline_error}")
+            raise SimulationError(
+                f"DrawnCalibration.laser_baseline_error must be within +-0.5 (50 % of the rig), "
+                f"got {self.laser_baseline_error}"
+            )
 
     def metadata(self) -> dict[str, float]:
         """The ``[metadata]`` entries of ``sequence.toml`` that record the drawn errors."""

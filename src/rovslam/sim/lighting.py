@@ -40,7 +40,9 @@ class Lamp:
     def __post_init__(self) -> None:
         d = np.asarray(self.direction, dtype=float)
         if d.shape != (3,) or not np.all(np.isfinite(d)) or d[2] <= 0:
-            raise SimulationError(f"Lamp.direction must be 3 finite numbers pointing down (z > 0), got {self.direction}")
+            raise SimulationError(
+                f"Lamp.direction must be 3 finite numbers pointing down (z > 0), got {self.direction}"
+            )
         if len(self.position_m) != 3 or not np.all(np.isfinite(self.position_m)):
             raise SimulationError(f"Lamp.position_m must be 3 finite numbers, got {self.position_m}")
         if not (0.05 <= self.beam_half_angle_rad <= 1.4):
@@ -90,7 +92,9 @@ class LightingParams:
         if not self.lamps:
             raise SimulationError("LightingParams.lamps needs at least one Lamp")
         if not (self.reference_altitude_m > 0.1):
-            raise SimulationError(f"LightingParams.reference_altitude_m must be > 0.1 m, got {self.reference_altitude_m}")
+            raise SimulationError(
+                f"LightingParams.reference_altitude_m must be > 0.1 m, got {self.reference_altitude_m}"
+            )
         if not (0.0 <= self.ambient <= 1.0):
             raise SimulationError(f"LightingParams.ambient must be in [0, 1], got {self.ambient}")
         if not (0 <= self.shadow_samples <= 16):
@@ -134,8 +138,9 @@ def reference_irradiance(params: LightingParams) -> float:
     total = 0.0
     for lamp in params.lamps:
         axis = np.asarray(lamp.direction, dtype=np.float64) / np.linalg.norm(lamp.direction)
-        e, _, _ = lamp_irradiance(np.asarray(lamp.position_m), axis, lamp.beam_exponent, 0 * one, 0 * one, z * one,
-                                  0 * one, 0 * one, -one)
+        e, _, _ = lamp_irradiance(
+            np.asarray(lamp.position_m), axis, lamp.beam_exponent, 0 * one, 0 * one, z * one, 0 * one, 0 * one, -one
+        )
         total += lamp.intensity * float(e[0, 0])
     return total
 

@@ -118,8 +118,9 @@ class LiveSimulator:
     fly (a canvas covering it is built once); None: canvases grow as frames need them.
     """
 
-    def __init__(self, scenario: str | Scenario, seed: int = 0,
-                 area_m: tuple[float, float, float, float] | None = None) -> None:
+    def __init__(
+        self, scenario: str | Scenario, seed: int = 0, area_m: tuple[float, float, float, float] | None = None
+    ) -> None:
         if isinstance(scenario, str):
             if scenario not in SCENARIOS:
                 raise SimulationError(f"unknown scenario {scenario!r}; choose one of: {', '.join(SCENARIOS)}")
@@ -142,10 +143,17 @@ class LiveSimulator:
 
             self._codec = H264RoundTrip(sc.camera.width_px, sc.camera.height_px, sc.frame_rate_hz, sc.h264)
         self.info = SequenceInfo(
-            name=f"rovslam closed loop {sc.name} (seed {self.seed})", camera=sc.recorded_camera, lasers=sc.lasers,
-            metadata={"generator": "rovslam.sim.live", "scenario": sc.name, "seed": self.seed,
-                      "frame_rate_hz": float(sc.frame_rate_hz), "texture": texture_note,
-                      "nominal_altitude_m": float(sc.vehicle.altitude_m)},
+            name=f"rovslam closed loop {sc.name} (seed {self.seed})",
+            camera=sc.recorded_camera,
+            lasers=sc.lasers,
+            metadata={
+                "generator": "rovslam.sim.live",
+                "scenario": sc.name,
+                "seed": self.seed,
+                "frame_rate_hz": float(sc.frame_rate_hz),
+                "texture": texture_note,
+                "nominal_altitude_m": float(sc.vehicle.altitude_m),
+            },
         )
 
     @property
@@ -166,17 +174,28 @@ class LiveSimulator:
             return float(state.altitude_m)
         from rovslam.sim.relief import sonar_first_return_m
 
-        return float(sonar_first_return_m(self.world.relief, np.array([state.x_m]), np.array([state.y_m]),
-                                          np.array([state.altitude_m]),
-                                          self.scenario.nav.sonar_beam_half_angle_rad)[0])
+        return float(
+            sonar_first_return_m(
+                self.world.relief,
+                np.array([state.x_m]),
+                np.array([state.y_m]),
+                np.array([state.altitude_m]),
+                self.scenario.nav.sonar_beam_half_angle_rad,
+            )[0]
+        )
 
     def render(self, k: int, state: TrueState) -> np.ndarray:
         """Frame ``k``'s image seen from ``state``: ``(H, W, 3) uint8`` RGB (motion blur, rolling shutter included)."""
         if self.world.relief is not None and state.altitude_m - self.world.relief.height_range_m[1] < 0.05:
             raise SimulationError(f"frame {k}: the vehicle at altitude {state.altitude_m:.3f} m touches the relief")
         image = self.renderer.render(
-            self.world, state.pose, self.scenario.lasers, frame_rng(self.seed, k),
-            velocity_mps=(state.surge_mps, state.sway_mps), t_s=state.t_s, yaw_rate_radps=state.yaw_rate_radps,
+            self.world,
+            state.pose,
+            self.scenario.lasers,
+            frame_rng(self.seed, k),
+            velocity_mps=(state.surge_mps, state.sway_mps),
+            t_s=state.t_s,
+            yaw_rate_radps=state.yaw_rate_radps,
         )
         return image if self._codec is None else self._codec.push(image)
 
@@ -185,9 +204,17 @@ class LiveSimulator:
         image = self.render(k, state)
         heading, sonar, roll, pitch = self.sensors.read(state, self.sonar_range_m(state))
         tilted = self.scenario.tilted
-        return Frame(index=k, t_s=float(state.t_s), image=image, heading_rad=heading, sonar_altitude_m=sonar,
-                     roll_rad=roll if tilted else 0.0, pitch_rad=pitch if tilted else 0.0, has_attitude=tilted,
-                     source=f"live:{k}")
+        return Frame(
+            index=k,
+            t_s=float(state.t_s),
+            image=image,
+            heading_rad=heading,
+            sonar_altitude_m=sonar,
+            roll_rad=roll if tilted else 0.0,
+            pitch_rad=pitch if tilted else 0.0,
+            has_attitude=tilted,
+            source=f"live:{k}",
+        )
 
     def close(self) -> None:
         if self._codec is not None:

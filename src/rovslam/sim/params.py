@@ -61,25 +61,38 @@ class SensorParams:
     readout_s: float = 0.0  # rolling shutter: time from the first to the last row (0: global shutter)
 
     def __post_init__(self) -> None:
-        for name in ("exposure_gain", "vignetting_power", "exposure_s", "antialias", "shot_noise_dn",
-                     "read_noise_dn", "psf_sigma_px", "psf_glare_sigma_px", "readout_s"):
+        for name in (
+            "exposure_gain",
+            "vignetting_power",
+            "exposure_s",
+            "antialias",
+            "shot_noise_dn",
+            "read_noise_dn",
+            "psf_sigma_px",
+            "psf_glare_sigma_px",
+            "readout_s",
+        ):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise SimulationError(f"SensorParams.{name} must be a finite number >= 0, got {v}")
         if not (0.0 < self.light_corner_ratio <= 1.0):
-            raise SimulationError(
-                f"SensorParams.light_corner_ratio must be in (0, 1], got {self.light_corner_ratio}"
-            )
+            raise SimulationError(f"SensorParams.light_corner_ratio must be in (0, 1], got {self.light_corner_ratio}")
         if self.jpeg_quality is not None and not (1 <= self.jpeg_quality <= 100):
             raise SimulationError(f"SensorParams.jpeg_quality must be in 1..100 or None, got {self.jpeg_quality}")
         if not (0.0 <= self.psf_glare_fraction < 1.0):
             raise SimulationError(f"SensorParams.psf_glare_fraction must be in [0, 1), got {self.psf_glare_fraction}")
 
     @classmethod
-    def ideal(cls) -> "SensorParams":
+    def ideal(cls) -> SensorParams:
         """Flat, noiseless, blur-free sensor (for geometry tests): unit gain, no falloff, no noise."""
-        return cls(exposure_gain=1.0, vignetting_power=0.0, light_corner_ratio=1.0, exposure_s=0.0,
-                   shot_noise_dn=0.0, read_noise_dn=0.0)
+        return cls(
+            exposure_gain=1.0,
+            vignetting_power=0.0,
+            light_corner_ratio=1.0,
+            exposure_s=0.0,
+            shot_noise_dn=0.0,
+            read_noise_dn=0.0,
+        )
 
 
 @dataclass(frozen=True)
@@ -102,8 +115,16 @@ class LaserSpotParams:
     crosstalk_blue: float = 0.01
 
     def __post_init__(self) -> None:
-        for name in ("peak_dn", "spot_diameter_mm", "optics_sigma_px", "halo_fraction", "halo_sigma_px", "speckle",
-                     "crosstalk_green", "crosstalk_blue"):
+        for name in (
+            "peak_dn",
+            "spot_diameter_mm",
+            "optics_sigma_px",
+            "halo_fraction",
+            "halo_sigma_px",
+            "speckle",
+            "crosstalk_green",
+            "crosstalk_blue",
+        ):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise SimulationError(f"LaserSpotParams.{name} must be a finite number >= 0, got {v}")

@@ -122,24 +122,31 @@ class RayCaster:
                 f"the relief reaches {h_hi:.3f} m above the mean seabed: the camera at {z:.3f} m would touch it; "
                 f"fly higher or lower the relief"
             )
-        box = (float(cx.min()) + min(t_lo * float(dx.min()), t_hi * float(dx.min())),
-               float(cx.max()) + max(t_lo * float(dx.max()), t_hi * float(dx.max())),
-               float(cy.min()) + min(t_lo * float(dy.min()), t_hi * float(dy.min())),
-               float(cy.max()) + max(t_lo * float(dy.max()), t_hi * float(dy.max())))
+        box = (
+            float(cx.min()) + min(t_lo * float(dx.min()), t_hi * float(dx.min())),
+            float(cx.max()) + max(t_lo * float(dx.max()), t_hi * float(dx.max())),
+            float(cy.min()) + min(t_lo * float(dy.min()), t_hi * float(dy.min())),
+            float(cy.max()) + max(t_lo * float(dy.max()), t_hi * float(dy.max())),
+        )
         relief_maps = None
         slopes = None
         t = np.float32(z)
         if world.relief is not None:
             inv_r = 1.0 / world.relief.texel_m
-            rc = world.relief_canvas(int(np.floor(box[0] * inv_r)) - 1, int(np.ceil(box[1] * inv_r)) + 2,
-                                     int(np.floor(box[2] * inv_r)) - 1, int(np.ceil(box[3] * inv_r)) + 2)
+            rc = world.relief_canvas(
+                int(np.floor(box[0] * inv_r)) - 1,
+                int(np.ceil(box[1] * inv_r)) + 2,
+                int(np.floor(box[2] * inv_r)) - 1,
+                int(np.ceil(box[3] * inv_r)) + 2,
+            )
             a_row = (cx * inv_r - rc.row0).astype(np.float32)
             a_col = (cy * inv_r - rc.col0).astype(np.float32)
             b_row, b_col = dx * np.float32(inv_r), dy * np.float32(inv_r)
             zf = np.float32(z)
             for _ in range(RAY_ITERATIONS):  # Newton on g(t) = t - Z + h(C + t D), g' = 1 + grad h . D
-                hs = cv2.remap(rc.relief, a_col + t * b_col, a_row + t * b_row, cv2.INTER_LINEAR,
-                               borderMode=cv2.BORDER_REPLICATE)
+                hs = cv2.remap(
+                    rc.relief, a_col + t * b_col, a_row + t * b_row, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+                )
                 h, sx, sy = cv2.split(hs)
                 dg = np.maximum(1.0 + sx * dx + sy * dy, np.float32(0.25))
                 t = t - (t - zf + h) / dg
@@ -156,13 +163,24 @@ class RayCaster:
         blur = self.sensor.antialias * texels_per_px if texels_per_px > 1.0 else 0.0
         # (a prefilter of at least 0.8 texel allows keeping every 2nd texel: a 4x smaller canvas to sample)
         step = 2 if blur >= 0.8 else 1
-        canvas = world.canvas(int(np.floor(box[0] / tex)) - 2, int(np.ceil(box[1] / tex)) + 3,
-                              int(np.floor(box[2] / tex)) - 2, int(np.ceil(box[3] / tex)) + 3, blur, step)
+        canvas = world.canvas(
+            int(np.floor(box[0] / tex)) - 2,
+            int(np.ceil(box[1] / tex)) + 3,
+            int(np.floor(box[2] / tex)) - 2,
+            int(np.ceil(box[3] / tex)) + 3,
+            blur,
+            step,
+        )
         inv_t = 1.0 / (tex * step)
         col_a = ((cy / tex - canvas.col0) / step).astype(np.float32) + t * (dy * np.float32(inv_t))
         row_a = ((cx / tex - canvas.row0) / step).astype(np.float32) + t * (dx * np.float32(inv_t))
-        albedo = cv2.remap(canvas.texels, self.upsample(cv2.merge([col_a, row_a])), None, cv2.INTER_LINEAR,
-                           borderMode=cv2.BORDER_REPLICATE)
+        albedo = cv2.remap(
+            canvas.texels,
+            self.upsample(cv2.merge([col_a, row_a])),
+            None,
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
         return RayHits(t, albedo, slopes, ax, ay, sec, north.astype(np.float32), east.astype(np.float32), relief_maps)
 
     def upsample(self, grid: np.ndarray) -> np.ndarray:

@@ -154,9 +154,11 @@ class ProceduralRelief(ChunkedGrid):
             # The terrace edge is the zero contour of a slow field; dividing by the field's
             # gradient makes the face about ledge_width_m wide wherever it runs.
             # (evaluated with a one-texel apron, so the gradient is central everywhere: no seams)
-            f = (lattice_noise_grid(self.seed, _L_LEDGE, x0 - t, y0 - t, n + 2, n + 2, t, p.ledge_scale_m)
-                 + 0.25 * lattice_noise_grid(self.seed, _L_LEDGE_WARP, x0 - t, y0 - t, n + 2, n + 2, t,
-                                             p.ledge_scale_m / 3.0)).astype(np.float64)
+            f = (
+                lattice_noise_grid(self.seed, _L_LEDGE, x0 - t, y0 - t, n + 2, n + 2, t, p.ledge_scale_m)
+                + 0.25
+                * lattice_noise_grid(self.seed, _L_LEDGE_WARP, x0 - t, y0 - t, n + 2, n + 2, t, p.ledge_scale_m / 3.0)
+            ).astype(np.float64)
             g_north, g_east = np.gradient(f, t)
             f, slope = f[1:-1, 1:-1], np.hypot(g_north, g_east)[1:-1, 1:-1]
             dist = f / np.maximum(slope, 0.5 / p.ledge_scale_m)
@@ -313,8 +315,12 @@ def heights_at(relief: ReliefSource, x_m: np.ndarray, y_m: np.ndarray) -> np.nda
     ri, ci = np.floor(r).astype(np.int64), np.floor(c).astype(np.int64)
     fr, fc = r - ri, c - ci
     ri, ci = ri - r0, ci - c0
-    return ((1 - fr) * (1 - fc) * block[ri, ci] + (1 - fr) * fc * block[ri, ci + 1]
-            + fr * (1 - fc) * block[ri + 1, ci] + fr * fc * block[ri + 1, ci + 1])
+    return (
+        (1 - fr) * (1 - fc) * block[ri, ci]
+        + (1 - fr) * fc * block[ri, ci + 1]
+        + fr * (1 - fc) * block[ri + 1, ci]
+        + fr * fc * block[ri + 1, ci + 1]
+    )
 
 
 def sonar_first_return_m(

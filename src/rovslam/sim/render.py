@@ -135,8 +135,10 @@ class FrameRenderer:
         texels_per_px = pose.altitude_m / (cam.focal_px * world.texel_m)
         blur = self.sensor.antialias * texels_per_px if texels_per_px > 1.0 else 0.0
         canvas = world.canvas(
-            int(np.floor(b[:, 1].min())) - 1, int(np.ceil(b[:, 1].max())) + 2,
-            int(np.floor(b[:, 0].min())) - 1, int(np.ceil(b[:, 0].max())) + 2,
+            int(np.floor(b[:, 1].min())) - 1,
+            int(np.ceil(b[:, 1].max())) + 2,
+            int(np.floor(b[:, 0].min())) - 1,
+            int(np.ceil(b[:, 0].max())) + 2,
             blur,
         )
         shift = np.array([[1.0, 0.0, -canvas.col0], [0.0, 1.0, -canvas.row0], [0.0, 0.0, 1.0]])
@@ -144,7 +146,10 @@ class FrameRenderer:
         size = (cam.width_px, cam.height_px)
         if self._ideal_pts is None:
             return cv2.warpPerspective(
-                canvas.texels, hom, size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                canvas.texels,
+                hom,
+                size,
+                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                 borderMode=cv2.BORDER_REPLICATE,
             )
         maps = cv2.perspectiveTransform(self._ideal_pts, hom).reshape(cam.height_px, cam.width_px, 2)
@@ -171,8 +176,7 @@ class FrameRenderer:
         px, py = half + du * t, half + dv * t
         x0, y0 = np.floor(px).astype(int), np.floor(py).astype(int)
         fx, fy = px - x0, py - y0
-        for dx, dy, wgt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy),
-                            (1, 1, fx * fy)):
+        for dx, dy, wgt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
             np.add.at(kern, (y0 + dy, x0 + dx), wgt)  # bilinear splat of points along the line
         return (kern / kern.sum()).astype(np.float32)
 
@@ -203,14 +207,19 @@ class FrameRenderer:
         if len(snow.depth_m) == 0:
             return
         d = snow.depth_m
-        uv = ground_to_pixels(cam, np.column_stack([snow.forward_m / d, snow.starboard_m / d]), 1.0,
-                              pose.roll_rad, pose.pitch_rad)
+        uv = ground_to_pixels(
+            cam, np.column_stack([snow.forward_m / d, snow.starboard_m / d]), 1.0, pose.roll_rad, pose.pitch_rad
+        )
         f = cam.focal_px
         defocus = wp.lens_aperture_mm * 1e-3 * f * np.abs(1.0 / d - 1.0 / pose.altitude_m)
         size = f * snow.diameter_m / d
         sigma = np.sqrt((defocus / 2.5) ** 2 + (size / 2.5) ** 2 + 0.5**2)
-        energy = (wp.marine_snow_energy * (snow.diameter_m / 1e-3) ** 2 * (0.6 / d) ** 2
-                  * np.exp(-wp.attenuation_per_m[1] * wp.light_path_factor * (d - 0.6)))
+        energy = (
+            wp.marine_snow_energy
+            * (snow.diameter_m / 1e-3) ** 2
+            * (0.6 / d) ** 2
+            * np.exp(-wp.attenuation_per_m[1] * wp.light_path_factor * (d - 0.6))
+        )
         h, w = img.shape[:2]
         u, v = uv[:, 0], uv[:, 1]
         ok = np.isfinite(u) & (u > -3 * sigma) & (u < w - 1 + 3 * sigma) & (v > -3 * sigma) & (v < h - 1 + 3 * sigma)
@@ -231,8 +240,9 @@ class FrameRenderer:
         layers = layers.astype(np.float32).reshape(len(_SNOW_SIGMAS_PX), hh, ww)
         total = np.zeros((h, w), dtype=np.float32)
         for lev in np.unique(level):
-            total += cv2.GaussianBlur(layers[lev], (0, 0), float(_SNOW_SIGMAS_PX[lev]),
-                                      borderType=cv2.BORDER_CONSTANT)[1:-1, 1:-1]
+            total += cv2.GaussianBlur(layers[lev], (0, 0), float(_SNOW_SIGMAS_PX[lev]), borderType=cv2.BORDER_CONSTANT)[
+                1:-1, 1:-1
+            ]
         img += total[..., None] * np.array([0.75, 1.0, 0.95], dtype=np.float32)
 
     # ------------------------------------------------------------------ the frame

@@ -68,9 +68,7 @@ from rovslam.sim.world import World
 _STREAM_FRAMES = 13
 
 PORTOFINO_CAMERA = Camera(width_px=360, height_px=272, fx_px=1075.0, fy_px=1075.0, cx_px=179.5, cy_px=135.5)
-PAPER_LASERS = tuple(
-    LaserPointer((sx * 0.05, sy * 0.05, 0.0)) for sx, sy in ((1, 1), (1, -1), (-1, -1), (-1, 1))
-)
+PAPER_LASERS = tuple(LaserPointer((sx * 0.05, sy * 0.05, 0.0)) for sx, sy in ((1, 1), (1, -1), (-1, -1), (-1, 1)))
 
 
 @dataclass(frozen=True)
@@ -115,8 +113,10 @@ class Scenario:
     def summary_line(self) -> str:
         """One line: camera, rate, length, then the description (``rovslam simulate --list``)."""
         cam = self.camera
-        return (f"{cam.width_px}x{cam.height_px} {self.frame_rate_hz:g} Hz, {self.n_frames} frames "
-                f"({self.duration_s / 60.0:.1f} min): {self.description}")
+        return (
+            f"{cam.width_px}x{cam.height_px} {self.frame_rate_hz:g} Hz, {self.n_frames} frames "
+            f"({self.duration_s / 60.0:.1f} min): {self.description}"
+        )
 
 
 _PORTOFINO = Scenario(
@@ -138,15 +138,17 @@ _ROUGH = Scenario(
         current_mean_mps=0.012,
         current_wander_mps=0.007,
     ),
-    nav=NavSensorParams(compass_sigma_rad=float(np.deg2rad(0.5)), compass_drift_rad=float(np.deg2rad(0.5)),
-                        sonar_sigma_m=0.03),
+    nav=NavSensorParams(
+        compass_sigma_rad=float(np.deg2rad(0.5)), compass_drift_rad=float(np.deg2rad(0.5)), sonar_sigma_m=0.03
+    ),
 )
 
 
 # ------------------------------------------------------------------ issue 9: as hard as the real seabed
 # (the ledge's face, 5 cm over 2.5 cm, is steep enough for the lamps to cast a shadow below it)
-_RELIEF_12CM = ReliefParams(ripple_height_m=0.005, stone_height_ratio=0.6, ledge_height_m=0.05,
-                            ledge_width_m=0.025, undulation_m=0.008)
+_RELIEF_12CM = ReliefParams(
+    ripple_height_m=0.005, stone_height_ratio=0.6, ledge_height_m=0.05, ledge_width_m=0.025, undulation_m=0.008
+)
 _BOULDERS = TextureParams(boulder_density_per_m2=1.5, boulder_radius_mm=70.0)
 _DEG = float(np.deg2rad(1.0))
 # Coarser textures for the 2 m altitude presets (pixels of 0.8 to 2 mm): a canvas (at most 4096
@@ -156,9 +158,18 @@ _SWELL_TEXTURE = TextureParams(texel_mm=1.25, cache_chunks=100)
 # The photo is 2.29 m (east) x 2.13 m (north) at 1 mm/px: lanes within +-0.65 m north, +-0.7 m east
 # keep the footprint (half-diagonal 0.28 m at 1.31 m) and the cross-track error on it, with ~5 cm to spare.
 _PHOTO_GRID = GridPattern(
-    half_size_m=(0.55, 0.6), lane_spacing_m=0.2,
-    offsets_m=((0.0, 0.0), (0.0, 0.0), (0.1, 0.1), (0.1, 0.1), (-0.05, 0.05), (-0.05, 0.05), (0.05, -0.1),
-               (0.05, -0.1)),
+    half_size_m=(0.55, 0.6),
+    lane_spacing_m=0.2,
+    offsets_m=(
+        (0.0, 0.0),
+        (0.0, 0.0),
+        (0.1, 0.1),
+        (0.1, 0.1),
+        (-0.05, 0.05),
+        (-0.05, 0.05),
+        (0.05, -0.1),
+        (0.05, -0.1),
+    ),
 )
 _PHOTO_SURVEY = Scenario(
     name="photo-survey",
@@ -194,8 +205,14 @@ _NEW: tuple[Scenario, ...] = (
         name="photo-turns",
         description="photo-survey with heading turns at the lane ends, +-3 deg yaw oscillation, 0.5 deg tilt, "
         "0.4 deg compass noise",
-        vehicle=VehicleParams(cruise_speed_mps=0.15, accel_limit_mps2=0.04, heading_mode="legs",
-                              wave_yaw_rad=3.0 * _DEG, wave_period_s=8.0, attitude_sigma_rad=0.5 * _DEG),
+        vehicle=VehicleParams(
+            cruise_speed_mps=0.15,
+            accel_limit_mps2=0.04,
+            heading_mode="legs",
+            wave_yaw_rad=3.0 * _DEG,
+            wave_period_s=8.0,
+            attitude_sigma_rad=0.5 * _DEG,
+        ),
         nav=NavSensorParams(compass_sigma_rad=0.4 * _DEG, compass_drift_rad=0.5 * _DEG),
     ),
     Scenario(
@@ -223,10 +240,14 @@ _NEW: tuple[Scenario, ...] = (
         relief=ReliefParams(ripple_height_m=0.005, stone_height_ratio=0.6, undulation_m=0.01),
         lighting=_STILL_LAMPS,
         sensor=SensorParams(exposure_s=0.002),
-        vehicle=VehicleParams(altitude_m=2.0, cruise_speed_mps=0.4, accel_limit_mps2=0.1, waypoint_tolerance_m=0.05,
-                              substeps=12),
-        grid=GridPattern(half_size_m=(1.2, 1.2), lane_spacing_m=0.4,
-                         offsets_m=((0.0, 0.0), (0.0, 0.0), (0.2, 0.2), (0.2, 0.2), (-0.1, 0.1), (-0.1, 0.1))),
+        vehicle=VehicleParams(
+            altitude_m=2.0, cruise_speed_mps=0.4, accel_limit_mps2=0.1, waypoint_tolerance_m=0.05, substeps=12
+        ),
+        grid=GridPattern(
+            half_size_m=(1.2, 1.2),
+            lane_spacing_m=0.4,
+            offsets_m=((0.0, 0.0), (0.0, 0.0), (0.2, 0.2), (0.2, 0.2), (-0.1, 0.1), (-0.1, 0.1)),
+        ),
         image_format="jpg",
     ),
     Scenario(
@@ -235,8 +256,9 @@ _NEW: tuple[Scenario, ...] = (
         "0.5 deg compass noise with 1 deg drift",
         n_frames=1500,
         texture=_BOULDERS,
-        relief=ReliefParams(ripple_height_m=0.004, stone_height_ratio=0.5, ledge_height_m=0.03, ledge_width_m=0.03,
-                            undulation_m=0.006),
+        relief=ReliefParams(
+            ripple_height_m=0.004, stone_height_ratio=0.5, ledge_height_m=0.03, ledge_width_m=0.03, undulation_m=0.006
+        ),
         lighting=LightingParams(),
         water=WaterParams.turbid(),
         h264=H264Params(crf=30),
@@ -247,13 +269,21 @@ _NEW: tuple[Scenario, ...] = (
         description="textures that fool correlation: coral lattice at token scale, fine regular ripples, gravel, "
         "look-alike burrows, shells and urchins, low-contrast mud; faint laser spots bleeding into green",
         n_frames=1500,
-        texture=TextureParams(coral_cover=0.35, fine_ripple_strength=0.12, pebble_density_per_m2=1500.0,
-                              gravel_patchiness=0.3, burrow_density_per_m2=60.0, shell_density_per_m2=300.0,
-                              urchin_density_per_m2=20.0, mud_cover=0.25),
+        texture=TextureParams(
+            coral_cover=0.35,
+            fine_ripple_strength=0.12,
+            pebble_density_per_m2=1500.0,
+            gravel_patchiness=0.3,
+            burrow_density_per_m2=60.0,
+            shell_density_per_m2=300.0,
+            urchin_density_per_m2=20.0,
+            mud_cover=0.25,
+        ),
         relief=ReliefParams(ripple_height_m=0.003, stone_height_ratio=0.5),
         lighting=LightingParams(),
-        spots=LaserSpotParams(peak_dn=260.0, halo_fraction=0.08, halo_sigma_px=4.0, crosstalk_green=0.25,
-                              crosstalk_blue=0.05),
+        spots=LaserSpotParams(
+            peak_dn=260.0, halo_fraction=0.08, halo_sigma_px=4.0, crosstalk_green=0.25, crosstalk_blue=0.05
+        ),
     ),
     Scenario(
         name="swell",
@@ -263,24 +293,45 @@ _NEW: tuple[Scenario, ...] = (
         texture=_SWELL_TEXTURE,
         relief=ReliefParams(ripple_height_m=0.005, stone_height_ratio=0.6, undulation_m=0.01),
         lighting=LightingParams(reference_altitude_m=2.0, caustics=CausticParams(strength=0.2)),
-        vehicle=VehicleParams(altitude_m=2.0, altitude_swing_m=0.3, altitude_swing_period_s=40.0,
-                              cruise_speed_mps=0.45, accel_limit_mps2=0.2, waypoint_tolerance_m=0.04,
-                              wave_surge_mps=0.12, wave_sway_mps=0.08, wave_yaw_rad=3.0 * _DEG, wave_heave_m=0.04,
-                              wave_period_s=7.0, tether_jerk_mps=0.03, attitude_sigma_rad=1.5 * _DEG,
-                              current_mean_mps=0.02, current_wander_mps=0.01),
-        grid=GridPattern(half_size_m=(1.0, 1.0), lane_spacing_m=0.3,
-                         offsets_m=((0.0, 0.0), (0.0, 0.0), (0.15, 0.15), (0.15, 0.15))),
+        vehicle=VehicleParams(
+            altitude_m=2.0,
+            altitude_swing_m=0.3,
+            altitude_swing_period_s=40.0,
+            cruise_speed_mps=0.45,
+            accel_limit_mps2=0.2,
+            waypoint_tolerance_m=0.04,
+            wave_surge_mps=0.12,
+            wave_sway_mps=0.08,
+            wave_yaw_rad=3.0 * _DEG,
+            wave_heave_m=0.04,
+            wave_period_s=7.0,
+            tether_jerk_mps=0.03,
+            attitude_sigma_rad=1.5 * _DEG,
+            current_mean_mps=0.02,
+            current_wander_mps=0.01,
+        ),
+        grid=GridPattern(
+            half_size_m=(1.0, 1.0), lane_spacing_m=0.3, offsets_m=((0.0, 0.0), (0.0, 0.0), (0.15, 0.15), (0.15, 0.15))
+        ),
         nav=NavSensorParams(compass_sigma_rad=0.5 * _DEG, compass_drift_rad=0.5 * _DEG),
     ),
 )
 
 SCENARIOS: dict[str, Scenario] = {
     "portofino": _PORTOFINO,
-    "portofino-short": replace(_PORTOFINO, name="portofino-short", n_frames=600,
-                               description="the first 2 minutes (600 frames) of portofino, for tests"),
+    "portofino-short": replace(
+        _PORTOFINO,
+        name="portofino-short",
+        n_frames=600,
+        description="the first 2 minutes (600 frames) of portofino, for tests",
+    ),
     "rough-turns": _ROUGH,
-    "rough-turns-short": replace(_ROUGH, name="rough-turns-short", n_frames=600,
-                                 description="the first 2 minutes (600 frames) of rough-turns, for tests"),
+    "rough-turns-short": replace(
+        _ROUGH,
+        name="rough-turns-short",
+        n_frames=600,
+        description="the first 2 minutes (600 frames) of rough-turns, for tests",
+    ),
     **{sc.name: sc for sc in _NEW},
 }
 
@@ -306,8 +357,12 @@ class SimulationSummary:
 def frame_pose(traj: Trajectory, k: int) -> Pose:
     """The true camera pose of frame ``k``."""
     return Pose(
-        float(traj.x_m[k]), float(traj.y_m[k]), float(traj.altitude_m[k]), float(traj.heading_rad[k]),
-        float(traj.roll_rad[k]), float(traj.pitch_rad[k]),
+        float(traj.x_m[k]),
+        float(traj.y_m[k]),
+        float(traj.altitude_m[k]),
+        float(traj.heading_rad[k]),
+        float(traj.roll_rad[k]),
+        float(traj.pitch_rad[k]),
     )
 
 
@@ -343,12 +398,15 @@ def _check_args(scenario, frames, seed, image_format, texture_path, texture_mm_p
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise SimulationError(f"frames must be a whole number >= 1, got {frames!r}")
     if n > MAX_FRAMES:
-        raise SimulationError(f"frames must be at most {MAX_FRAMES:,} (55 hours at 5 Hz), got {frames!r}; "
-                              "simulate a long campaign as several dives")
+        raise SimulationError(
+            f"frames must be at most {MAX_FRAMES:,} (55 hours at 5 Hz), got {frames!r}; "
+            "simulate a long campaign as several dives"
+        )
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SimulationError(f"seed must be a whole number >= 0, got {seed!r}")
-    fmt = {"png": "png", "jpg": "jpg", "jpeg": "jpg"}.get(str(sc.image_format if image_format is None
-                                                            else image_format).lower())
+    fmt = {"png": "png", "jpg": "jpg", "jpeg": "jpg"}.get(
+        str(sc.image_format if image_format is None else image_format).lower()
+    )
     if fmt is None:
         raise SimulationError(f"image format must be png or jpg, got {image_format!r}")
     if (texture_path is None) != (texture_mm_per_px is None):
@@ -358,8 +416,13 @@ def _check_args(scenario, frames, seed, image_format, texture_path, texture_mm_p
     return sc, int(n), fmt
 
 
-def build_world(sc: Scenario, seed: int, grow_m: float = 0.25, texture_path: Path | None = None,
-                texture_mm_per_px: float | None = None) -> tuple[World, str]:
+def build_world(
+    sc: Scenario,
+    seed: int,
+    grow_m: float = 0.25,
+    texture_path: Path | None = None,
+    texture_mm_per_px: float | None = None,
+) -> tuple[World, str]:
     """The world of a scenario (seabed, relief, water seed) and a note on its texture for the metadata.
 
     ``texture_path`` replaces the scenario's seabed by that image; on a scenario with relief,
@@ -396,12 +459,19 @@ def survey_area_m(sc: Scenario, traj: Trajectory, margin_m: float = 0.05) -> tup
     has, 0.1 m, and the largest tilt) around every position, and ``margin_m``.
     """
     cam = sc.camera
-    half_diag = float(np.hypot(max(cam.cx_px, cam.width_px - cam.cx_px) / cam.fx_px,
-                               max(cam.cy_px, cam.height_px - cam.cy_px) / cam.fy_px))
+    half_diag = float(
+        np.hypot(
+            max(cam.cx_px, cam.width_px - cam.cx_px) / cam.fx_px, max(cam.cy_px, cam.height_px - cam.cy_px) / cam.fy_px
+        )
+    )
     tilt = float(np.max(np.abs(np.concatenate([traj.roll_rad, traj.pitch_rad])), initial=0.0))
     reach = (float(np.max(traj.altitude_m)) + 0.1) * np.tan(np.arctan(half_diag) + tilt) + margin_m
-    return (float(traj.x_m.min()) - reach, float(traj.x_m.max()) + reach,
-            float(traj.y_m.min()) - reach, float(traj.y_m.max()) + reach)
+    return (
+        float(traj.x_m.min()) - reach,
+        float(traj.x_m.max()) + reach,
+        float(traj.y_m.min()) - reach,
+        float(traj.y_m.max()) + reach,
+    )
 
 
 def _yaw_rate_radps(traj: Trajectory) -> np.ndarray:
@@ -457,16 +527,25 @@ def simulate(
     relief_m, sonar_m = _relief_under_vehicle(sc, world, traj)
     nav_params, lasers_recorded = sc.nav, sc.lasers
     if drawn is not None:
-        nav_params = replace(sc.nav, compass_bias_rad=sc.nav.compass_bias_rad + drawn.compass_deviation_rad,
-                             sonar_offset_m=sc.nav.sonar_offset_m + drawn.sonar_offset_m)
+        nav_params = replace(
+            sc.nav,
+            compass_bias_rad=sc.nav.compass_bias_rad + drawn.compass_deviation_rad,
+            sonar_offset_m=sc.nav.sonar_offset_m + drawn.sonar_offset_m,
+        )
         lasers_recorded = recorded_lasers(sc.lasers, drawn)
     nav = read_sensors(traj, nav_params, int(seed), sonar_range_m=sonar_m)
-    info = SequenceInfo(name=f"rovslam simulate {sc.name} (seed {int(seed)})", camera=sc.recorded_camera,
-                        lasers=lasers_recorded, metadata=_metadata(sc, int(seed), n, texture_note, world, drawn))
-    codec = None if sc.h264 is None else H264RoundTrip(sc.camera.width_px, sc.camera.height_px,
-                                                       sc.frame_rate_hz, sc.h264)
-    with SequenceWriter(out, info, image_format=fmt, with_attitude=sc.tilted, with_groundtruth=True,
-                        with_relief=relief_m is not None) as writer:
+    info = SequenceInfo(
+        name=f"rovslam simulate {sc.name} (seed {int(seed)})",
+        camera=sc.recorded_camera,
+        lasers=lasers_recorded,
+        metadata=_metadata(sc, int(seed), n, texture_note, world, drawn),
+    )
+    codec = (
+        None if sc.h264 is None else H264RoundTrip(sc.camera.width_px, sc.camera.height_px, sc.frame_rate_hz, sc.h264)
+    )
+    with SequenceWriter(
+        out, info, image_format=fmt, with_attitude=sc.tilted, with_groundtruth=True, with_relief=relief_m is not None
+    ) as writer:
         _write_frames(writer, sc, world, traj, nav, relief_m, int(seed), codec, progress)
     if codec is not None:
         codec.close()
@@ -489,8 +568,9 @@ def simulate(
 def _drawn_calibration(calibration: CalibrationErrors | DrawnCalibration | None, seed: int) -> DrawnCalibration | None:
     """The lasting sensor errors of the dive: drawn for ``seed`` from a :class:`CalibrationErrors`, or as given."""
     if calibration is not None and not isinstance(calibration, (CalibrationErrors, DrawnCalibration)):
-        raise SimulationError(f"calibration must be a CalibrationErrors, a DrawnCalibration or None, "
-                              f"got {type(calibration).__name__}")
+        raise SimulationError(
+            f"calibration must be a CalibrationErrors, a DrawnCalibration or None, got {type(calibration).__name__}"
+        )
     return draw_calibration(calibration, seed) if isinstance(calibration, CalibrationErrors) else calibration
 
 
@@ -510,8 +590,7 @@ def _relief_under_vehicle(sc: Scenario, world: World, traj: Trajectory) -> tuple
     return relief_m, sonar_m
 
 
-def _metadata(sc: Scenario, seed: int, n: int, texture_note: str, world: World,
-              drawn: DrawnCalibration | None) -> dict:
+def _metadata(sc: Scenario, seed: int, n: int, texture_note: str, world: World, drawn: DrawnCalibration | None) -> dict:
     """The ``[metadata]`` of the sequence: what was simulated, and how."""
     metadata = {
         "generator": "rovslam.sim",
@@ -532,8 +611,17 @@ def _metadata(sc: Scenario, seed: int, n: int, texture_note: str, world: World,
     return metadata
 
 
-def _write_frames(writer, sc: Scenario, world: World, traj: Trajectory, nav: NavReadings, relief_m: np.ndarray | None, seed: int,
-                  codec, progress: Callable[[int, int], None] | None) -> None:
+def _write_frames(
+    writer,
+    sc: Scenario,
+    world: World,
+    traj: Trajectory,
+    nav: NavReadings,
+    relief_m: np.ndarray | None,
+    seed: int,
+    codec,
+    progress: Callable[[int, int], None] | None,
+) -> None:
     """Render every frame of ``traj`` (through ``codec``, an H.264 round trip, when not None) and write it with
     its readings and truth to ``writer`` (a :class:`~rovslam.io.sequence.SequenceWriter`)."""
     n = len(traj)
@@ -543,8 +631,12 @@ def _write_frames(writer, sc: Scenario, world: World, traj: Trajectory, nav: Nav
     for k in range(n):
         pose = frame_pose(traj, k)
         image = renderer.render(
-            world, pose, sc.lasers, frame_rng(seed, k),
-            velocity_mps=(float(traj.surge_mps[k]), float(traj.sway_mps[k])), t_s=float(traj.t_s[k]),
+            world,
+            pose,
+            sc.lasers,
+            frame_rng(seed, k),
+            velocity_mps=(float(traj.surge_mps[k]), float(traj.sway_mps[k])),
+            t_s=float(traj.t_s[k]),
             yaw_rate_radps=float(yaw_rate[k]),
         )
         if codec is not None:

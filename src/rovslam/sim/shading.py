@@ -82,8 +82,9 @@ class LampCone:
 class VehicleLamps:
     """The lamps on the vehicle lighting the hits of ``rays``, with the water (see :meth:`gain_and_haze`)."""
 
-    def __init__(self, camera: Camera, water: WaterParams, sensor: SensorParams, lighting: LightingParams,
-                 rays: RayCaster) -> None:
+    def __init__(
+        self, camera: Camera, water: WaterParams, sensor: SensorParams, lighting: LightingParams, rays: RayCaster
+    ) -> None:
         self.water = water
         self.sensor = sensor
         self.lighting = lighting
@@ -132,10 +133,15 @@ class VehicleLamps:
         chans = [base * np.exp(np.float32(-a) * path) for a in wp.attenuation_per_m]
         if lp.caustics is not None:
             sun = self._caustics(world, hits, t_s) * (np.float32(sp.exposure_gain) * self._vignette_c)
-            chans = [ch + np.float32(k) * sun * np.exp(np.float32(-a) * r_cam)
-                     for ch, k, a in zip(chans, lp.caustics.rgb, wp.attenuation_per_m)]
-        veil = (np.float32(255.0 * sp.exposure_gain) * self._haze_pattern_c
-                * (1.0 - np.exp(np.float32(-wp.backscatter_per_m) * r_cam)))
+            chans = [
+                ch + np.float32(k) * sun * np.exp(np.float32(-a) * r_cam)
+                for ch, k, a in zip(chans, lp.caustics.rgb, wp.attenuation_per_m)
+            ]
+        veil = (
+            np.float32(255.0 * sp.exposure_gain)
+            * self._haze_pattern_c
+            * (1.0 - np.exp(np.float32(-wp.backscatter_per_m) * r_cam))
+        )
         haze = [np.float32(b) * veil for b in wp.backscatter_rgb]
         return self.rays.upsample(cv2.merge(chans)), self.rays.upsample(cv2.merge(haze))
 
@@ -159,8 +165,13 @@ class VehicleLamps:
         for k in range(1, n + 1):
             rise = np.float32((h_hi - h_lo) * (k / n) ** 2)
             tau = rise * rise_per_step
-            h_q = cv2.remap(rc.heights, col_map + tau * lcol, row_map + tau * lrow, cv2.INTER_LINEAR,
-                            borderMode=cv2.BORDER_REPLICATE)
+            h_q = cv2.remap(
+                rc.heights,
+                col_map + tau * lcol,
+                row_map + tau * lrow,
+                cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_REPLICATE,
+            )
             occl = np.maximum(occl, h_q - (h_p + rise))
         return np.clip(1.0 - occl * np.float32(1.0 / lp.shadow_softness_m), 0.0, 1.0)
 

@@ -77,26 +77,49 @@ def preset_frames(scenario: str, seed: int, duration_s: float | None = None) -> 
         from rovslam.sim.relief import heights_at, sonar_first_return_m
 
         relief_m = heights_at(relief, traj.x_m, traj.y_m)
-        sonar_range = sonar_first_return_m(relief, traj.x_m, traj.y_m, traj.altitude_m, sc.nav.sonar_beam_half_angle_rad)
+        sonar_range = sonar_first_return_m(
+            relief, traj.x_m, traj.y_m, traj.altitude_m, sc.nav.sonar_beam_half_angle_rad
+        )
     nav = read_sensors(traj, sc.nav, int(seed), sonar_range_m=sonar_range)
-    yaw_rate = (np.gradient(np.unwrap(traj.heading_rad), traj.t_s) if sc.sensor.readout_s > 0 and n > 1
-                else np.zeros(n))
-    info = SequenceInfo(name=f"rovslam sitl {sc.name} (seed {int(seed)})", camera=sc.recorded_camera, lasers=sc.lasers,
-                        metadata={"generator": "rovslam.sim.sitl", "scenario": sc.name, "seed": int(seed),
-                                  "frame_rate_hz": float(sc.frame_rate_hz)})
+    yaw_rate = np.gradient(np.unwrap(traj.heading_rad), traj.t_s) if sc.sensor.readout_s > 0 and n > 1 else np.zeros(n)
+    info = SequenceInfo(
+        name=f"rovslam sitl {sc.name} (seed {int(seed)})",
+        camera=sc.recorded_camera,
+        lasers=sc.lasers,
+        metadata={
+            "generator": "rovslam.sim.sitl",
+            "scenario": sc.name,
+            "seed": int(seed),
+            "frame_rate_hz": float(sc.frame_rate_hz),
+        },
+    )
 
     def frames() -> Iterator[SitlFrame]:
         try:
             for k in range(n):
-                state = TrueState(float(traj.t_s[k]), float(traj.x_m[k]), float(traj.y_m[k]), float(traj.altitude_m[k]),
-                                  float(traj.heading_rad[k]), float(traj.roll_rad[k]), float(traj.pitch_rad[k]),
-                                  float(traj.surge_mps[k]), float(traj.sway_mps[k]), float(yaw_rate[k]))
+                state = TrueState(
+                    float(traj.t_s[k]),
+                    float(traj.x_m[k]),
+                    float(traj.y_m[k]),
+                    float(traj.altitude_m[k]),
+                    float(traj.heading_rad[k]),
+                    float(traj.roll_rad[k]),
+                    float(traj.pitch_rad[k]),
+                    float(traj.surge_mps[k]),
+                    float(traj.sway_mps[k]),
+                    float(yaw_rate[k]),
+                )
                 truth = (state.x_m, state.y_m, state.altitude_m, state.heading_rad)
                 yield SitlFrame(
-                    k, state.t_s, sim.render(k, state), float(nav.heading_rad[k]),
+                    k,
+                    state.t_s,
+                    sim.render(k, state),
+                    float(nav.heading_rad[k]),
                     None if nav.sonar_altitude_m is None else float(nav.sonar_altitude_m[k]),
-                    float(nav.roll_rad[k]) if sc.tilted else 0.0, float(nav.pitch_rad[k]) if sc.tilted else 0.0,
-                    truth if relief_m is None else truth + (float(relief_m[k]),))
+                    float(nav.roll_rad[k]) if sc.tilted else 0.0,
+                    float(nav.pitch_rad[k]) if sc.tilted else 0.0,
+                    truth if relief_m is None else truth + (float(relief_m[k]),),
+                )
         finally:
             sim.close()
 
@@ -132,8 +155,16 @@ def sequence_frames(folder: Path, duration_s: float | None = None) -> FrameSourc
                 truth = (float(gt.x_m[k]), float(gt.y_m[k]), float(gt.altitude_m[k]), float(gt.heading_rad[k]))
                 if gt.relief_m is not None:
                     truth += (float(gt.relief_m[k]),)
-            yield SitlFrame(f.index, float(f.t_s - t[0]), f.image, float(f.heading_rad), f.sonar_altitude_m,
-                            float(f.roll_rad), float(f.pitch_rad), truth)
+            yield SitlFrame(
+                f.index,
+                float(f.t_s - t[0]),
+                f.image,
+                float(f.heading_rad),
+                f.sonar_altitude_m,
+                float(f.roll_rad),
+                float(f.pitch_rad),
+                truth,
+            )
 
     with_relief = gt is not None and gt.relief_m is not None
     return FrameSource(seq.info, float(rate), sigma, n, with_relief, frames())

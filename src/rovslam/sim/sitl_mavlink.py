@@ -24,25 +24,63 @@ import re
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from rovslam.errors import SimulationError
 
 __all__ = ["ARDUSUB_MODES", "MavlinkLink", "RECEIVED_COLUMNS", "RECORDED_TYPES", "check_connection", "read_received"]
 
-ARDUSUB_MODES = {"STABILIZE": 0, "ACRO": 1, "ALT_HOLD": 2, "AUTO": 3, "GUIDED": 4, "CIRCLE": 7, "SURFACE": 9,
-                 "POSHOLD": 16, "MANUAL": 19}
-RECORDED_TYPES = ("VISION_POSITION_DELTA", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE", "DISTANCE_SENSOR",
-                  "STATUSTEXT")
+ARDUSUB_MODES = {
+    "STABILIZE": 0,
+    "ACRO": 1,
+    "ALT_HOLD": 2,
+    "AUTO": 3,
+    "GUIDED": 4,
+    "CIRCLE": 7,
+    "SURFACE": 9,
+    "POSHOLD": 16,
+    "MANUAL": 19,
+}
+RECORDED_TYPES = (
+    "VISION_POSITION_DELTA",
+    "VISION_POSITION_ESTIMATE",
+    "VISION_SPEED_ESTIMATE",
+    "DISTANCE_SENSOR",
+    "STATUSTEXT",
+)
 # arrival_s: seconds on the stream's axis when the message arrived (empty before the first frame);
 # unix_time_s: the wall clock then. The other columns are the message's fields (empty where it has none).
 RECEIVED_COLUMNS = (
-    "arrival_s", "unix_time_s", "type", "src_system", "src_component",
-    "time_usec", "time_boot_ms", "x", "y", "z", "roll", "pitch", "yaw", "covariance", "reset_counter",
-    "time_delta_usec", "angle_delta", "position_delta", "confidence",
-    "current_distance", "min_distance", "max_distance", "sensor_type", "sensor_id", "orientation", "signal_quality",
-    "severity", "text",
+    "arrival_s",
+    "unix_time_s",
+    "type",
+    "src_system",
+    "src_component",
+    "time_usec",
+    "time_boot_ms",
+    "x",
+    "y",
+    "z",
+    "roll",
+    "pitch",
+    "yaw",
+    "covariance",
+    "reset_counter",
+    "time_delta_usec",
+    "angle_delta",
+    "position_delta",
+    "confidence",
+    "current_distance",
+    "min_distance",
+    "max_distance",
+    "sensor_type",
+    "sensor_id",
+    "orientation",
+    "signal_quality",
+    "severity",
+    "text",
 )
 _RENAME = {"usec": "time_usec", "type": "sensor_type", "id": "sensor_id"}
 _ARRAY_COLUMNS = ("covariance", "angle_delta", "position_delta")
@@ -103,7 +141,9 @@ def read_received(path: str | Path) -> list[dict[str, Any]]:
                     rec[key] = json.loads(value)
                 else:
                     number = float(value)
-                    rec[key] = int(number) if number.is_integer() and key not in ("x", "y", "z", "arrival_s") else number
+                    rec[key] = (
+                        int(number) if number.is_integer() and key not in ("x", "y", "z", "arrival_s") else number
+                    )
             out.append(rec)
     return out
 
@@ -114,15 +154,26 @@ class MavlinkLink:
     ``stream_time_s()``: the stream's clock now (seconds from the first frame), or None before it.
     """
 
-    def __init__(self, connection: str, received_csv: Path, stream_time_s: Callable[[], float | None],
-                 mode: str = "ALT_HOLD", sonar_max_m: float = 50.0) -> None:
+    def __init__(
+        self,
+        connection: str,
+        received_csv: Path,
+        stream_time_s: Callable[[], float | None],
+        mode: str = "ALT_HOLD",
+        sonar_max_m: float = 50.0,
+    ) -> None:
         if mode not in ARDUSUB_MODES:
             raise SimulationError(f"unknown ArduSub mode {mode!r}; choose one of: {', '.join(ARDUSUB_MODES)}")
         device, baud = check_connection(connection)
         mavutil = _mavutil()
         try:
-            self._conn = mavutil.mavlink_connection(device, baud=baud or 115200, source_system=OWN_SYSTEM,
-                                                    source_component=OWN_COMPONENT, autoreconnect=True)
+            self._conn = mavutil.mavlink_connection(
+                device,
+                baud=baud or 115200,
+                source_system=OWN_SYSTEM,
+                source_component=OWN_COMPONENT,
+                autoreconnect=True,
+            )
         except (OSError, ValueError) as exc:
             raise SimulationError(f"--mavlink {connection!r}: cannot open it ({exc})") from None
         self._mav = self._conn.mav
@@ -156,24 +207,52 @@ class MavlinkLink:
 
     def send_heartbeat(self) -> None:
         m = self._m
-        base = (m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | m.MAV_MODE_FLAG_SAFETY_ARMED
-                | m.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | m.MAV_MODE_FLAG_STABILIZE_ENABLED)
-        self._send("HEARTBEAT", m.MAV_TYPE_SUBMARINE, m.MAV_AUTOPILOT_ARDUPILOTMEGA, base, self.custom_mode,
-                   m.MAV_STATE_ACTIVE, 3)
+        base = (
+            m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+            | m.MAV_MODE_FLAG_SAFETY_ARMED
+            | m.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+            | m.MAV_MODE_FLAG_STABILIZE_ENABLED
+        )
+        self._send(
+            "HEARTBEAT",
+            m.MAV_TYPE_SUBMARINE,
+            m.MAV_AUTOPILOT_ARDUPILOTMEGA,
+            base,
+            self.custom_mode,
+            m.MAV_STATE_ACTIVE,
+            3,
+        )
 
-    def send_attitude(self, t_s: float, roll_rad: float, pitch_rad: float, yaw_rad: float,
-                      rates_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
+    def send_attitude(
+        self,
+        t_s: float,
+        roll_rad: float,
+        pitch_rad: float,
+        yaw_rad: float,
+        rates_radps: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None:
         """ATTITUDE at ``t_s`` (stream seconds): roll, pitch, yaw (NED, within +-pi) in rad, body rates in rad/s."""
         yaw = (float(yaw_rad) + math.pi) % (2.0 * math.pi) - math.pi
-        self._send("ATTITUDE", self._time_boot_ms(t_s), float(roll_rad), float(pitch_rad), yaw, *map(float, rates_radps))
+        self._send(
+            "ATTITUDE", self._time_boot_ms(t_s), float(roll_rad), float(pitch_rad), yaw, *map(float, rates_radps)
+        )
 
     def send_sonar(self, t_s: float, altitude_m: float, sigma_m: float) -> None:
         """DISTANCE_SENSOR (ultrasound, downward, cm, covariance in cm^2) and RANGEFINDER (m) of one sonar reading."""
         m = self._m
         cm = int(round(100.0 * min(max(float(altitude_m), 0.0), self.sonar_max_m)))
         var_cm2 = min(254, int(round((100.0 * sigma_m) ** 2)))
-        self._send("DISTANCE_SENSOR", self._time_boot_ms(t_s), 20, int(100 * self.sonar_max_m), cm,
-                   m.MAV_DISTANCE_SENSOR_ULTRASOUND, 1, m.MAV_SENSOR_ROTATION_PITCH_270, var_cm2)
+        self._send(
+            "DISTANCE_SENSOR",
+            self._time_boot_ms(t_s),
+            20,
+            int(100 * self.sonar_max_m),
+            cm,
+            m.MAV_DISTANCE_SENSOR_ULTRASOUND,
+            1,
+            m.MAV_SENSOR_ROTATION_PITCH_270,
+            var_cm2,
+        )
         self._send("RANGEFINDER", float(altitude_m), 0.0)
 
     def send_system_time(self, t_s: float) -> None:
@@ -182,9 +261,13 @@ class MavlinkLink:
     # ------------------------------------------------------------------ in
     def _record(self, msg: Any, name: str) -> None:
         t = self._clock()
-        row: dict[str, str] = {"arrival_s": "" if t is None else f"{t:.6f}", "unix_time_s": f"{time.time():.6f}",
-                               "type": name, "src_system": str(msg.get_srcSystem()),
-                               "src_component": str(msg.get_srcComponent())}
+        row: dict[str, str] = {
+            "arrival_s": "" if t is None else f"{t:.6f}",
+            "unix_time_s": f"{time.time():.6f}",
+            "type": name,
+            "src_system": str(msg.get_srcSystem()),
+            "src_component": str(msg.get_srcComponent()),
+        }
         for field in msg.get_fieldnames():
             if field in ("id", "type") and name != "DISTANCE_SENSOR":  # (a STATUSTEXT's id is its chunk sequence)
                 continue
@@ -252,5 +335,9 @@ class MavlinkLink:
                 self._conn.close()
 
     def stats(self) -> dict[str, Any]:
-        return {"connection": self.connection, "messages_in": dict(sorted(self.counts_in.items())),
-                "messages_out": dict(sorted(self.counts_out.items())), "bad_packets": self.bad_packets}
+        return {
+            "connection": self.connection,
+            "messages_in": dict(sorted(self.counts_in.items())),
+            "messages_out": dict(sorted(self.counts_out.items())),
+            "bad_packets": self.bad_packets,
+        }

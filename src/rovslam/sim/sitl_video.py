@@ -72,8 +72,10 @@ def parse_video_url(url: str, rtp: bool = False) -> tuple[str, str, int]:
 def sdp_text(host: str, port: int, name: str = "rovslam sitl") -> str:
     """The SDP of an H.264 RTP stream to ``host:port`` (payload type 96, 90 kHz clock)."""
     family = "IP6" if ":" in host else "IP4"
-    return (f"v=0\no=- 0 0 IN {family} {host}\ns={name}\nc=IN {family} {host}\nt=0 0\n"
-            f"m=video {port} RTP/AVP 96\na=rtpmap:96 H264/90000\na=fmtp:96 packetization-mode=1\n")
+    return (
+        f"v=0\no=- 0 0 IN {family} {host}\ns={name}\nc=IN {family} {host}\nt=0 0\n"
+        f"m=video {port} RTP/AVP 96\na=rtpmap:96 H264/90000\na=fmtp:96 packetization-mode=1\n"
+    )
 
 
 class VideoOut:
@@ -84,8 +86,17 @@ class VideoOut:
     ``keyframe_s`` seconds lets a receiver join at any time.
     """
 
-    def __init__(self, url: str, width_px: int, height_px: int, frame_rate_hz: float, rtp: bool = False,
-                 sdp_path: Path | None = None, crf: int = 20, keyframe_s: float = 1.0) -> None:
+    def __init__(
+        self,
+        url: str,
+        width_px: int,
+        height_px: int,
+        frame_rate_hz: float,
+        rtp: bool = False,
+        sdp_path: Path | None = None,
+        crf: int = 20,
+        keyframe_s: float = 1.0,
+    ) -> None:
         import av
 
         form, host, port = parse_video_url(url, rtp)
@@ -97,11 +108,19 @@ class VideoOut:
         self._out: Any = None
         try:
             if form == "rtp":
-                self._out = av.open(f"rtp://{target}:{port}?pkt_size={RTP_PACKET_BYTES}", "w", format="rtp",
-                                    options={"flush_packets": "1"})
+                self._out = av.open(
+                    f"rtp://{target}:{port}?pkt_size={RTP_PACKET_BYTES}",
+                    "w",
+                    format="rtp",
+                    options={"flush_packets": "1"},
+                )
             else:
-                self._out = av.open(f"udp://{target}:{port}?pkt_size={MPEGTS_PACKET_BYTES}", "w", format="mpegts",
-                                    options=_MPEGTS_OPTIONS)
+                self._out = av.open(
+                    f"udp://{target}:{port}?pkt_size={MPEGTS_PACKET_BYTES}",
+                    "w",
+                    format="mpegts",
+                    options=_MPEGTS_OPTIONS,
+                )
         except av.error.FFmpegError as exc:
             raise SimulationError(f"--video {url}: cannot open the stream ({exc}); check the host and port") from None
         rate = Fraction(frame_rate_hz).limit_denominator(1000)
@@ -109,13 +128,18 @@ class VideoOut:
         st.width, st.height, st.pix_fmt = int(width_px), int(height_px), "yuv420p"
         st.codec_context.time_base = TIME_BASE
         st.codec_context.options = {
-            "preset": "ultrafast", "tune": "zerolatency", "crf": str(int(crf)), "bf": "0", "threads": "1",
+            "preset": "ultrafast",
+            "tune": "zerolatency",
+            "crf": str(int(crf)),
+            "bf": "0",
+            "threads": "1",
             "g": str(max(1, int(round(keyframe_s * frame_rate_hz)))),
         }
         if form == "mpegts":  # at most MAX_FRAME_BYTES a frame (quality drops only where a frame would be larger)
             bits = 8 * MAX_FRAME_BYTES
-            st.codec_context.options = dict(st.codec_context.options, bufsize=str(bits),
-                                            maxrate=str(int(bits * frame_rate_hz)))
+            st.codec_context.options = dict(
+                st.codec_context.options, bufsize=str(bits), maxrate=str(int(bits * frame_rate_hz))
+            )
         self.sdp_path = None
         if form == "rtp" and sdp_path is not None:
             self.sdp_path = Path(sdp_path)

@@ -66,13 +66,20 @@ class LaserSpots:
         inv = 1.0 / world.relief.texel_m
         rows = (pose.x_m + c * ends[:, 0] - s * ends[:, 1]) * inv
         cols = (pose.y_m + s * ends[:, 0] + c * ends[:, 1]) * inv
-        rc = world.relief_canvas(int(np.floor(rows.min())) - 1, int(np.ceil(rows.max())) + 2,
-                                 int(np.floor(cols.min())) - 1, int(np.ceil(cols.max())) + 2)
+        rc = world.relief_canvas(
+            int(np.floor(rows.min())) - 1,
+            int(np.ceil(rows.max())) + 2,
+            int(np.floor(cols.min())) - 1,
+            int(np.ceil(cols.max())) + 2,
+        )
         dn, de = c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]  # beam direction, world north / east
         for _ in range(_LASER_ITERATIONS):
             hit = o + t[:, None] * d
-            h, sn, se = _bilinear(rc.relief, (pose.x_m + c * hit[:, 0] - s * hit[:, 1]) * inv - rc.row0,
-                                  (pose.y_m + s * hit[:, 0] + c * hit[:, 1]) * inv - rc.col0).T
+            h, sn, se = _bilinear(
+                rc.relief,
+                (pose.x_m + c * hit[:, 0] - s * hit[:, 1]) * inv - rc.row0,
+                (pose.y_m + s * hit[:, 0] + c * hit[:, 1]) * inv - rc.col0,
+            ).T
             g = o[:, 2] + t * d[:, 2] - pose.altitude_m + h
             t = t - g / np.maximum(d[:, 2] + sn * dn + se * de, 0.25 * d[:, 2])
         hit = o + t[:, None] * d
@@ -80,8 +87,15 @@ class LaserSpots:
         uv = ground_to_pixels(self.camera, hit[:, :2] / hit[:, 2:3], 1.0, pose.roll_rad, pose.pitch_rad)
         return uv, t + np.linalg.norm(hit, axis=1), hit[:, 2]
 
-    def draw(self, img: np.ndarray, pose: Pose, lasers: Sequence[LaserPointer], rng: np.random.Generator | None,
-             noise_free: bool, world: World | None) -> None:
+    def draw(
+        self,
+        img: np.ndarray,
+        pose: Pose,
+        lasers: Sequence[LaserPointer],
+        rng: np.random.Generator | None,
+        noise_free: bool,
+        world: World | None,
+    ) -> None:
         """Add the spots of ``lasers`` to the ``(H, W, 3) float32`` radiance ``img``, in place (speckle from ``rng``)."""
         sp, cam = self.spots, self.camera
         uv, path, depth = self.laser_hits(pose, lasers, world)
@@ -99,15 +113,17 @@ class LaserSpots:
             r = np.sqrt(dx * dx + dy * dy)
             peak = sp.peak_dn * np.exp(-a_red * p_m)
             # Disc of the beam footprint with an erf edge (the optics' Gaussian blur), plus the halo.
-            spot = peak * (0.5 * erfc((r - radius) / (np.sqrt(2.0) * sp.optics_sigma_px))
-                           + sp.halo_fraction * np.exp(-(r * r) / (2.0 * sp.halo_sigma_px**2)))
+            spot = peak * (
+                0.5 * erfc((r - radius) / (np.sqrt(2.0) * sp.optics_sigma_px))
+                + sp.halo_fraction * np.exp(-(r * r) / (2.0 * sp.halo_sigma_px**2))
+            )
             if not noise_free and sp.speckle > 0:
                 spot *= np.maximum(1.0 + sp.speckle * fast_standard_normal(rng, spot.shape), 0.0)
             r0, r1 = max(0, iv - rad), min(h, iv + rad + 1)
             c0, c1 = max(0, iu - rad), min(w, iu + rad + 1)
             if r0 >= r1 or c0 >= c1:
                 continue
-            patch = spot[r0 - (iv - rad): r1 - (iv - rad), c0 - (iu - rad): c1 - (iu - rad)].astype(np.float32)
+            patch = spot[r0 - (iv - rad) : r1 - (iv - rad), c0 - (iu - rad) : c1 - (iu - rad)].astype(np.float32)
             clipped = np.minimum(patch, 255.0)
             img[r0:r1, c0:c1, 0] += patch
             img[r0:r1, c0:c1, 1] += sp.crosstalk_green * clipped
@@ -119,5 +135,9 @@ def _bilinear(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarra
     r0 = np.clip(np.floor(rows).astype(np.int64), 0, grid.shape[0] - 2)
     c0 = np.clip(np.floor(cols).astype(np.int64), 0, grid.shape[1] - 2)
     fr, fc = (rows - r0)[:, None], (cols - c0)[:, None]
-    return ((1 - fr) * (1 - fc) * grid[r0, c0] + (1 - fr) * fc * grid[r0, c0 + 1]
-            + fr * (1 - fc) * grid[r0 + 1, c0] + fr * fc * grid[r0 + 1, c0 + 1])
+    return (
+        (1 - fr) * (1 - fc) * grid[r0, c0]
+        + (1 - fr) * fc * grid[r0, c0 + 1]
+        + fr * (1 - fc) * grid[r0 + 1, c0]
+        + fr * fc * grid[r0 + 1, c0 + 1]
+    )

@@ -103,13 +103,25 @@ class TextureParams:
         for name in ("weed_cover", "coral_cover", "mud_cover"):
             if not (0.0 <= getattr(self, name) < 0.9):
                 raise SimulationError(f"TextureParams.{name} must be in [0, 0.9), got {getattr(self, name)}")
-        for name in ("pebble_density_per_m2", "stone_density_per_m2", "shell_density_per_m2",
-                     "burrow_density_per_m2", "boulder_density_per_m2", "urchin_density_per_m2",
-                     "fine_ripple_strength"):
+        for name in (
+            "pebble_density_per_m2",
+            "stone_density_per_m2",
+            "shell_density_per_m2",
+            "burrow_density_per_m2",
+            "boulder_density_per_m2",
+            "urchin_density_per_m2",
+            "fine_ripple_strength",
+        ):
             if getattr(self, name) < 0:
                 raise SimulationError(f"TextureParams.{name} must be >= 0, got {getattr(self, name)}")
-        for name in ("boulder_radius_mm", "urchin_radius_mm", "fine_ripple_wavelength_m", "coral_spacing_m",
-                     "coral_scale_m", "mud_scale_m"):
+        for name in (
+            "boulder_radius_mm",
+            "urchin_radius_mm",
+            "fine_ripple_wavelength_m",
+            "coral_spacing_m",
+            "coral_scale_m",
+            "mud_scale_m",
+        ):
             if not getattr(self, name) > 0:
                 raise SimulationError(f"TextureParams.{name} must be > 0, got {getattr(self, name)}")
         if not (0.0 <= self.mud_contrast <= 1.0):
@@ -119,7 +131,15 @@ class TextureParams:
 # Lattice-noise layer identifiers (one independent field each).
 _L_BRIGHT1, _L_BRIGHT2, _L_MOTTLE1, _L_MOTTLE2, _L_GRAIN, _L_SPECK = 1, 2, 3, 4, 5, 6
 _L_RIPPLE_PHASE, _L_RIPPLE_AMP, _L_WEED1, _L_WEED2, _L_WEED_FIBRE, _L_TINT, _L_GRAVEL, _L_WEED_FIL = (
-    7, 8, 9, 10, 11, 12, 13, 14)
+    7,
+    8,
+    9,
+    10,
+    11,
+    12,
+    13,
+    14,
+)
 _L_CORAL, _L_CORAL_WARP_X, _L_CORAL_WARP_Y, _L_CORAL_BRANCH, _L_MUD, _L_FINE_RIPPLE = 15, 16, 17, 18, 19, 20
 # Object kinds (per-cell generators).
 _K_PEBBLE, _K_STONE, _K_SHELL, _K_BURROW, _K_BOULDER, _K_URCHIN = 101, 102, 103, 104, 105, 106
@@ -178,9 +198,7 @@ class ProceduralSeabed(ChunkedGrid):
         else:
             self._ripple_az = float(p.ripple_azimuth_rad)
         # Weed threshold for the requested cover on the sum of two unit-variance fields.
-        self._weed_threshold = (
-            float(np.sqrt(1.25) * ndtri(1.0 - p.weed_cover)) if p.weed_cover > 0 else np.inf
-        )
+        self._weed_threshold = float(np.sqrt(1.25) * ndtri(1.0 - p.weed_cover)) if p.weed_cover > 0 else np.inf
 
     @property
     def texel_m(self) -> float:
@@ -213,9 +231,7 @@ class ProceduralSeabed(ChunkedGrid):
         lum *= 1.0 + 0.6 * p.speck_contrast * smoothstep(-2.0, -2.7, speck)
         tint = field(_L_TINT, 0.20)
         sand = np.asarray(p.sand_rgb, dtype=np.float32)
-        img = lum[..., None] * sand + (0.035 * tint)[..., None] * np.array(
-            [1.0, 0.6, -0.4], dtype=np.float32
-        )
+        img = lum[..., None] * sand + (0.035 * tint)[..., None] * np.array([1.0, 0.6, -0.4], dtype=np.float32)
 
         # Algae / weed patches: a low-frequency patch field; inside, clumps of turf (isotropic
         # 3-6 mm tufts) whose cover falls off towards the patch edges, filaments within tufts.
@@ -377,8 +393,11 @@ class ProceduralSeabed(ChunkedGrid):
                 extra = rng.random(k).astype(np.float32)
             rgb = pal[rng.choice(len(pal), size=k, p=wts)] * rng.uniform(0.85, 1.12, k)[:, None]
             harm = np.stack(
-                [np.clip(rng.normal(0.0, 1.0, (k, 4)), -2.0, 2.0) * np.array([0.07, 0.05, 0.035, 0.025]),
-                 rng.uniform(0.0, 2.0 * np.pi, (k, 4))], axis=-1,
+                [
+                    np.clip(rng.normal(0.0, 1.0, (k, 4)), -2.0, 2.0) * np.array([0.07, 0.05, 0.035, 0.025]),
+                    rng.uniform(0.0, 2.0 * np.pi, (k, 4)),
+                ],
+                axis=-1,
             )
             for lst, val in zip(cols, (x, y, a, b, angle, rgb, extra, harm)):
                 lst.append(val)  # type: ignore[arg-type]
@@ -534,7 +553,7 @@ class ImageSeabed:
         self._c0 = (arr.shape[1] - 1) // 2
 
     @classmethod
-    def from_file(cls, path: Path | str, mm_per_px: float) -> "ImageSeabed":
+    def from_file(cls, path: Path | str, mm_per_px: float) -> ImageSeabed:
         """Read an image file (any format OpenCV reads); a non-image raises SimulationError."""
         import cv2
 

@@ -49,8 +49,14 @@ class GridPattern:
     lane_spacing_m: float = 0.175
     cross_hatch: bool = True
     offsets_m: tuple[tuple[float, float], ...] = (
-        (0.0, 0.0), (0.0, 0.0), (0.0875, 0.0875), (0.0875, 0.0875), (-0.04375, 0.04375), (-0.04375, 0.04375),
-        (0.04375, -0.0875), (0.04375, -0.0875),
+        (0.0, 0.0),
+        (0.0, 0.0),
+        (0.0875, 0.0875),
+        (0.0875, 0.0875),
+        (-0.04375, 0.04375),
+        (-0.04375, 0.04375),
+        (0.04375, -0.0875),
+        (0.04375, -0.0875),
     )
 
     def __post_init__(self) -> None:
@@ -74,8 +80,10 @@ class GridPattern:
         n_lanes = int(math.floor(2.0 * h_cross / self.lane_spacing_m + 1e-9)) + 1
         offset = np.asarray(self.offsets_m[r % len(self.offsets_m)], dtype=np.float64)
         best = None
-        for cross in (-h_cross + self.lane_spacing_m * np.arange(n_lanes),
-                      h_cross - self.lane_spacing_m * np.arange(n_lanes)):
+        for cross in (
+            -h_cross + self.lane_spacing_m * np.arange(n_lanes),
+            h_cross - self.lane_spacing_m * np.arange(n_lanes),
+        ):
             for first in (-h_lane, h_lane):
                 pts = []
                 for k, c in enumerate(cross):
@@ -128,10 +136,21 @@ class VehicleParams:
     def __post_init__(self) -> None:
         if self.heading_mode not in ("constant", "legs"):
             raise SimulationError(f"VehicleParams.heading_mode must be 'constant' or 'legs', got {self.heading_mode!r}")
-        for name in ("cruise_speed_mps", "accel_limit_mps2", "waypoint_tolerance_m", "altitude_m",
-                     "yaw_rate_limit_radps", "current_tau_s", "current_estimate_tau_s", "altitude_noise_tau_s",
-                     "attitude_tau_s", "heading_wander_tau_s", "altitude_swing_period_s", "wave_period_s",
-                     "tether_tau_s"):
+        for name in (
+            "cruise_speed_mps",
+            "accel_limit_mps2",
+            "waypoint_tolerance_m",
+            "altitude_m",
+            "yaw_rate_limit_radps",
+            "current_tau_s",
+            "current_estimate_tau_s",
+            "altitude_noise_tau_s",
+            "attitude_tau_s",
+            "heading_wander_tau_s",
+            "altitude_swing_period_s",
+            "wave_period_s",
+            "tether_tau_s",
+        ):
             if not (getattr(self, name) > 0):
                 raise SimulationError(f"VehicleParams.{name} must be > 0, got {getattr(self, name)}")
         for name in ("wave_surge_mps", "wave_sway_mps", "wave_yaw_rad", "wave_heave_m", "tether_jerk_mps"):
@@ -146,8 +165,7 @@ class VehicleParams:
     @property
     def has_waves(self) -> bool:
         """Whether the swell or the tether move the vehicle."""
-        return (self.wave_surge_mps > 0 or self.wave_sway_mps > 0 or self.wave_yaw_rad > 0
-                or self.tether_jerk_mps > 0)
+        return self.wave_surge_mps > 0 or self.wave_sway_mps > 0 or self.wave_yaw_rad > 0 or self.tether_jerk_mps > 0
         if self.substeps < 1:
             raise SimulationError(f"VehicleParams.substeps must be >= 1, got {self.substeps}")
 
@@ -175,8 +193,13 @@ class NavSensorParams:
     attitude_drift_tau_s: float = 60.0
 
     def __post_init__(self) -> None:
-        for name in ("compass_sigma_rad", "compass_drift_rad", "sonar_sigma_m", "attitude_sigma_rad",
-                     "attitude_drift_rad"):
+        for name in (
+            "compass_sigma_rad",
+            "compass_drift_rad",
+            "sonar_sigma_m",
+            "attitude_sigma_rad",
+            "attitude_drift_rad",
+        ):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise SimulationError(f"NavSensorParams.{name} must be a finite number >= 0, got {getattr(self, name)}")
         for name in ("compass_bias_rad", "sonar_offset_m"):
@@ -260,8 +283,15 @@ def simulate_trajectory(
     t = np.arange(n_frames) * dt_frame
     alt, roll, pitch = _altitude_and_attitude(v, seed, t, dt_frame)
     return Trajectory(
-        t_s=t, x_m=out[:, 0], y_m=out[:, 1], altitude_m=alt, heading_rad=out[:, 2], roll_rad=roll,
-        pitch_rad=pitch, surge_mps=out[:, 3], sway_mps=out[:, 4],
+        t_s=t,
+        x_m=out[:, 0],
+        y_m=out[:, 1],
+        altitude_m=alt,
+        heading_rad=out[:, 2],
+        roll_rad=roll,
+        pitch_rad=pitch,
+        surge_mps=out[:, 3],
+        sway_mps=out[:, 4],
     )
 
 
@@ -285,18 +315,22 @@ def _disturbances(v: VehicleParams, seed: int, n_steps: int, dt: float) -> _Dist
     """The current, the heading wander and (with ``v.has_waves``) the swell and the tether, per control step."""
     rng = partial(_trajectory_rng, seed)
     cur_dir = rng(0).uniform(0.0, 2.0 * math.pi)
-    cur_x = v.current_mean_mps * math.cos(cur_dir) + ou_process(rng(1), n_steps, dt, v.current_tau_s,
-                                                                v.current_wander_mps)
-    cur_y = v.current_mean_mps * math.sin(cur_dir) + ou_process(rng(2), n_steps, dt, v.current_tau_s,
-                                                                v.current_wander_mps)
+    cur_x = v.current_mean_mps * math.cos(cur_dir) + ou_process(
+        rng(1), n_steps, dt, v.current_tau_s, v.current_wander_mps
+    )
+    cur_y = v.current_mean_mps * math.sin(cur_dir) + ou_process(
+        rng(2), n_steps, dt, v.current_tau_s, v.current_wander_mps
+    )
     wander = ou_process(rng(3), n_steps, dt, v.heading_wander_tau_s, v.heading_wander_rad)
     wave_u = wave_v = None
     if v.has_waves:  # swell and tether, body-frame velocity (surge, sway) and yaw per control step
         t_steps = np.arange(n_steps) * dt
-        wave_u = (v.wave_surge_mps * swell(rng(8), t_steps, v.wave_period_s)
-                  + ou_process(rng(11), n_steps, dt, v.tether_tau_s, v.tether_jerk_mps))
-        wave_v = (v.wave_sway_mps * swell(rng(9), t_steps, v.wave_period_s)
-                  + ou_process(rng(12), n_steps, dt, v.tether_tau_s, v.tether_jerk_mps))
+        wave_u = v.wave_surge_mps * swell(rng(8), t_steps, v.wave_period_s) + ou_process(
+            rng(11), n_steps, dt, v.tether_tau_s, v.tether_jerk_mps
+        )
+        wave_v = v.wave_sway_mps * swell(rng(9), t_steps, v.wave_period_s) + ou_process(
+            rng(12), n_steps, dt, v.tether_tau_s, v.tether_jerk_mps
+        )
         wander = wander + v.wave_yaw_rad * swell(rng(10), t_steps, v.wave_period_s)
     return _Disturbances(cur_x, cur_y, wander, wave_u, wave_v)
 
@@ -383,14 +417,17 @@ def _fly_grid(v: VehicleParams, grid: GridPattern, n_frames: int, dt: float, dis
     return out
 
 
-def _altitude_and_attitude(v: VehicleParams, seed: int, t: np.ndarray,
-                           dt_frame: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _altitude_and_attitude(
+    v: VehicleParams, seed: int, t: np.ndarray, dt_frame: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(altitude, roll, pitch)`` at the frame times ``t`` ``(N,)``: set point, slow swing, control noise, heave."""
     n_frames = len(t)
     rng = partial(_trajectory_rng, seed)
-    alt = (v.altitude_m
-           + v.altitude_swing_m * np.sin(2.0 * np.pi * t / v.altitude_swing_period_s + rng(4).uniform(0, 2 * np.pi))
-           + ou_process(rng(5), n_frames, dt_frame, v.altitude_noise_tau_s, v.altitude_noise_m))
+    alt = (
+        v.altitude_m
+        + v.altitude_swing_m * np.sin(2.0 * np.pi * t / v.altitude_swing_period_s + rng(4).uniform(0, 2 * np.pi))
+        + ou_process(rng(5), n_frames, dt_frame, v.altitude_noise_tau_s, v.altitude_noise_m)
+    )
     if v.wave_heave_m > 0:
         alt = alt + v.wave_heave_m * swell(rng(13), t, v.wave_period_s)
     roll = ou_process(rng(6), n_frames, dt_frame, v.attitude_tau_s, v.attitude_sigma_rad)
@@ -414,15 +451,25 @@ def read_sensors(
         return np.random.default_rng([seed, _STREAM_SENSORS, sensor])
 
     p = params
-    heading = (traj.heading_rad + p.compass_bias_rad + p.compass_sigma_rad * rng(0).standard_normal(n)
-               + ou_process(rng(4), n, dt, p.compass_drift_tau_s, p.compass_drift_rad))
+    heading = (
+        traj.heading_rad
+        + p.compass_bias_rad
+        + p.compass_sigma_rad * rng(0).standard_normal(n)
+        + ou_process(rng(4), n, dt, p.compass_drift_tau_s, p.compass_drift_rad)
+    )
     heading = (heading + np.pi) % (2.0 * np.pi) - np.pi
     true_range = traj.altitude_m if sonar_range_m is None else np.asarray(sonar_range_m, dtype=np.float64)
     if p.sonar_offset_m != 0.0:  # (only then: the presets' readings stay bit for bit)
         true_range = true_range + p.sonar_offset_m
     sonar = np.round(true_range + p.sonar_sigma_m * rng(1).standard_normal(n), 3) if p.sonar else None
-    roll = (traj.roll_rad + p.attitude_sigma_rad * rng(2).standard_normal(n)
-            + ou_process(rng(5), n, dt, p.attitude_drift_tau_s, p.attitude_drift_rad))
-    pitch = (traj.pitch_rad + p.attitude_sigma_rad * rng(3).standard_normal(n)
-             + ou_process(rng(6), n, dt, p.attitude_drift_tau_s, p.attitude_drift_rad))
+    roll = (
+        traj.roll_rad
+        + p.attitude_sigma_rad * rng(2).standard_normal(n)
+        + ou_process(rng(5), n, dt, p.attitude_drift_tau_s, p.attitude_drift_rad)
+    )
+    pitch = (
+        traj.pitch_rad
+        + p.attitude_sigma_rad * rng(3).standard_normal(n)
+        + ou_process(rng(6), n, dt, p.attitude_drift_tau_s, p.attitude_drift_rad)
+    )
     return NavReadings(heading, sonar, roll, pitch)

@@ -50,20 +50,26 @@ class WaterParams:
             raise SimulationError(f"WaterParams.attenuation_per_m must be 3 values >= 0, got {self.attenuation_per_m}")
         if len(self.backscatter_rgb) != 3 or min(self.backscatter_rgb) < 0:
             raise SimulationError(f"WaterParams.backscatter_rgb must be 3 values >= 0, got {self.backscatter_rgb}")
-        for name in ("light_path_factor", "backscatter_per_m", "forward_scatter_px", "marine_snow_per_m3",
-                     "marine_snow_energy", "lens_aperture_mm"):
+        for name in (
+            "light_path_factor",
+            "backscatter_per_m",
+            "forward_scatter_px",
+            "marine_snow_per_m3",
+            "marine_snow_energy",
+            "lens_aperture_mm",
+        ):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise SimulationError(f"WaterParams.{name} must be a finite number >= 0, got {getattr(self, name)}")
         if self.marine_snow_size_mm <= 0:
             raise SimulationError(f"WaterParams.marine_snow_size_mm must be > 0, got {self.marine_snow_size_mm}")
 
     @classmethod
-    def none(cls) -> "WaterParams":
+    def none(cls) -> WaterParams:
         """No water at all (air): no attenuation, no haze, no scattering, no particles."""
         return cls(attenuation_per_m=(0.0, 0.0, 0.0), backscatter_rgb=(0.0, 0.0, 0.0))
 
     @classmethod
-    def turbid(cls) -> "WaterParams":
+    def turbid(cls) -> WaterParams:
         """Turbid coastal water with marine snow: strong haze, soft detail, drifting particles."""
         return cls(
             attenuation_per_m=(0.75, 0.30, 0.34),
@@ -122,7 +128,9 @@ def marine_snow(
     k_rng = range(int(np.floor(qh / SNOW_CELL_M)), int(np.floor((qh + altitude_m) / SNOW_CELL_M)) + 1)
     cells = [
         _snow_cell(seed, float(water.marine_snow_per_m3), float(water.marine_snow_size_mm), i, j, k)
-        for i in i_rng for j in j_rng for k in k_rng
+        for i in i_rng
+        for j in j_rng
+        for k in k_rng
     ]
     pos = np.concatenate([c[0] for c in cells]) if cells else np.zeros((0, 3))
     diam = np.concatenate([c[1] for c in cells]) if cells else np.zeros(0)

@@ -43,9 +43,7 @@ class Canvas:
     def contains(self, row_lo: int, row_hi: int, col_lo: int, col_hi: int) -> bool:
         """Whether global texel rows [row_lo, row_hi) and columns [col_lo, col_hi) are inside."""
         r, c = self.texels.shape[0] * self.step, self.texels.shape[1] * self.step
-        return (
-            row_lo >= self.row0 and row_hi <= self.row0 + r and col_lo >= self.col0 and col_hi <= self.col0 + c
-        )
+        return row_lo >= self.row0 and row_hi <= self.row0 + r and col_lo >= self.col0 and col_hi <= self.col0 + c
 
 
 @dataclass(frozen=True)
@@ -78,8 +76,13 @@ class World:
     """
 
     def __init__(
-        self, seabed: TextureSource, seed: int = 0, max_canvas_texels: int = 4096, grow_m: float = 0.25,
-        relief: ReliefSource | None = None, area_m: tuple[float, float, float, float] | None = None,
+        self,
+        seabed: TextureSource,
+        seed: int = 0,
+        max_canvas_texels: int = 4096,
+        grow_m: float = 0.25,
+        relief: ReliefSource | None = None,
+        area_m: tuple[float, float, float, float] | None = None,
     ) -> None:
         if int(seed) < 0:
             raise SimulationError(f"seed must be >= 0, got {seed}")
@@ -98,7 +101,7 @@ class World:
         self._relief_canvas: ReliefCanvas | None = None
 
     @classmethod
-    def procedural(cls, seed: int = 0, params: TextureParams | None = None, relief=None, **kwargs) -> "World":
+    def procedural(cls, seed: int = 0, params: TextureParams | None = None, relief=None, **kwargs) -> World:
         """A world over the procedural seabed of ``seed`` (seabeds are shared, see :func:`shared_seabed`).
 
         ``relief``: None (flat), a :class:`~rovslam.sim.relief.ReliefParams` (the procedural
@@ -113,12 +116,12 @@ class World:
         return cls(seabed, seed=seed, relief=relief, **kwargs)
 
     @classmethod
-    def from_image(cls, path: Path | str, mm_per_px: float, seed: int = 0, **kwargs) -> "World":
+    def from_image(cls, path: Path | str, mm_per_px: float, seed: int = 0, **kwargs) -> World:
         """A world over a seabed photograph / orthomosaic file at ``mm_per_px``."""
         return cls(ImageSeabed.from_file(path, mm_per_px), seed=seed, **kwargs)
 
     @classmethod
-    def from_array(cls, rgb: np.ndarray, mm_per_px: float, seed: int = 0, **kwargs) -> "World":
+    def from_array(cls, rgb: np.ndarray, mm_per_px: float, seed: int = 0, **kwargs) -> World:
         """A world over an in-memory ``(H, W, 3) uint8`` RGB image at ``mm_per_px``."""
         return cls(ImageSeabed(rgb, mm_per_px), seed=seed, **kwargs)
 
@@ -151,8 +154,10 @@ class World:
             if current is None or not current.contains(*need):
                 current = self._build(need, level, current, step)
                 self._canvases[key] = current  # type: ignore[index]
-        view = current.texels[(win[0] - current.row0) // step : (win[1] - current.row0) // step,
-                              (win[2] - current.col0) // step : (win[3] - current.col0) // step]
+        view = current.texels[
+            (win[0] - current.row0) // step : (win[1] - current.row0) // step,
+            (win[2] - current.col0) // step : (win[3] - current.col0) // step,
+        ]
         return Canvas(view, win[0], win[2], level, step)
 
     def _check_size(self, need: tuple[int, int, int, int]) -> None:
@@ -162,8 +167,9 @@ class World:
                 f"max_canvas_texels={self.max_canvas_texels}; lower the altitude or use a coarser texture"
             )
 
-    def _bounds(self, need: tuple[int, int, int, int], grow: int, current: tuple[int, int, int, int] | None,
-                texel_m: float):
+    def _bounds(
+        self, need: tuple[int, int, int, int], grow: int, current: tuple[int, int, int, int] | None, texel_m: float
+    ):
         """Bounds (r_lo, r_hi, c_lo, c_hi) of a new canvas holding ``need``, grown by ``grow`` texels.
 
         With ``area_m`` set, the canvas covers that area (and ``need``) when it fits under the
@@ -174,8 +180,12 @@ class World:
         r_lo, r_hi, c_lo, c_hi = need[0] - grow, need[1] + grow, need[2] - grow, need[3] + grow
         if self.area_m is not None:
             x0, x1, y0, y1 = self.area_m
-            a = _align(min(int(np.floor(x0 / texel_m)), need[0]), max(int(np.ceil(x1 / texel_m)), need[1]),
-                       min(int(np.floor(y0 / texel_m)), need[2]), max(int(np.ceil(y1 / texel_m)), need[3]))
+            a = _align(
+                min(int(np.floor(x0 / texel_m)), need[0]),
+                max(int(np.ceil(x1 / texel_m)), need[1]),
+                min(int(np.floor(y0 / texel_m)), need[2]),
+                max(int(np.ceil(y1 / texel_m)), need[3]),
+            )
             if max(a[1] - a[0], a[3] - a[2]) <= self.max_canvas_texels:
                 return a
         if current is not None:  # grow the current canvas if the union stays small enough

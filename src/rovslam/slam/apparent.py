@@ -82,12 +82,17 @@ def apparent_frame_cov_m2(xy_m, depth_m, tilt_sigma_rad, rotation_sigma_rad, sca
     single = xy.ndim == 1
     xy = np.atleast_2d(xy)
     n = xy.shape[0]
-    tilt_var = (np.broadcast_to(np.asarray(depth_m, dtype=np.float64), (n,))
-                * np.broadcast_to(np.asarray(tilt_sigma_rad, dtype=np.float64), (n,))) ** 2
+    tilt_var = (
+        np.broadcast_to(np.asarray(depth_m, dtype=np.float64), (n,))
+        * np.broadcast_to(np.asarray(tilt_sigma_rad, dtype=np.float64), (n,))
+    ) ** 2
     rot_var = np.broadcast_to(np.asarray(rotation_sigma_rad, dtype=np.float64), (n,)) ** 2
     jx = np.stack([-xy[:, 1], xy[:, 0]], axis=1)  # J x
     scale_var = np.broadcast_to(np.asarray(scale_sigma, dtype=np.float64), (n,)) ** 2
-    cov = rot_var[:, None, None] * jx[:, :, None] * jx[:, None, :] + scale_var[:, None, None] * xy[:, :, None] * xy[:, None, :]
+    cov = (
+        rot_var[:, None, None] * jx[:, :, None] * jx[:, None, :]
+        + scale_var[:, None, None] * xy[:, :, None] * xy[:, None, :]
+    )
     cov[:, 0, 0] += tilt_var
     cov[:, 1, 1] += tilt_var
     return cov[0] if single else cov

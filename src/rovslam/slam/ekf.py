@@ -140,7 +140,11 @@ class EkfSlam(SlamState):
     ):
         self.config = config  # validated when it was built (rovslam.config)
         xy = checked_vector2("initial_xy_m", initial_xy_m)
-        z0 = None if initial_altitude_m is None else checked_scalar("initial_altitude_m", initial_altitude_m, positive=True)
+        z0 = (
+            None
+            if initial_altitude_m is None
+            else checked_scalar("initial_altitude_m", initial_altitude_m, positive=True)
+        )
         if initial_cov_m2 is None:
             cov = np.eye(2) * config.initial_position_sigma_m**2
         else:
@@ -152,8 +156,11 @@ class EkfSlam(SlamState):
         if lay.eps is not None:
             self._P[lay.eps, lay.eps] = config.heading_bias_sigma_rad**2
         if lay.b is not None:
-            sb = config.altitude_bias_sigma_m if z0 is None else altitude_offset_sigma_m(
-                config.altitude_bias_sigma_m, config.altitude_scale_sigma, z0)
+            sb = (
+                config.altitude_bias_sigma_m
+                if z0 is None
+                else altitude_offset_sigma_m(config.altitude_bias_sigma_m, config.altitude_scale_sigma, z0)
+            )
             self._P[lay.b, lay.b] = sb**2
         self._w_sigma_mps = 0.0  # the speed error's stationary sigma over the last step (0: none yet)
 
@@ -194,8 +201,9 @@ class EkfSlam(SlamState):
         state indices, and its depth."""
         lay = self.layout
         depth = self._depth(k, z)
-        h, hs = observe_landmarks(lay, self._x, np.array([k], dtype=np.intp), self._x[:2], self.map_heading_rad(psi),
-                                  np.array([depth]), f)
+        h, hs = observe_landmarks(
+            lay, self._x, np.array([k], dtype=np.intp), self._x[:2], self.map_heading_rad(psi), np.array([depth]), f
+        )
         idx = np.concatenate([np.arange(lay.vehicle_dim), np.arange(k, k + lay.landmark_dim)])
         return h[0], hs[0], idx, depth
 
@@ -259,12 +267,18 @@ class EkfSlam(SlamState):
         p_vl = p[:v][:, lm_rows].transpose(1, 0, 2)  # (K, v, lm)
         p_ll = p[lm_rows[:, :, None], lm_rows[:, None, :]]  # (K, lm, lm)
         cross = hv_m @ p_vl @ np.swapaxes(hl_m, 1, 2)
-        s = hv_m @ p_vv @ np.swapaxes(hv_m, 1, 2) + cross + np.swapaxes(cross, 1, 2) + hl_m @ p_ll @ np.swapaxes(hl_m, 1, 2)
+        s = (
+            hv_m @ p_vv @ np.swapaxes(hv_m, 1, 2)
+            + cross
+            + np.swapaxes(cross, 1, 2)
+            + hl_m @ p_ll @ np.swapaxes(hl_m, 1, 2)
+        )
         s = s + np.eye(2) * sp**2
         return h, 0.5 * (s + np.swapaxes(s, 1, 2))
 
-    def _innovation(self, i, mn_px, heading_rad, altitude_m, focal_px, pixel_sigma_px, altitude_sigma_m,
-                    heading_sigma_rad):
+    def _innovation(
+        self, i, mn_px, heading_rad, altitude_m, focal_px, pixel_sigma_px, altitude_sigma_m, heading_sigma_rad
+    ):
         """(nu (2,), H columns, state indices, R_m, first state row) of one observation, its inputs checked."""
         k = self._index(i)
         mn = checked_vector2("mn_px", mn_px)
@@ -311,8 +325,9 @@ class EkfSlam(SlamState):
             InvalidMeasurementError: NaN/inf or invalid input, unknown id; the state is unchanged.
             FilterInconsistencyError: the covariance lost positive semi-definiteness.
         """
-        nu, hs, idx, r_m, k = self._innovation(i, mn_px, heading_rad, altitude_m, focal_px, pixel_sigma_px,
-                                               altitude_sigma_m, heading_sigma_rad)
+        nu, hs, idx, r_m, k = self._innovation(
+            i, mn_px, heading_rad, altitude_m, focal_px, pixel_sigma_px, altitude_sigma_m, heading_sigma_rad
+        )
         n = self._n
         rows = self._P[idx, :n]  # (v + lm, n) = P[:, idx]^T (P symmetric), contiguous
         s, s_inv = self._innovation_cov(hs @ rows[:, idx] @ hs.T + r_m, i)
@@ -409,8 +424,13 @@ class EkfSlam(SlamState):
         r_m = observation_noise_px2(mn, sp, depth, sz, sh)
         xy = landmark_from_mn(mn, self._x[:2], theta, depth, f)[0]  # (4)
         jh = -(g @ mn) / depth if lay.has_landmark_heights else None  # d X / d h
-        return self._append_landmark(xy, lay.new_landmark_jacobian(j_psi, g, mn, depth), g @ r_m @ g.T, jh,
-                                     full=self.config.augmentation == "full")
+        return self._append_landmark(
+            xy,
+            lay.new_landmark_jacobian(j_psi, g, mn, depth),
+            g @ r_m @ g.T,
+            jh,
+            full=self.config.augmentation == "full",
+        )
 
     # ------------------------------------------------------------------ (5), (6)
     def _gate_inputs(self):

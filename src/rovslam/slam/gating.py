@@ -101,7 +101,9 @@ def visibility_statistics(
     cross_cov_m2: np.ndarray | None = None,
 ) -> np.ndarray:
     """(N,) left-hand side of (5): ``d^T (P_Xi + P_x [- C - C^T] + D)^-1 d``."""
-    return _offset_statistics(landmarks_xy_m, landmarks_cov_m2, vehicle_xy_m, vehicle_cov_m2, footprint_m2, cross_cov_m2)
+    return _offset_statistics(
+        landmarks_xy_m, landmarks_cov_m2, vehicle_xy_m, vehicle_cov_m2, footprint_m2, cross_cov_m2
+    )
 
 
 def _offset_statistics(landmarks_xy_m, landmarks_cov_m2, vehicle_xy_m, vehicle_cov_m2, extra_m2, cross_cov_m2):
@@ -121,9 +123,12 @@ def visibility_gate(
     cross_cov_m2: np.ndarray | None = None,
 ) -> np.ndarray:
     """(N,) bool: landmarks that pass the visibility gate (5) (statistic <= lambda)."""
-    return visibility_statistics(
-        landmarks_xy_m, landmarks_cov_m2, vehicle_xy_m, vehicle_cov_m2, footprint_m2, cross_cov_m2
-    ) <= lambda_
+    return (
+        visibility_statistics(
+            landmarks_xy_m, landmarks_cov_m2, vehicle_xy_m, vehicle_cov_m2, footprint_m2, cross_cov_m2
+        )
+        <= lambda_
+    )
 
 
 def new_landmark_statistics(

@@ -61,8 +61,7 @@ def check_consistency(p_full: np.ndarray, n: int, repair: bool = True) -> Consis
     p = p_full[:n, :n]
     if not np.all(np.isfinite(p)):
         raise FilterInconsistencyError(
-            "FILTER INCONSISTENT: the covariance holds NaN or infinite entries; "
-            "a bad input reached the filter"
+            "FILTER INCONSISTENT: the covariance holds NaN or infinite entries; a bad input reached the filter"
         )
     asym = float(np.max(np.abs(p - p.T))) if n else 0.0
     sym = 0.5 * (p + p.T)

@@ -19,7 +19,10 @@ __all__ = ["MotionInput", "checked_cov2", "checked_scalar", "checked_vector2"]
 def checked_scalar(name: str, value, *, positive: bool = False, nonnegative: bool = False) -> float:
     """``value`` as a finite float (> 0 with ``positive``, >= 0 with ``nonnegative``)."""
     return finite_scalar(
-        name, value, positive=positive, nonnegative=nonnegative,
+        name,
+        value,
+        positive=positive,
+        nonnegative=nonnegative,
         nan_hint="the filter state; drop this measurement or fix the sensor input (the state is unchanged)",
         suffix=" (the state is unchanged)",
     )
@@ -45,9 +48,7 @@ def checked_cov2(name: str, value) -> np.ndarray:
     if a.shape != (2, 2):
         raise InvalidMeasurementError(f"{name} must be a (2, 2) covariance, got shape {a.shape}")
     if not np.all(np.isfinite(a)):
-        raise InvalidMeasurementError(
-            f"{name} has a NaN or infinite entry: {a.tolist()}; the state is unchanged"
-        )
+        raise InvalidMeasurementError(f"{name} has a NaN or infinite entry: {a.tolist()}; the state is unchanged")
     scale = max(abs(a[0, 0]), abs(a[1, 1]), 1e-300)
     if abs(a[0, 1] - a[1, 0]) > 1e-9 * scale:
         raise InvalidMeasurementError(f"{name} must be symmetric, got {a.tolist()}")
@@ -101,10 +102,16 @@ class MotionInput:
 
     def __post_init__(self) -> None:
         checks: tuple[tuple[str, dict[str, bool] | None], ...] = (
-            ("surge_mps", {}), ("sway_mps", {}), ("speed_cov_mps2", None), ("heading_rad", {}),
-            ("dt_s", {"positive": True}), ("heading_sigma_rad", {"nonnegative": True}),
-            ("altitude_m", {"positive": True}), ("altitude_bias_sigma_m", {"nonnegative": True}),
-            ("altitude_bias_tau_s", {"positive": True}), ("heading_walk_var_rad2", {"nonnegative": True}),
+            ("surge_mps", {}),
+            ("sway_mps", {}),
+            ("speed_cov_mps2", None),
+            ("heading_rad", {}),
+            ("dt_s", {"positive": True}),
+            ("heading_sigma_rad", {"nonnegative": True}),
+            ("altitude_m", {"positive": True}),
+            ("altitude_bias_sigma_m", {"nonnegative": True}),
+            ("altitude_bias_tau_s", {"positive": True}),
+            ("heading_walk_var_rad2", {"nonnegative": True}),
             ("speed_bias_sigma_mps", {"nonnegative": True}),
         )
         for name, kind in checks:  # in this order: the first bad input is the one named

@@ -20,8 +20,13 @@ __all__ = ["joseph_update", "observe_landmarks", "symmetrise_rows"]
 
 
 def observe_landmarks(
-    layout: StateLayout, x: np.ndarray, rows: np.ndarray, vehicle_xy_m: np.ndarray, theta_rad: float,
-    depth_m: np.ndarray, focal_px: float,
+    layout: StateLayout,
+    x: np.ndarray,
+    rows: np.ndarray,
+    vehicle_xy_m: np.ndarray,
+    theta_rad: float,
+    depth_m: np.ndarray,
+    focal_px: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(3) for K landmarks and its stacked Jacobian.
 

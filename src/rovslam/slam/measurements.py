@@ -40,8 +40,9 @@ def _where(index) -> str:
     return f"frame {index}" if index is not None else "measurement"
 
 
-def _scalar(name: str, value, where: str, *, allow_nan: bool = False, positive: bool = False,
-            nonnegative: bool = False) -> float:
+def _scalar(
+    name: str, value, where: str, *, allow_nan: bool = False, positive: bool = False, nonnegative: bool = False
+) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -51,8 +52,11 @@ def _scalar(name: str, value, where: str, *, allow_nan: bool = False, positive: 
             return v
         raise InvalidMeasurementError(f"{where}: {name} is NaN; give a measured value (or drop the frame)")
     if math.isinf(v):
-        raise InvalidMeasurementError(f"{where}: {name} is {v}; give a finite value (NaN when it was not measured)"
-                                      if allow_nan else f"{where}: {name} is {v}; give a finite value")
+        raise InvalidMeasurementError(
+            f"{where}: {name} is {v}; give a finite value (NaN when it was not measured)"
+            if allow_nan
+            else f"{where}: {name} is {v}; give a finite value"
+        )
     if positive and v <= 0.0:
         raise InvalidMeasurementError(f"{where}: {name} must be > 0, got {v}")
     if nonnegative and v < 0.0:

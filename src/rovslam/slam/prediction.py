@@ -58,8 +58,9 @@ class MotionTerms:
     speed_bias_sigma_mps: float
 
 
-def motion_terms(motion: MotionInput, config: SlamConfig, layout: StateLayout, heading_bias_rad: float,
-                 altitude_bias_m: float) -> MotionTerms:
+def motion_terms(
+    motion: MotionInput, config: SlamConfig, layout: StateLayout, heading_bias_rad: float, altitude_bias_m: float
+) -> MotionTerms:
     """Resolve ``motion``'s defaults against ``config`` and linearise (1) at the estimated eps and b."""
     s_psi = float(config.heading_sigma_rad) if motion.heading_sigma_rad is None else motion.heading_sigma_rad
     sb = float(config.altitude_bias_sigma_m) if motion.altitude_bias_sigma_m is None else motion.altitude_bias_sigma_m
@@ -71,9 +72,17 @@ def motion_terms(motion: MotionInput, config: SlamConfig, layout: StateLayout, h
     g, j = motion_jacobians(speed * scale, theta, motion.dt_s)  # d(position) / d(speed), d(position) / d(psi)
     step = motion_step_m(speed * scale, theta, motion.dt_s)
     return MotionTerms(
-        dt_s=motion.dt_s, altitude_m=z, scale=scale, step_m=step, g=g * scale, j=j,
-        speed_cov_mps2=motion.speed_cov_mps2, heading_sigma_rad=s_psi, altitude_bias_sigma_m=sb,
-        altitude_bias_tau_s=tb, heading_walk_var_rad2=motion.heading_walk_var_rad2,
+        dt_s=motion.dt_s,
+        altitude_m=z,
+        scale=scale,
+        step_m=step,
+        g=g * scale,
+        j=j,
+        speed_cov_mps2=motion.speed_cov_mps2,
+        heading_sigma_rad=s_psi,
+        altitude_bias_sigma_m=sb,
+        altitude_bias_tau_s=tb,
+        heading_walk_var_rad2=motion.heading_walk_var_rad2,
         speed_bias_sigma_mps=motion.speed_bias_sigma_mps,
     )
 
@@ -105,8 +114,9 @@ def couple_vehicle(p: np.ndarray, n: int, layout: StateLayout, t: MotionTerms) -
         p[:n, 0:2] += p[:n, cols] @ e.T
 
 
-def drive_biases(x: np.ndarray, p: np.ndarray, n: int, layout: StateLayout, t: MotionTerms,
-                 speed_bias_sigma_before_mps: float) -> None:
+def drive_biases(
+    x: np.ndarray, p: np.ndarray, n: int, layout: StateLayout, t: MotionTerms, speed_bias_sigma_before_mps: float
+) -> None:
     """The optional states' process over the step: eps, b, w Ornstein-Uhlenbeck (eps a random walk
     when the heading is integrated from turns).
 
@@ -119,10 +129,12 @@ def drive_biases(x: np.ndarray, p: np.ndarray, n: int, layout: StateLayout, t: M
         rise = sw**2 - speed_bias_sigma_before_mps**2
         p[w, w] += rise
         p[w + 1, w + 1] += rise
-    for row, tau, sigma in ((layout.eps, layout.heading_bias_tau_s, layout.heading_bias_sigma_rad),
-                            (layout.b, t.altitude_bias_tau_s, t.altitude_bias_sigma_m),
-                            (w, layout.speed_bias_tau_s, sw),
-                            (None if w is None else w + 1, layout.speed_bias_tau_s, sw)):
+    for row, tau, sigma in (
+        (layout.eps, layout.heading_bias_tau_s, layout.heading_bias_sigma_rad),
+        (layout.b, t.altitude_bias_tau_s, t.altitude_bias_sigma_m),
+        (w, layout.speed_bias_tau_s, sw),
+        (None if w is None else w + 1, layout.speed_bias_tau_s, sw),
+    ):
         if row is None:
             continue
         if row == layout.eps and t.heading_walk_var_rad2 is not None:  # an integrated heading: walks, never decays

@@ -276,7 +276,10 @@ class Isam2Smoother:
             self._t0_s = meas.t_s
             guess = g.Pose2(0.0, 0.0, meas.heading_rad)
             # With an AHRS the start is known only up to its tilt offset (as the EKF's start).
-            s_xy = math.hypot(self.config.initial_position_sigma_m, meas.altitude_m * meas.attitude_sigma_rad) or _TINY_SIGMA
+            s_xy = (
+                math.hypot(self.config.initial_position_sigma_m, meas.altitude_m * meas.attitude_sigma_rad)
+                or _TINY_SIGMA
+            )
             # With a compass, the compass and the drift prior fix the heading.
             s_psi = _FREE_SIGMA if meas.has_compass else (self.config.initial_heading_sigma_rad or _TINY_SIGMA)
             graph.add(g.PriorFactorPose2(xk, guess, self._sigmas(s_xy, s_xy, s_psi)))
@@ -305,8 +308,11 @@ class Isam2Smoother:
         self._pose, cov = self._recent_pose(xk)
         r = rot2(self._pose.theta())
         return OnlineEstimate(
-            index=meas.index, t_s=meas.t_s, xy_m=np.array([self._pose.x(), self._pose.y()]),
-            heading_rad=float(self._pose.theta()), cov_xy_m2=r @ cov[:2, :2] @ r.T,
+            index=meas.index,
+            t_s=meas.t_s,
+            xy_m=np.array([self._pose.x(), self._pose.y()]),
+            heading_rad=float(self._pose.theta()),
+            cov_xy_m2=r @ cov[:2, :2] @ r.T,
         )
 
     def _marginal(self, key: int) -> tuple[np.ndarray, np.ndarray]:
@@ -460,11 +466,21 @@ class Isam2Smoother:
             nobs[j] = len(rec.poses)
             down[j] = int(np.sum(self._whitened_norms(rec, xy, psi, lxy[j]) > self.config.robust_k))
         return SmoothedResult(
-            index=np.array(self._index, dtype=np.int64), t_s=np.array(self._t_s), xy_m=xy, heading_rad=psi,
-            altitude_m=np.array(self._altitude_m), cov_xy_m2=cov, landmark_ids=ids, landmarks_xy_m=lxy,
-            landmarks_cov_m2=lcov, landmark_first_t_s=first, landmark_observations=nobs,
-            landmark_downweighted=down, iterations=iterations,
-            attitude_sigma_rad=np.array(self._attitude_sigma_rad), has_compass=np.array(self._has_compass, dtype=bool),
+            index=np.array(self._index, dtype=np.int64),
+            t_s=np.array(self._t_s),
+            xy_m=xy,
+            heading_rad=psi,
+            altitude_m=np.array(self._altitude_m),
+            cov_xy_m2=cov,
+            landmark_ids=ids,
+            landmarks_xy_m=lxy,
+            landmarks_cov_m2=lcov,
+            landmark_first_t_s=first,
+            landmark_observations=nobs,
+            landmark_downweighted=down,
+            iterations=iterations,
+            attitude_sigma_rad=np.array(self._attitude_sigma_rad),
+            has_compass=np.array(self._has_compass, dtype=bool),
         )
 
     @staticmethod

@@ -66,12 +66,17 @@ class StateLayout:
         b = (2 + (eps is not None)) if config.altitude_bias_sigma_m > 0 else None
         w = (2 + (eps is not None) + (b is not None)) if config.speed_bias_sigma_mps > 0 else None
         return cls(
-            eps=eps, b=b, w=w,
+            eps=eps,
+            b=b,
+            w=w,
             vehicle_dim=2 + (eps is not None) + (b is not None) + 2 * (w is not None),
             landmark_dim=3 if config.landmark_height_sigma_m > 0 else 2,
-            heading_bias_sigma_rad=config.heading_bias_sigma_rad, heading_bias_tau_s=config.heading_bias_tau_s,
-            altitude_bias_sigma_m=config.altitude_bias_sigma_m, altitude_bias_tau_s=config.altitude_bias_tau_s,
-            speed_bias_tau_s=config.speed_bias_tau_s, landmark_process_sigma_m=config.landmark_process_sigma_m,
+            heading_bias_sigma_rad=config.heading_bias_sigma_rad,
+            heading_bias_tau_s=config.heading_bias_tau_s,
+            altitude_bias_sigma_m=config.altitude_bias_sigma_m,
+            altitude_bias_tau_s=config.altitude_bias_tau_s,
+            speed_bias_tau_s=config.speed_bias_tau_s,
+            landmark_process_sigma_m=config.landmark_process_sigma_m,
             altitude_bias_consider=config.altitude_bias_consider,
             landmark_height_sigma_m=config.landmark_height_sigma_m,
         )
@@ -138,8 +143,9 @@ class SlamState:
         if self._n + extra > self._cap:
             self._alloc(max(2 * self._cap, self._n + extra))
 
-    def _append_landmark(self, xy_m: np.ndarray, jv: np.ndarray, noise_m2: np.ndarray, jh: np.ndarray | None,
-                         full: bool) -> int:
+    def _append_landmark(
+        self, xy_m: np.ndarray, jv: np.ndarray, noise_m2: np.ndarray, jh: np.ndarray | None, full: bool
+    ) -> int:
         """Append a landmark block; returns its id.
 
         ``cov(X, .) = jv cov(vehicle, .)`` (``jv`` (2, vehicle_dim)) plus ``noise_m2`` (2, 2), the
@@ -261,7 +267,8 @@ class SlamState:
             raise InvalidMeasurementError(f"landmark id must be an integer, got {i!r}") from None
         if not 0 <= k < self.n_landmarks:
             raise InvalidMeasurementError(
-                f"no landmark {k}: the map holds ids 0..{self.n_landmarks - 1}" if self.n_landmarks
+                f"no landmark {k}: the map holds ids 0..{self.n_landmarks - 1}"
+                if self.n_landmarks
                 else f"no landmark {k}: the map is empty; augment() first"
             )
         return self.layout.landmark_row(k)
@@ -317,10 +324,14 @@ class SlamState:
     def vehicle_landmark_cov_m2(self) -> np.ndarray:
         """(N, 2, 2) cross-covariances ``C_i = cov(x, X_i)`` (vehicle rows, landmark columns)."""
         lay = self.layout
-        return self._P[0:2, lay.vehicle_dim : self._n].reshape(2, -1, lay.landmark_dim)[:, :, :2].transpose(1, 0, 2).copy()
+        return (
+            self._P[0:2, lay.vehicle_dim : self._n].reshape(2, -1, lay.landmark_dim)[:, :, :2].transpose(1, 0, 2).copy()
+        )
 
     def __repr__(self) -> str:
         x, y = self._x[:2]
         lay = self.layout
-        return (f"{type(self).__name__}(vehicle=({x:.3f}, {y:.3f}) m, landmarks={self.n_landmarks}, "
-                f"capacity={(self._cap - lay.vehicle_dim) // lay.landmark_dim})")
+        return (
+            f"{type(self).__name__}(vehicle=({x:.3f}, {y:.3f}) m, landmarks={self.n_landmarks}, "
+            f"capacity={(self._cap - lay.vehicle_dim) // lay.landmark_dim})"
+        )

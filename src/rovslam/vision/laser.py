@@ -44,7 +44,6 @@ SOURCE_FIXED = "fixed"
 SOURCE_HELD = "held"  # no reading in this frame: the altitude filter's prediction (rovslam.sensor.altitude)
 
 
-
 @dataclass(frozen=True, eq=False)
 class AltitudeEstimate:
     """Image depth Z of one frame.
@@ -119,9 +118,7 @@ def _rig_body(lasers: tuple[LaserPointer, ...]) -> tuple[np.ndarray, np.ndarray]
 
 def _check_attitude(roll_rad: float, pitch_rad: float) -> None:
     if not (np.isfinite(roll_rad) and np.isfinite(pitch_rad)):
-        raise InvalidMeasurementError(
-            f"roll and pitch must be finite radians, got roll={roll_rad}, pitch={pitch_rad}"
-        )
+        raise InvalidMeasurementError(f"roll and pitch must be finite radians, got roll={roll_rad}, pitch={pitch_rad}")
 
 
 def predict_spot_pixels(
@@ -155,8 +152,9 @@ def predict_spot_pixels(
     return uv
 
 
-def lasers_never_in_view(camera: Camera, lasers: Sequence[LaserPointer], min_altitude_m: float,
-                         max_altitude_m: float) -> list[int]:
+def lasers_never_in_view(
+    camera: Camera, lasers: Sequence[LaserPointer], min_altitude_m: float, max_altitude_m: float
+) -> list[int]:
     """Indices of the pointers whose spot is outside the image at every altitude of the range (level camera).
 
     Such a pointer cannot give an altitude: its ``origin_m`` or ``direction`` is wrong (millimetres
@@ -170,8 +168,9 @@ def lasers_never_in_view(camera: Camera, lasers: Sequence[LaserPointer], min_alt
     seen = np.zeros(len(lasers), dtype=bool)
     for z in zs:
         uv = predict_spot_pixels(camera, lasers, float(z))
-        seen |= ((uv[:, 0] >= 0) & (uv[:, 0] <= camera.width_px - 1)
-                 & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height_px - 1))
+        seen |= (
+            (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width_px - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height_px - 1)
+        )
     return [int(i) for i in np.flatnonzero(~seen)]
 
 
@@ -412,14 +411,12 @@ def fuse_altitude(
     if np.isfinite(laser_alt) and sonar is not None:
         w_l, w_s = 1.0 / laser_sig**2, 1.0 / config.sonar_sigma_m**2
         alt = (w_l * laser_alt + w_s * sonar) / (w_l + w_s)
-        return AltitudeEstimate(alt, float(1.0 / np.sqrt(w_l + w_s)), SOURCE_LASER_SONAR, spots,
-                                n_in, slope, laser_alt)
+        return AltitudeEstimate(alt, float(1.0 / np.sqrt(w_l + w_s)), SOURCE_LASER_SONAR, spots, n_in, slope, laser_alt)
     if np.isfinite(laser_alt):
         return AltitudeEstimate(laser_alt, laser_sig, SOURCE_LASER, spots, n_in, slope, laser_alt)
     if sonar is not None:
         return AltitudeEstimate(sonar, float(config.sonar_sigma_m), SOURCE_SONAR, spots, 0)
-    return AltitudeEstimate(float(fallback_altitude_m), float(config.fixed_altitude_sigma_m),
-                            SOURCE_FIXED, spots, 0)
+    return AltitudeEstimate(float(fallback_altitude_m), float(config.fixed_altitude_sigma_m), SOURCE_FIXED, spots, 0)
 
 
 class LaserAltimeter:
@@ -433,8 +430,9 @@ class LaserAltimeter:
         and as the first prediction of the spot positions.
     """
 
-    def __init__(self, camera: Camera, lasers: Sequence[LaserPointer], config: LaserConfig,
-                 fallback_altitude_m: float) -> None:
+    def __init__(
+        self, camera: Camera, lasers: Sequence[LaserPointer], config: LaserConfig, fallback_altitude_m: float
+    ) -> None:
         if not (np.isfinite(fallback_altitude_m) and fallback_altitude_m > 0):
             raise InvalidArgumentError(
                 f"fallback altitude must be a positive number of metres, got {fallback_altitude_m}; "
@@ -458,8 +456,13 @@ class LaserAltimeter:
         self._spots_seen = False
         self._frames = 0
 
-    def measure(self, image_rgb: np.ndarray, sonar_altitude_m: float | None = None,
-                roll_rad: float = 0.0, pitch_rad: float = 0.0) -> AltitudeEstimate:
+    def measure(
+        self,
+        image_rgb: np.ndarray,
+        sonar_altitude_m: float | None = None,
+        roll_rad: float = 0.0,
+        pitch_rad: float = 0.0,
+    ) -> AltitudeEstimate:
         """Altitude of one frame: detect, associate, triangulate, check, fuse (see :func:`fuse_altitude`).
 
         Parameters
@@ -478,12 +481,12 @@ class LaserAltimeter:
             sonar_altitude_m = None
         if img.ndim == 2 or not self.lasers:
             n = len(self.lasers)
-            est = fuse_altitude(np.full(n, np.nan), np.full(n, np.nan), sonar_altitude_m,
-                                self.fallback_altitude_m, cfg)
+            est = fuse_altitude(np.full(n, np.nan), np.full(n, np.nan), sonar_altitude_m, self.fallback_altitude_m, cfg)
         else:
             est = self._measure_at(img, self._last_altitude_m, sonar_altitude_m, roll_rad, pitch_rad)
             if est.n_spots < len(self.lasers) and (
-                    len(detect_laser_spots(img, None, cfg)) > len(est.spots_uv_px) or self._faint_ladder_due(img)):
+                len(detect_laser_spots(img, None, cfg)) > len(est.spots_uv_px) or self._faint_ladder_due(img)
+            ):
                 est = self._search_altitudes(img, est, sonar_altitude_m, roll_rad, pitch_rad)
             self._frames += 1
         if est.n_spots:
@@ -505,18 +508,34 @@ class LaserAltimeter:
             return False
         return cv2.minMaxLoc(red_excess(img))[1] >= cfg.faint_red_excess
 
-    def _measure_at(self, img: np.ndarray, predict_altitude_m: float, sonar_altitude_m: float | None,
-                    roll_rad: float, pitch_rad: float) -> AltitudeEstimate:
+    def _measure_at(
+        self,
+        img: np.ndarray,
+        predict_altitude_m: float,
+        sonar_altitude_m: float | None,
+        roll_rad: float,
+        pitch_rad: float,
+    ) -> AltitudeEstimate:
         cfg = self.config
         pred = predict_spot_pixels(self.camera, self.lasers, predict_altitude_m, roll_rad, pitch_rad)
         spots = find_faint_spots(img, pred, detect_laser_spots(img, pred, cfg), cfg)
-        pts, sig = _points_and_sigmas(self.camera, self.lasers, spots, cfg.spot_sigma_px,
-                                      roll_rad, pitch_rad, cfg.min_altitude_m, cfg.max_altitude_m)
-        return fuse_altitude(pts[:, 2], sig, sonar_altitude_m, self.fallback_altitude_m, cfg,
-                             spots_uv_px=spots, points_level_m=pts)
+        pts, sig = _points_and_sigmas(
+            self.camera,
+            self.lasers,
+            spots,
+            cfg.spot_sigma_px,
+            roll_rad,
+            pitch_rad,
+            cfg.min_altitude_m,
+            cfg.max_altitude_m,
+        )
+        return fuse_altitude(
+            pts[:, 2], sig, sonar_altitude_m, self.fallback_altitude_m, cfg, spots_uv_px=spots, points_level_m=pts
+        )
 
-    def _search_altitudes(self, img: np.ndarray, best: AltitudeEstimate, sonar_altitude_m: float | None,
-                          roll_rad: float, pitch_rad: float) -> AltitudeEstimate:
+    def _search_altitudes(
+        self, img: np.ndarray, best: AltitudeEstimate, sonar_altitude_m: float | None, roll_rad: float, pitch_rad: float
+    ) -> AltitudeEstimate:
         """Re-predict the spots over a ladder of altitudes (ratio 1.4), nearest the last one first.
 
         Used only when red blobs are in the image but not where the last altitude puts the

@@ -78,8 +78,13 @@ class ProcessingScale:
         h = max(32, int(round(full.height_px * scale)))
         su, sv = w / full.width_px, h / full.height_px
         cam = dataclasses.replace(
-            full, width_px=w, height_px=h, fx_px=full.fx_px * su, fy_px=full.fy_px * sv,
-            cx_px=min(w, max(0.0, (full.cx_px + 0.5) * su - 0.5)), cy_px=min(h, max(0.0, (full.cy_px + 0.5) * sv - 0.5)),
+            full,
+            width_px=w,
+            height_px=h,
+            fx_px=full.fx_px * su,
+            fy_px=full.fy_px * sv,
+            cx_px=min(w, max(0.0, (full.cx_px + 0.5) * su - 0.5)),
+            cy_px=min(h, max(0.0, (full.cy_px + 0.5) * sv - 0.5)),
         )
         return cls(full, cam, su, sv)
 
@@ -136,7 +141,9 @@ class ProcessingScale:
             return config
         s = self.scale
         return dataclasses.replace(
-            config, search_radius_px=config.search_radius_px / s, spot_sigma_px=config.spot_sigma_px / s,
+            config,
+            search_radius_px=config.search_radius_px / s,
+            spot_sigma_px=config.spot_sigma_px / s,
             faint_search_radius_px=config.faint_search_radius_px / s,
             max_spot_area_px=max(config.min_spot_area_px, int(round(config.max_spot_area_px / (s * s)))),
         )

@@ -101,17 +101,37 @@ def _spot_candidates(
         np.minimum.at(lo_v, lab, pix[:, 1])
         np.maximum.at(hi_u, lab, pix[:, 0])
         np.maximum.at(hi_v, lab, pix[:, 1])
-        cents = np.array([_skirt_centre(excess, labels, mask, (bu0, bv0), int(i), int(area[i]), config.spot_skirt_px,
-                                        (int(lo_u[i]), int(lo_v[i]), int(hi_u[i]) + 1, int(hi_v[i]) + 1))
-                          for i in ids]) + (u0, v0)
+        cents = np.array(
+            [
+                _skirt_centre(
+                    excess,
+                    labels,
+                    mask,
+                    (bu0, bv0),
+                    int(i),
+                    int(area[i]),
+                    config.spot_skirt_px,
+                    (int(lo_u[i]), int(lo_v[i]), int(hi_u[i]) + 1, int(hi_v[i]) + 1),
+                )
+                for i in ids
+            ]
+        ) + (u0, v0)
     # Strongest first; equal weights (saturated spots of the same size) top to bottom, then left to
     # right: OpenCV's labels follow its block scan, whose order changes with the crop's offset.
     order = np.lexsort((cents[:, 0], cents[:, 1], -weights)) if len(cents) else np.zeros(0, dtype=np.intp)
     return cents[order], weights[order]
 
 
-def _skirt_centre(excess: np.ndarray, labels: np.ndarray, mask: np.ndarray, offset: tuple[int, int],
-                  label: int, area_px: int, skirt_px: float, box: tuple[int, int, int, int]) -> tuple[float, float]:
+def _skirt_centre(
+    excess: np.ndarray,
+    labels: np.ndarray,
+    mask: np.ndarray,
+    offset: tuple[int, int],
+    label: int,
+    area_px: int,
+    skirt_px: float,
+    box: tuple[int, int, int, int],
+) -> tuple[float, float]:
     """``(u, v)`` centre of blob ``label``, weighing its red dominance beyond the threshold too.
 
     A spot's edge fades below ``min_red_excess``: where that fade is lopsided (a video codec's
@@ -135,11 +155,13 @@ def _skirt_centre(excess: np.ndarray, labels: np.ndarray, mask: np.ndarray, offs
     # The label image covers only its sub-window: its overlap with this blob's window.
     lu0, lv0 = max(u0, ou), max(v0, ov)
     lu1, lv1 = min(u1, ou + labels.shape[1]), min(v1, ov + labels.shape[0])
-    lab = labels[lv0 - ov:lv1 - ov, lu0 - ou:lu1 - ou]
+    lab = labels[lv0 - ov : lv1 - ov, lu0 - ou : lu1 - ou]
     own = np.zeros((v1 - v0, u1 - u0), np.uint8)
     others = np.zeros((v1 - v0, u1 - u0), bool)
-    own[lv0 - v0:lv1 - v0, lu0 - u0:lu1 - u0] = (lab == label) & (mask[lv0 - ov:lv1 - ov, lu0 - ou:lu1 - ou] > 0)
-    others[lv0 - v0:lv1 - v0, lu0 - u0:lu1 - u0] = (lab != label) & (lab != 0)
+    own[lv0 - v0 : lv1 - v0, lu0 - u0 : lu1 - u0] = (lab == label) & (
+        mask[lv0 - ov : lv1 - ov, lu0 - ou : lu1 - ou] > 0
+    )
+    others[lv0 - v0 : lv1 - v0, lu0 - u0 : lu1 - u0] = (lab != label) & (lab != 0)
     grown = cv2.dilate(own, _disc(r)) > 0
     ring = cv2.dilate(own, _disc(reach)) > 0
     exu8 = excess[v0:v1, u0:u1]
@@ -149,7 +171,10 @@ def _skirt_centre(excess: np.ndarray, labels: np.ndarray, mask: np.ndarray, offs
     # total > 0: the ring's pixels outside every blob are below the threshold, the blob's own above it
     w = np.where(grown & ~others, np.maximum(ex - pedestal, 0.0), 0.0)
     total = w.sum()
-    uu, vv = np.arange(w.shape[1], dtype=float), np.arange(w.shape[0], dtype=float)[:, None]  # broadcast: the pixels' u, v
+    uu, vv = (
+        np.arange(w.shape[1], dtype=float),
+        np.arange(w.shape[0], dtype=float)[:, None],
+    )  # broadcast: the pixels' u, v
     return float((w * uu).sum() / total + u0), float((w * vv).sum() / total + v0)
 
 
@@ -169,9 +194,7 @@ def _median_u8(values: np.ndarray) -> float:
     return (int(part[k - 1]) + int(part[k])) / 2.0
 
 
-def detect_laser_spots(
-    image_rgb: np.ndarray, predicted_uv_px: np.ndarray | None, config: LaserConfig
-) -> np.ndarray:
+def detect_laser_spots(image_rgb: np.ndarray, predicted_uv_px: np.ndarray | None, config: LaserConfig) -> np.ndarray:
     """Detect the laser spots in the red channel and associate them with their pointers.
 
     A pixel belongs to a spot when its red dominance ``R - max(G, B)`` is at least
@@ -218,8 +241,9 @@ def detect_laser_spots(
     return out
 
 
-def find_faint_spots(image_rgb: np.ndarray, predicted_uv_px: np.ndarray, spots_uv_px: np.ndarray,
-                     config: LaserConfig) -> np.ndarray:
+def find_faint_spots(
+    image_rgb: np.ndarray, predicted_uv_px: np.ndarray, spots_uv_px: np.ndarray, config: LaserConfig
+) -> np.ndarray:
     """The spots :func:`detect_laser_spots` missed, searched close to their prediction with a threshold of their own.
 
     A faint spot (a dim or green-bleeding laser, turbid water, a video codec's chroma) may peak
@@ -261,7 +285,7 @@ def find_faint_spots(image_rgb: np.ndarray, predicted_uv_px: np.ndarray, spots_u
         u1, v1 = min(w, int(math.ceil(pred[0])) + reach + 1), min(h, int(math.ceil(pred[1])) + reach + 1)
         if u0 >= u1 or v0 >= v1:
             continue
-        excess = excess_all[v0 - bv0:v1 - bv0, u0 - bu0:u1 - bu0]
+        excess = excess_all[v0 - bv0 : v1 - bv0, u0 - bu0 : u1 - bu0]
         vv, uu = np.ogrid[v0:v1, u0:u1]
         near = (uu - pred[0]) ** 2 + (vv - pred[1]) ** 2 <= radius * radius
         for f in found:  # a bright spot's light is not a faint one
@@ -272,11 +296,15 @@ def find_faint_spots(image_rgb: np.ndarray, predicted_uv_px: np.ndarray, spots_u
         if peak < config.faint_red_excess:
             continue
         thr = max(config.faint_red_excess, math.ceil(_FAINT_BLOB_FRACTION * peak))
-        local = replace(config, min_red_excess=float(thr),
-                        search_radius_px=radius, max_spot_area_px=max(config.min_spot_area_px,
-                                                                       config.max_spot_area_px // 2))
-        cents, _ = _spot_candidates(np.ascontiguousarray(image_rgb[v0:v1, u0:u1]), local,
-                                    np.asarray(pred - (u0, v0), dtype=np.float64)[None, :])
+        local = replace(
+            config,
+            min_red_excess=float(thr),
+            search_radius_px=radius,
+            max_spot_area_px=max(config.min_spot_area_px, config.max_spot_area_px // 2),
+        )
+        cents, _ = _spot_candidates(
+            np.ascontiguousarray(image_rgb[v0:v1, u0:u1]), local, np.asarray(pred - (u0, v0), dtype=np.float64)[None, :]
+        )
         if len(cents) == 1:
             out[i] = cents[0] + (u0, v0)
             found = np.vstack([found, out[i]])

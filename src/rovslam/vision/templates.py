@@ -167,8 +167,9 @@ def second_peak(corr: np.ndarray, pu: int, pv: int, exclusion_px: int) -> float:
     return max(-1.0, cv2.minMaxLoc(corr, mask)[1])
 
 
-def self_similarity(track_img: np.ndarray, top_left_uv: tuple[int, int], size_px: int, radius_px: int,
-                    exclusion_px: int = 3) -> float:
+def self_similarity(
+    track_img: np.ndarray, top_left_uv: tuple[int, int], size_px: int, radius_px: int, exclusion_px: int = 3
+) -> float:
     """How much a window looks like its neighbourhood: the highest other peak of its autocorrelation.
 
     The ``size_px`` window at ``top_left_uv`` of the ``(H, W) float32`` image is correlated
@@ -249,16 +250,16 @@ def extract_templates(
     return _choose_greedily(img, score, size, max_count, threshold, spacing, max_self_similarity, similarity_radius_px)
 
 
-def _check_extract_args(track_img, local_var, size_px, max_count, min_local_variance, border_px,
-                        inhibit) -> tuple[np.ndarray, np.ndarray]:
+def _check_extract_args(
+    track_img, local_var, size_px, max_count, min_local_variance, border_px, inhibit
+) -> tuple[np.ndarray, np.ndarray]:
     """``(track_img, local_var)`` as arrays, or InvalidArgumentError naming the argument of
     :func:`extract_templates` that is wrong."""
     img = np.asarray(track_img)
     lv = np.asarray(local_var)
     if img.ndim != 2 or lv.shape != img.shape:
         raise InvalidArgumentError(
-            f"track_img and local_var must be (H, W) arrays of the same shape, got "
-            f"{img.shape} and {lv.shape}"
+            f"track_img and local_var must be (H, W) arrays of the same shape, got {img.shape} and {lv.shape}"
         )
     size = int(size_px)
     if size != size_px or size < 2:
@@ -271,8 +272,7 @@ def _check_extract_args(track_img, local_var, size_px, max_count, min_local_vari
         raise InvalidArgumentError(f"border_px must be a whole number >= 0, got {border_px}")
     if inhibit is not None and (inhibit.shape != img.shape or inhibit.dtype != np.bool_):
         raise InvalidArgumentError(
-            f"inhibit must be an (H, W) bool mask of shape {img.shape}, got "
-            f"{inhibit.shape} {inhibit.dtype}"
+            f"inhibit must be an (H, W) bool mask of shape {img.shape}, got {inhibit.shape} {inhibit.dtype}"
         )
     return img, lv
 
@@ -298,14 +298,23 @@ def _anchor_scores(lv: np.ndarray, size: int, border: int, inhibit: np.ndarray |
         # A window touches a forbidden pixel iff the dilation of the mask by the window
         # (same anchor as the local variance) is set at its anchor.
         kernel = np.ones((size, size), np.uint8)
-        touched = cv2.dilate(inhibit.view(np.uint8), kernel, anchor=(half, half),
-                             borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        touched = cv2.dilate(
+            inhibit.view(np.uint8), kernel, anchor=(half, half), borderType=cv2.BORDER_CONSTANT, borderValue=0
+        )
         np.copyto(score, np.float32(-1.0), where=touched.view(bool))  # = score[touched] = -1, without the gather
     return score
 
 
-def _choose_greedily(img: np.ndarray, score: np.ndarray, size: int, max_count: int, threshold: float, spacing: int,
-                     max_self_similarity: float | None, similarity_radius_px: int) -> list[Template]:
+def _choose_greedily(
+    img: np.ndarray,
+    score: np.ndarray,
+    size: int,
+    max_count: int,
+    threshold: float,
+    spacing: int,
+    max_self_similarity: float | None,
+    similarity_radius_px: int,
+) -> list[Template]:
     """The strongest anchors of ``score`` (modified in place), each suppressing its neighbours (see
     :func:`extract_templates`), cut from ``img`` as templates."""
     half = size // 2
@@ -330,7 +339,9 @@ def _choose_greedily(img: np.ndarray, score: np.ndarray, size: int, max_count: i
         patch.setflags(write=False)
         centre = np.array([u0 + 0.5 * (size - 1), v0 + 0.5 * (size - 1)])
         centre.setflags(write=False)
-        templates.append(Template(centre_uv_px=centre, patch=patch, local_variance=float(best), self_similarity=similarity))
+        templates.append(
+            Template(centre_uv_px=centre, patch=patch, local_variance=float(best), self_similarity=similarity)
+        )
         # Non-overlap: suppress anchors within one template size (or the spacing) in both axes.
         score[max(0, v - spacing + 1) : v + spacing, max(0, u - spacing + 1) : u + spacing] = -1.0
     return templates

@@ -56,7 +56,6 @@ REASON_INHIBITED = "match overlaps inhibited pixels"
 REASON_NOT_FINITE = "correlation not finite"
 
 
-
 @dataclass(frozen=True, eq=False)
 class Match:
     """Result of :func:`match_template`.
@@ -80,8 +79,7 @@ class Match:
     second_score: float = -1.0
 
 
-def _fail(reason: str, uv: np.ndarray | None = None, score: float = float("nan"),
-          second: float = -1.0) -> Match:
+def _fail(reason: str, uv: np.ndarray | None = None, score: float = float("nan"), second: float = -1.0) -> Match:
     return Match(False, np.full(2, np.nan) if uv is None else uv, score, reason, second)
 
 
@@ -155,9 +153,7 @@ def match_template(
     img = np.asarray(track_img)
     tpl = np.asarray(patch)
     if img.ndim != 2 or tpl.ndim != 2:
-        raise InvalidArgumentError(
-            f"match_template needs 2-D image and patch, got {img.shape} and {tpl.shape}"
-        )
+        raise InvalidArgumentError(f"match_template needs 2-D image and patch, got {img.shape} and {tpl.shape}")
     if int(search_radius_px) != search_radius_px or search_radius_px < 1:
         raise InvalidArgumentError(f"search radius must be a whole number >= 1 px, got {search_radius_px}")
     pred = np.asarray(predicted_uv_px, dtype=np.float64).reshape(-1)
@@ -366,8 +362,13 @@ class TokenTracker:
         self._prior = (None, float("nan"))
         self._reduced = None
 
-    def extract(self, track_img: np.ndarray, local_var: np.ndarray, inhibit: np.ndarray | None = None,
-                expected_shift_uv_px: np.ndarray | None = None) -> int:
+    def extract(
+        self,
+        track_img: np.ndarray,
+        local_var: np.ndarray,
+        inhibit: np.ndarray | None = None,
+        expected_shift_uv_px: np.ndarray | None = None,
+    ) -> int:
         """Extract fresh tokens for the next frame (paper step 8); returns how many.
 
         Where the seabed will still be seen: with a large expected motion (more than the search
@@ -390,21 +391,37 @@ class TokenTracker:
         self._prev_small = None
         if self.tracker_config.global_search:
             reduced, self._reduced = self._reduced, None
-            self._prev_small = reduced[1] if reduced is not None and reduced[0] is track_img else (
-                reduce_image(img, global_scale(img.shape)))
+            self._prev_small = (
+                reduced[1]
+                if reduced is not None and reduced[0] is track_img
+                else (reduce_image(img, global_scale(img.shape)))
+            )
         self._prev_inhibit = None if inhibit is None else np.array(inhibit, dtype=bool)
         self._prior_for = None
         return len(self._tokens)
 
-    def _choose(self, img: np.ndarray, local_var: np.ndarray, inhibit: np.ndarray | None,
-                shift_uv_px: np.ndarray | None, slack: float) -> list[Template]:
+    def _choose(
+        self,
+        img: np.ndarray,
+        local_var: np.ndarray,
+        inhibit: np.ndarray | None,
+        shift_uv_px: np.ndarray | None,
+        slack: float,
+    ) -> list[Template]:
         """The tokens of ``img``, away from the band a large ``shift_uv_px`` carries out of the next frame."""
         cfg = self.speed_config
 
         def choose(mask: np.ndarray | None) -> list[Template]:
             return extract_templates(
-                img, local_var, cfg.size_px, cfg.max_count, cfg.min_local_variance, cfg.border_px, mask,
-                cfg.min_spacing_px, cfg.max_self_similarity if cfg.max_self_similarity < 1.0 else None,
+                img,
+                local_var,
+                cfg.size_px,
+                cfg.max_count,
+                cfg.min_local_variance,
+                cfg.border_px,
+                mask,
+                cfg.min_spacing_px,
+                cfg.max_self_similarity if cfg.max_self_similarity < 1.0 else None,
                 cfg.search_radius_px + 2,
             )
 
@@ -451,8 +468,13 @@ class TokenTracker:
         predictions must then be recomputed).
         """
         shift = np.asarray(shift_uv_px, dtype=np.float64).reshape(-1)
-        if (self._prev_img is None or not self._tokens or shift.shape != (2,) or not np.all(np.isfinite(shift))
-                or not _large_motion(shift, self.speed_config.search_radius_px)):
+        if (
+            self._prev_img is None
+            or not self._tokens
+            or shift.shape != (2,)
+            or not np.all(np.isfinite(shift))
+            or not _large_motion(shift, self.speed_config.search_radius_px)
+        ):
             return False
         h, w = self._prev_img.shape
         half = 0.5 * (self.speed_config.size_px - 1)
@@ -462,8 +484,9 @@ class TokenTracker:
         if n_stay == len(self._tokens):
             return False
         size = self.speed_config.size_px
-        fresh = self._choose(self._prev_img, local_variance(self._prev_img, size), self._prev_inhibit, shift,
-                             _PRIOR_SHIFT_SLACK)
+        fresh = self._choose(
+            self._prev_img, local_variance(self._prev_img, size), self._prev_inhibit, shift, _PRIOR_SHIFT_SLACK
+        )
         if len(fresh) <= n_stay:
             return False
         self._tokens = fresh
@@ -524,11 +547,17 @@ class TokenTracker:
         uv_curr = np.array([m.uv_px for m in matches], dtype=np.float64).reshape(-1, 2)[ok]
         self._last_shift = median0(uv_curr - uv_prev) if len(uv_curr) >= 2 else None
         scores = np.array([m.score for m in matches], dtype=np.float64)[ok]
-        return TokenTracks(uv_prev, uv_curr, scores, n, used_global, tuple(m.reason for m in matches),
-                           g_shift, g_conf)
+        return TokenTracks(uv_prev, uv_curr, scores, n, used_global, tuple(m.reason for m in matches), g_shift, g_conf)
 
-    def _search(self, img: np.ndarray, pred: np.ndarray | None, rot: np.ndarray, g_shift: np.ndarray | None,
-                g_conf: float, inhibit: np.ndarray | None) -> tuple[list[Match], bool]:
+    def _search(
+        self,
+        img: np.ndarray,
+        pred: np.ndarray | None,
+        rot: np.ndarray,
+        g_shift: np.ndarray | None,
+        g_conf: float,
+        inhibit: np.ndarray | None,
+    ) -> tuple[list[Match], bool]:
         """``(one match per token, whether they come from the global shift)``: the passes of :meth:`track`.
 
         Around the prediction ``pred`` (2,) first; around the whole-image shift ``g_shift`` when it
@@ -552,7 +581,11 @@ class TokenTracker:
             g_off = rot - rot.mean(axis=0)
             g_matches = _match_all(img, tokens, g_shift + g_off, cfg.global_search_radius_px, cfg, inhibit)
             g_coherent = _coherent(g_matches, tokens, g_off)
-            if matches is None or g_coherent > coherent or (g_coherent == coherent and sum(m.ok for m in g_matches) > n_ok):
+            if (
+                matches is None
+                or g_coherent > coherent
+                or (g_coherent == coherent and sum(m.ok for m in g_matches) > n_ok)
+            ):
                 matches, used_global = g_matches, True
         if g_shift is not None and not global_ok and (matches is None or n_ok < need):
             # A weak phase-correlation peak (large motion, little overlap, low contrast) is still the
@@ -652,5 +685,6 @@ def _coherent(matches: list[Match], tokens: Sequence[Template], offsets_uv_px: n
 
 
 def _empty_tracks(n_given: int) -> TokenTracks:
-    return TokenTracks(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), n_given, False,
-                       ("no previous frame",) * n_given)
+    return TokenTracks(
+        np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), n_given, False, ("no previous frame",) * n_given
+    )

@@ -67,8 +67,12 @@ def source_path(summary: dict, seq: str | Path | None) -> Path | None:
     return Path(named) if named else None
 
 
-def open_frames(summary: dict, seq: str | Path | None = None, camera_file: str | Path | None = None,
-                results_dir: str | Path | None = None) -> FrameStore:
+def open_frames(
+    summary: dict,
+    seq: str | Path | None = None,
+    camera_file: str | Path | None = None,
+    results_dir: str | Path | None = None,
+) -> FrameStore:
     """Open the frames of a run. Raises :class:`SequenceFormatError` saying what is missing and how to fix it."""
     path = source_path(summary, seq)
     if path is None:

@@ -51,14 +51,23 @@ def select_views(res: RunResults, landmark_id: int, max_views: int = 6) -> list[
     obs = res.observations
     kinds = np.asarray(obs.get("kind", np.full(len(obs["t_s"]), "track")), dtype=str) if rows else []  # type: ignore[var-annotated]
     return [
-        View(landmark_id, int(obs["frame"][r]), float(obs["t_s"][r]), str(kinds[r]), float(obs["score"][r]),
-             float(obs["nis"][r]), np.array([obs["u_px"][r], obs["v_px"][r]]), np.zeros((0, 2)))
+        View(
+            landmark_id,
+            int(obs["frame"][r]),
+            float(obs["t_s"][r]),
+            str(kinds[r]),
+            float(obs["score"][r]),
+            float(obs["nis"][r]),
+            np.array([obs["u_px"][r], obs["v_px"][r]]),
+            np.zeros((0, 2)),
+        )
         for r in rows
     ]
 
 
-def attach_images(views: list[View], images: dict[int, np.ndarray], tokens: dict[int, np.ndarray],
-                  out_dir: Path) -> list[View]:
+def attach_images(
+    views: list[View], images: dict[int, np.ndarray], tokens: dict[int, np.ndarray], out_dir: Path
+) -> list[View]:
     """Views with their frame (or the saved crop) and speed tokens filled in."""
     import cv2
 
@@ -71,8 +80,20 @@ def attach_images(views: list[View], images: dict[int, np.ndarray], tokens: dict
             if p.is_file():
                 bgr = cv2.imread(str(p), cv2.IMREAD_COLOR)
                 crop = None if bgr is None else cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
-        out.append(View(v.landmark_id, v.frame, v.t_s, v.kind, v.score, v.nis, v.uv_px,
-                        tokens.get(v.frame, np.zeros((0, 2))), img, crop))
+        out.append(
+            View(
+                v.landmark_id,
+                v.frame,
+                v.t_s,
+                v.kind,
+                v.score,
+                v.nis,
+                v.uv_px,
+                tokens.get(v.frame, np.zeros((0, 2))),
+                img,
+                crop,
+            )
+        )
     return out
 
 
@@ -82,7 +103,11 @@ def _patch(view: View, size: int = LANDMARK_PX) -> np.ndarray | None:
     src = view.image if view.image is not None else view.crop
     if src is None:
         return None
-    centre = tuple(float(c) for c in view.uv_px) if view.image is not None else ((src.shape[1] - 1) / 2, (src.shape[0] - 1) / 2)
+    centre = (
+        tuple(float(c) for c in view.uv_px)
+        if view.image is not None
+        else ((src.shape[1] - 1) / 2, (src.shape[0] - 1) / 2)
+    )
     return cv2.getRectSubPix(np.ascontiguousarray(src), (size, size), centre)
 
 
@@ -92,15 +117,20 @@ def _box(ax, uv, side, **kw) -> None:
     ax.add_patch(Rectangle((uv[0] - side / 2, uv[1] - side / 2), side, side, fill=False, **kw))
 
 
-def plot_gallery(blocks: list[tuple[int, list[View], np.ndarray | None]], path: Path, title: str,
-                 note: str = "") -> Path:
+def plot_gallery(
+    blocks: list[tuple[int, list[View], np.ndarray | None]], path: Path, title: str, note: str = ""
+) -> Path:
     """One block of two rows per landmark: ``(landmark id, views, template (32, 32) uint8 or None)``."""
     plt = pyplot()
     n_cols = max([len(v) for _, v, _ in blocks] + [3])  # at least 3 columns: room for the title
     n_rows = 2 * len(blocks)
-    fig, axes = plt.subplots(n_rows, n_cols, figsize=(2.5 * n_cols + 0.4, 3.4 * len(blocks) + 0.7),
-                             gridspec_kw={"height_ratios": [2.0, 1.0] * len(blocks), "hspace": 0.5},
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        n_rows,
+        n_cols,
+        figsize=(2.5 * n_cols + 0.4, 3.4 * len(blocks) + 0.7),
+        gridspec_kw={"height_ratios": [2.0, 1.0] * len(blocks), "hspace": 0.5},
+        squeeze=False,
+    )
     for a in axes.ravel():
         a.axis("off")
     for b, (lid, views, template) in enumerate(blocks):
@@ -123,8 +153,7 @@ def plot_gallery(blocks: list[tuple[int, list[View], np.ndarray | None]], path: 
                 _box(ax, ((v.crop.shape[1] - 1) / 2, (v.crop.shape[0] - 1) / 2), LANDMARK_PX, ec="yellow", lw=1.2)
             else:
                 ax.text(0.5, 0.5, "frame not\navailable", ha="center", va="center", fontsize=8, transform=ax.transAxes)
-            ax.set_title(f"L{lid} {what}, frame {v.frame}\nt = {v.t_s:.1f} s, {len(v.tokens_uv_px)} tokens",
-                         fontsize=8)
+            ax.set_title(f"L{lid} {what}, frame {v.frame}\nt = {v.t_s:.1f} s, {len(v.tokens_uv_px)} tokens", fontsize=8)
             patch = _patch(v)
             strip = []
             if template is not None:
@@ -136,18 +165,29 @@ def plot_gallery(blocks: list[tuple[int, list[View], np.ndarray | None]], path: 
             ax2 = bottom[c]
             if strip:
                 ax2.imshow(np.hstack(strip), interpolation="nearest")
-            caption = "template | matched patch" if template is not None and patch is not None else (
-                "matched patch" if patch is not None else "template")
+            caption = (
+                "template | matched patch"
+                if template is not None and patch is not None
+                else ("matched patch" if patch is not None else "template")
+            )
             stats = "" if v.kind == "init" else f"\ncorr {v.score:.3f}, NIS {v.nis:.2f}"
             ax2.set_title(caption + stats, fontsize=7.5)
     fig.suptitle(title, fontsize=11)
     if note:
         import textwrap
 
-        fig.text(0.5, 0.005, textwrap.fill(note, int(14 * fig.get_figwidth())), ha="center", va="bottom", fontsize=8,
-                 color="tab:red")
-    fig.subplots_adjust(left=0.01, right=0.99, top=1 - 0.75 / fig.get_figheight(), bottom=0.1 if note else 0.02,
-                        wspace=0.08)
+        fig.text(
+            0.5,
+            0.005,
+            textwrap.fill(note, int(14 * fig.get_figwidth())),
+            ha="center",
+            va="bottom",
+            fontsize=8,
+            color="tab:red",
+        )
+    fig.subplots_adjust(
+        left=0.01, right=0.99, top=1 - 0.75 / fig.get_figheight(), bottom=0.1 if note else 0.02, wspace=0.08
+    )
     return save_figure(fig, path)
 
 

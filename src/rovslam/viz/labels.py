@@ -11,23 +11,29 @@ from __future__ import annotations
 
 import numpy as np
 
-_DIRECTIONS = np.array(
-    [[1, 1], [1, -1], [-1, 1], [-1, -1], [1, 0], [0, 1], [-1, 0], [0, -1]], dtype=float
-)
+_DIRECTIONS = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1], [1, 0], [0, 1], [-1, 0], [0, -1]], dtype=float)
 
 
 def _overlaps(box: np.ndarray, boxes: np.ndarray) -> bool:
     """Whether ``box`` (4,) [x0, y0, x1, y1] overlaps any of ``boxes`` (N, 4)."""
     if len(boxes) == 0:
         return False
-    return bool(np.any((box[0] < boxes[:, 2]) & (boxes[:, 0] < box[2]) & (box[1] < boxes[:, 3]) & (boxes[:, 1] < box[3])))
+    return bool(
+        np.any((box[0] < boxes[:, 2]) & (boxes[:, 0] < box[2]) & (box[1] < boxes[:, 3]) & (boxes[:, 1] < box[3]))
+    )
 
 
 def _covers(box: np.ndarray, pts: np.ndarray, pad: float) -> bool:
     if len(pts) == 0:
         return False
-    return bool(np.any((pts[:, 0] > box[0] - pad) & (pts[:, 0] < box[2] + pad) & (pts[:, 1] > box[1] - pad)
-                       & (pts[:, 1] < box[3] + pad)))
+    return bool(
+        np.any(
+            (pts[:, 0] > box[0] - pad)
+            & (pts[:, 0] < box[2] + pad)
+            & (pts[:, 1] > box[1] - pad)
+            & (pts[:, 1] < box[3] + pad)
+        )
+    )
 
 
 def place_labels(
@@ -61,8 +67,9 @@ def place_labels(
             for d in _DIRECTIONS:
                 c = a + d * (half + r)
                 box = np.array([c[0] - half[0], c[1] - half[1], c[0] + half[0], c[1] + half[1]])
-                inside = bounds is None or (box[0] >= bounds[0] and box[1] >= bounds[1] and box[2] <= bounds[2]
-                                            and box[3] <= bounds[3])
+                inside = bounds is None or (
+                    box[0] >= bounds[0] and box[1] >= bounds[1] and box[2] <= bounds[2] and box[3] <= bounds[3]
+                )
                 if inside and not _overlaps(box, placed) and not _covers(box, obst, 1.5):
                     best = (c, box, ring)
                     break
@@ -104,6 +111,17 @@ def label_points(ax, xy: np.ndarray, texts: list[str], obstacles_xy: np.ndarray 
     colour = text_kw.get("color", "k")
     for s, a, c, m in zip(texts, xy, inv.transform(centres), moved):
         arrow = {"arrowstyle": "-", "lw": 0.5, "color": colour, "shrinkA": 0, "shrinkB": 1} if m else None
-        out.append(ax.annotate(s, a, xytext=c, textcoords="data", ha="center", va="center",
-                               arrowprops=arrow, annotation_clip=False, **text_kw))
+        out.append(
+            ax.annotate(
+                s,
+                a,
+                xytext=c,
+                textcoords="data",
+                ha="center",
+                va="center",
+                arrowprops=arrow,
+                annotation_clip=False,
+                **text_kw,
+            )
+        )
     return out

@@ -58,7 +58,7 @@ class Poses:
             if len(getattr(self, name)) != n:
                 raise InvalidArgumentError(f"Poses.{name} has {len(getattr(self, name))} values for {n} frames")
 
-    def every(self, k: int) -> "Poses":
+    def every(self, k: int) -> Poses:
         """Every ``k``-th pose, keeping only finite ones with a positive altitude."""
         if k < 1:
             raise InvalidArgumentError(f"--every must be a whole number >= 1, got {k}")
@@ -114,8 +114,16 @@ def read_world_file(path: str | Path) -> np.ndarray:
     return np.array([[a, b, c], [d, e, f], [0.0, 0.0, 1.0]])
 
 
-def frame_homography(camera: Camera, grid: MosaicGrid, x_m: float, y_m: float, altitude_m: float,
-                     heading_rad: float, roll_rad: float = 0.0, pitch_rad: float = 0.0) -> np.ndarray:
+def frame_homography(
+    camera: Camera,
+    grid: MosaicGrid,
+    x_m: float,
+    y_m: float,
+    altitude_m: float,
+    heading_rad: float,
+    roll_rad: float = 0.0,
+    pitch_rad: float = 0.0,
+) -> np.ndarray:
     """(3, 3) map from ideal (undistorted) image pixels (u, v, 1) to mosaic pixels (col, row, 1)."""
     r_lc = level_from_camera(camera, roll_rad, pitch_rad)
     c, s, z = math.cos(heading_rad), math.sin(heading_rad), altitude_m
@@ -127,8 +135,14 @@ def _outline_px(camera: Camera) -> np.ndarray:
     """(K, 2) pixels along the image border (corners and edge points) for footprint bounds."""
     w, h = camera.width_px - 1, camera.height_px - 1
     t = np.linspace(0.0, 1.0, 9)
-    return np.vstack([np.column_stack([t * w, np.zeros_like(t)]), np.column_stack([t * w, np.full_like(t, h)]),
-                      np.column_stack([np.zeros_like(t), t * h]), np.column_stack([np.full_like(t, w), t * h])])
+    return np.vstack(
+        [
+            np.column_stack([t * w, np.zeros_like(t)]),
+            np.column_stack([t * w, np.full_like(t, h)]),
+            np.column_stack([np.zeros_like(t), t * h]),
+            np.column_stack([np.full_like(t, w), t * h]),
+        ]
+    )
 
 
 def _footprints(camera: Camera, poses: Poses, grid: MosaicGrid) -> np.ndarray:
@@ -136,8 +150,16 @@ def _footprints(camera: Camera, poses: Poses, grid: MosaicGrid) -> np.ndarray:
     border = np.column_stack([_outline_px(camera), np.ones(len(_outline_px(camera)))])
     out = np.empty((len(poses.frame), 4))
     for k in range(len(poses.frame)):
-        h = frame_homography(camera, grid, poses.x_m[k], poses.y_m[k], poses.altitude_m[k], poses.heading_rad[k],
-                             poses.roll_rad[k], poses.pitch_rad[k])
+        h = frame_homography(
+            camera,
+            grid,
+            poses.x_m[k],
+            poses.y_m[k],
+            poses.altitude_m[k],
+            poses.heading_rad[k],
+            poses.roll_rad[k],
+            poses.pitch_rad[k],
+        )
         p = border @ h.T
         p = p[:, :2] / p[:, 2:3]
         out[k] = (p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max())
@@ -184,8 +206,9 @@ class TiledAccumulator:
                 tile = self.tiles.get((tr, tc))
                 if tile is None:
                     tile = self.tiles[(tr, tc)] = np.zeros((t, t, 4), np.float32)
-                tile[r_lo - tr * t : r_hi - tr * t, c_lo - tc * t : c_hi - tc * t] += \
-                    rgb_w[r_lo - row0 : r_hi - row0, c_lo - col0 : c_hi - col0]
+                tile[r_lo - tr * t : r_hi - tr * t, c_lo - tc * t : c_hi - tc * t] += rgb_w[
+                    r_lo - row0 : r_hi - row0, c_lo - col0 : c_hi - col0
+                ]
 
     def image(self, background_rgb: tuple[int, int, int] = BACKGROUND_RGB) -> tuple[np.ndarray, np.ndarray]:
         """``(rgb (H, W, 3) uint8, covered (H, W) bool)``: the weighted mean where any weight landed."""
@@ -244,8 +267,15 @@ def flat_field(images: Iterable[np.ndarray], sigma_frac: float = 0.12) -> np.nda
     return np.maximum(flat, 0.05)
 
 
-def lay_frame(acc: TiledAccumulator, camera: Camera, grid: MosaicGrid, image: np.ndarray, h_px: np.ndarray,
-              weight: np.ndarray, flat: np.ndarray | None) -> None:
+def lay_frame(
+    acc: TiledAccumulator,
+    camera: Camera,
+    grid: MosaicGrid,
+    image: np.ndarray,
+    h_px: np.ndarray,
+    weight: np.ndarray,
+    flat: np.ndarray | None,
+) -> None:
     """Warp one frame ``image`` (H, W, 3) uint8 by ``h_px`` (ideal pixels -> mosaic) and add it to ``acc``."""
     import cv2
 
@@ -309,8 +339,16 @@ def build_mosaic(
         k = row.get(i)
         if k is None or img.shape[:2] != camera.shape:
             continue
-        h = frame_homography(camera, grid, poses.x_m[k], poses.y_m[k], poses.altitude_m[k], poses.heading_rad[k],
-                             poses.roll_rad[k], poses.pitch_rad[k])
+        h = frame_homography(
+            camera,
+            grid,
+            poses.x_m[k],
+            poses.y_m[k],
+            poses.altitude_m[k],
+            poses.heading_rad[k],
+            poses.roll_rad[k],
+            poses.pitch_rad[k],
+        )
         lay_frame(acc, camera, grid, img, h, weight, flat)
         used += 1
         if progress is not None:
@@ -333,8 +371,9 @@ LABEL_FONT = 0  # cv2.FONT_HERSHEY_SIMPLEX
 LABEL_SCALE = 0.35
 
 
-def landmark_labels(points_px: np.ndarray, texts: list[str], shape_hw: tuple[int, int]
-                    ) -> list[tuple[str, tuple[int, int], tuple[tuple[int, int], tuple[int, int]] | None]]:
+def landmark_labels(
+    points_px: np.ndarray, texts: list[str], shape_hw: tuple[int, int]
+) -> list[tuple[str, tuple[int, int], tuple[tuple[int, int], tuple[int, int]] | None]]:
     """Where to write each landmark's id on the mosaic so that no two ids overlap.
 
     ``points_px`` ``(N, 2)`` the landmarks' pixels (u right, v down), ``texts`` their ids,
@@ -364,8 +403,9 @@ def landmark_labels(points_px: np.ndarray, texts: list[str], shape_hw: tuple[int
     return out
 
 
-def decorate(mosaic: Mosaic, path_xy_m: np.ndarray | None = None, landmarks: dict | None = None,
-             path_colour=(30, 110, 230)) -> np.ndarray:
+def decorate(
+    mosaic: Mosaic, path_xy_m: np.ndarray | None = None, landmarks: dict | None = None, path_colour=(30, 110, 230)
+) -> np.ndarray:
     """The mosaic with the path and landmarks drawn and, in a band below it, a scale bar and a north arrow.
 
     The band is added under the last row (south), so pixel (0, 0) and the world file stay exact.
@@ -407,8 +447,9 @@ def decorate(mosaic: Mosaic, path_xy_m: np.ndarray | None = None, landmarks: dic
     cv2.rectangle(band, (x0, y0), (x0 + bar_px, y0 + 6), (0, 0, 0), 1)
     label = f"{bar_m * 100:g} cm" if bar_m < 1 else f"{bar_m:g} m"
     cv2.putText(band, label, (x0, y0 + 22), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, aa)
-    cv2.putText(band, f"{g.mm_per_px:g} mm/px", (x0 + bar_px + 12, y0 + 8), cv2.FONT_HERSHEY_SIMPLEX, 0.35,
-                (60, 60, 60), 1, aa)
+    cv2.putText(
+        band, f"{g.mm_per_px:g} mm/px", (x0 + bar_px + 12, y0 + 8), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (60, 60, 60), 1, aa
+    )
     ax = w_px - 22
     if ax > x0 + bar_px + 90:
         cv2.arrowedLine(band, (ax, LEGEND_BAND_PX - 6), (ax, 6), (0, 0, 0), 2, aa, tipLength=0.35)
@@ -445,8 +486,9 @@ def check_mosaic_path(path: str | Path) -> Path:
     if png.is_dir():
         raise OutputError(f"{png}: is a folder; the mosaic needs a PNG file name (e.g. {png / 'mosaic.png'}).")
     if png.suffix.lower() != ".png":
-        raise OutputError(f"{png}: a mosaic is written as PNG; give a file name ending in .png "
-                          f"(e.g. {png.with_suffix('.png')}).")
+        raise OutputError(
+            f"{png}: a mosaic is written as PNG; give a file name ending in .png (e.g. {png.with_suffix('.png')})."
+        )
     return png
 
 
@@ -463,8 +505,15 @@ def estimate_poses(res, roll_rad: np.ndarray, pitch_rad: np.ndarray) -> Poses:
     keep = np.ones(n, bool) if "skipped" not in tr else tr["skipped"] < 0.5
     frame = np.arange(n)[keep]
     heading = tr["heading_rad"] if "heading_rad" in tr else np.zeros(n)
-    return Poses(frame, tr["x_m"][keep], tr["y_m"][keep], tr["altitude_m"][keep], heading[keep],
-                 _attitude(roll_rad, frame), _attitude(pitch_rad, frame))
+    return Poses(
+        frame,
+        tr["x_m"][keep],
+        tr["y_m"][keep],
+        tr["altitude_m"][keep],
+        heading[keep],
+        _attitude(roll_rad, frame),
+        _attitude(pitch_rad, frame),
+    )
 
 
 def truth_poses(gt, frame_t_s: np.ndarray, roll_rad: np.ndarray, pitch_rad: np.ndarray, tol_s: float = 1e-3) -> Poses:
@@ -472,8 +521,15 @@ def truth_poses(gt, frame_t_s: np.ndarray, roll_rad: np.ndarray, pitch_rad: np.n
     k = np.clip(np.searchsorted(frame_t_s, gt.t_s - tol_s), 0, max(len(frame_t_s) - 1, 0))
     ok = np.abs(frame_t_s[k] - gt.t_s) <= tol_s if len(frame_t_s) else np.zeros(len(gt.t_s), bool)
     frame = k[ok]
-    return Poses(frame, gt.x_m[ok], gt.y_m[ok], gt.altitude_m[ok], gt.heading_rad[ok],
-                 _attitude(roll_rad, frame), _attitude(pitch_rad, frame))
+    return Poses(
+        frame,
+        gt.x_m[ok],
+        gt.y_m[ok],
+        gt.altitude_m[ok],
+        gt.heading_rad[ok],
+        _attitude(roll_rad, frame),
+        _attitude(pitch_rad, frame),
+    )
 
 
 def _attitude(values: np.ndarray, frame: np.ndarray) -> np.ndarray:
@@ -538,5 +594,7 @@ def mosaic_of_run(
             "or of another size); give the run's sequence or video with --seq."
         )
     rgb = decorate(mosaic, path_xy if overlay else None, lms if overlay else None)
-    png, pgw = write_mosaic(Path(out_png) if out_png is not None else Path(results_dir) / default_name, rgb, mosaic.grid)
+    png, pgw = write_mosaic(
+        Path(out_png) if out_png is not None else Path(results_dir) / default_name, rgb, mosaic.grid
+    )
     return MosaicFiles(png, pgw, mosaic)

@@ -12,8 +12,16 @@ from rovslam.viz.plots import pyplot, save_figure
 __all__ = ["plot_navigation"]
 
 
-def plot_navigation(path: Path, true_xy_m: np.ndarray, est_xy_m: np.ndarray, poi_xy_m: np.ndarray,
-                    poi_names: list[str], nav_start: int, arrivals: list[dict], estimator: str) -> Path:
+def plot_navigation(
+    path: Path,
+    true_xy_m: np.ndarray,
+    est_xy_m: np.ndarray,
+    poi_xy_m: np.ndarray,
+    poi_names: list[str],
+    nav_start: int,
+    arrivals: list[dict],
+    estimator: str,
+) -> Path:
     """Plan view (east right, north up): true path, estimated path, the points and each arrival's true error.
 
     ``true_xy_m``, ``est_xy_m``: (N, 2) per frame; ``nav_start``: the first frame after the

@@ -24,8 +24,14 @@ from rovslam.viz.labels import label_points
 from rovslam.viz.runinfo import SourceShare, altitude_sources
 
 DPI = 110
-_SOURCE_COLOURS = {"laser": "tab:red", "laser+sonar": "tab:purple", "sonar": "tab:blue", "fixed": "tab:gray",
-                   "held": "tab:orange", "none": "k"}
+_SOURCE_COLOURS = {
+    "laser": "tab:red",
+    "laser+sonar": "tab:purple",
+    "sonar": "tab:blue",
+    "fixed": "tab:gray",
+    "held": "tab:orange",
+    "none": "k",
+}
 
 
 def pyplot():
@@ -73,8 +79,15 @@ def plot_altitude_speed(res: RunResults, path: Path, altitude: SourceShare | Non
         ax[0].plot(t, z, lw=0.9, color=_SOURCE_COLOURS.get(name, "tab:green"), label=label)
     if "altitude_sigma_m" in tr:
         s = np.nan_to_num(tr["altitude_sigma_m"], nan=0.0)
-        ax[0].fill_between(t, tr["altitude_m"] - 2 * s, tr["altitude_m"] + 2 * s, color="tab:purple", alpha=0.2,
-                           lw=0, label="+-2 sigma")
+        ax[0].fill_between(
+            t,
+            tr["altitude_m"] - 2 * s,
+            tr["altitude_m"] + 2 * s,
+            color="tab:purple",
+            alpha=0.2,
+            lw=0,
+            label="+-2 sigma",
+        )
     title = "Altitude Z: " + altitude.label
     ax[0].set_title(title, fontsize=10, color="tab:red" if altitude.assumed else "k", loc="left")
     ax[0].set_ylabel("altitude Z [m]")
@@ -101,8 +114,11 @@ def plot_altitude_speed(res: RunResults, path: Path, altitude: SourceShare | Non
 
 
 # Colours of the refused matches, by the reason observations.csv records (others: REFUSED_OTHER).
-REFUSED_COLOURS = {"innovation test": "tab:red", "joint compatibility": "tab:orange",
-                   "laser spot inside the template": "tab:gray"}
+REFUSED_COLOURS = {
+    "innovation test": "tab:red",
+    "joint compatibility": "tab:orange",
+    "laser spot inside the template": "tab:gray",
+}
 REFUSED_OTHER = "tab:purple"
 
 
@@ -125,12 +141,26 @@ def _landmark_track_panel(ax, res: RunResults) -> None:
         kind = np.asarray(obs.get("kind", np.array([], dtype=object)), dtype=str)
         init = kind == "init"
         if np.any(init):
-            ax.scatter(obs["t_s"][init], obs["landmark_id"][init], s=22, facecolors="none", edgecolors="k",
-                       lw=0.7, label="initialised")
+            ax.scatter(
+                obs["t_s"][init],
+                obs["landmark_id"][init],
+                s=22,
+                facecolors="none",
+                edgecolors="k",
+                lw=0.7,
+                label="initialised",
+            )
         reasons = obs.get("reason", np.full(len(ok), "refused", dtype=object))
         for reason, sel in refusal_groups(reasons, obs["accepted"]):
-            ax.scatter(obs["t_s"][sel], obs["landmark_id"][sel], s=10, marker="x", lw=0.7,
-                       c=REFUSED_COLOURS.get(reason, REFUSED_OTHER), label=f"refused: {reason or 'refused'}")
+            ax.scatter(
+                obs["t_s"][sel],
+                obs["landmark_id"][sel],
+                s=10,
+                marker="x",
+                lw=0.7,
+                c=REFUSED_COLOURS.get(reason, REFUSED_OTHER),
+                label=f"refused: {reason or 'refused'}",
+            )
         ax.legend(loc="upper left", fontsize=7, ncol=3)
         top = int(np.nanmax(obs["landmark_id"])) if len(obs["landmark_id"]) else 0
         ax.set_ylim(-0.8, top + 1.2)
@@ -155,11 +185,19 @@ def plot_position(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None
     sd = sigma_m(res)
     n_rows = 5 if gt_xy_m is not None else 4
     ratios = [1.2, 1.2, 1, 1, 1.1] if gt_xy_m is not None else [1.2, 1.2, 1, 1.1]
-    fig, ax = plt.subplots(n_rows, 1, figsize=(9, 2.0 * n_rows + 0.6), sharex=True,
-                           gridspec_kw={"height_ratios": ratios})
+    fig, ax = plt.subplots(
+        n_rows, 1, figsize=(9, 2.0 * n_rows + 0.6), sharex=True, gridspec_kw={"height_ratios": ratios}
+    )
     for k, name in enumerate(("x (north)", "y (east)")):
-        ax[k].fill_between(t, xy[:, k] - 2 * sd[:, k], xy[:, k] + 2 * sd[:, k], color="tab:blue", alpha=0.3,
-                           lw=0, label="+-2 sigma (see below, too thin here)")
+        ax[k].fill_between(
+            t,
+            xy[:, k] - 2 * sd[:, k],
+            xy[:, k] + 2 * sd[:, k],
+            color="tab:blue",
+            alpha=0.3,
+            lw=0,
+            label="+-2 sigma (see below, too thin here)",
+        )
         ax[k].plot(t, xy[:, k], lw=0.8, color="tab:blue", label="estimate")
         if gt_xy_m is not None:
             ax[k].plot(t, gt_xy_m[:, k], lw=0.7, color="k", ls="--", label="truth")
@@ -193,7 +231,9 @@ def plot_position(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None
     return save_figure(fig, path)
 
 
-def ellipse_points(centre: np.ndarray, cov: np.ndarray, n_sigma: float = 2.0, scale: float = 1.0, n: int = 48) -> np.ndarray:
+def ellipse_points(
+    centre: np.ndarray, cov: np.ndarray, n_sigma: float = 2.0, scale: float = 1.0, n: int = 48
+) -> np.ndarray:
     """(n, 2) points of the ``n_sigma`` ellipse of ``cov`` (2, 2) around ``centre`` (2,), magnified by ``scale``."""
     w, v = np.linalg.eigh(np.asarray(cov, dtype=float))
     r = np.sqrt(np.maximum(w, 0.0)) * n_sigma * scale
@@ -243,12 +283,24 @@ def plot_map(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None) -> 
         scale = nice_scale(0.03 * extent / med) if med > 0 else 1
         for k in range(n_lm):
             e = ellipse_points(np.array([lm["x_m"][k], lm["y_m"][k]]), covs[k], 2.0, scale)
-            ax.plot(e[:, 1], e[:, 0], color="tab:red", lw=0.8, zorder=4,
-                    label=f"2-sigma ellipses x{scale} (magnified {scale} times)" if k == 0 else None)
+            ax.plot(
+                e[:, 1],
+                e[:, 0],
+                color="tab:red",
+                lw=0.8,
+                zorder=4,
+                label=f"2-sigma ellipses x{scale} (magnified {scale} times)" if k == 0 else None,
+            )
             if scale > 1:
                 e1 = ellipse_points(np.array([lm["x_m"][k], lm["y_m"][k]]), covs[k], 2.0, 1.0)
-                ax.fill(e1[:, 1], e1[:, 0], color="tab:red", alpha=0.6, lw=0,
-                        label="2-sigma ellipses, true scale" if k == 0 else None)
+                ax.fill(
+                    e1[:, 1],
+                    e1[:, 0],
+                    color="tab:red",
+                    alpha=0.6,
+                    lw=0,
+                    label="2-sigma ellipses, true scale" if k == 0 else None,
+                )
         ax.scatter(pts[:, 0], pts[:, 1], marker="+", color="tab:red", s=36, lw=0.9, label="landmarks", zorder=4)
         # the vehicle's final 2-sigma ellipse at the same magnification
         e = ellipse_points(xy[-1], res.cov_m2[-1], 2.0, scale)
@@ -269,8 +321,15 @@ def plot_map(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None) -> 
         ax.autoscale_view()
         fig.canvas.draw()  # final limits before labels are placed in pixels
         order = np.argsort(lm["id"])
-        label_points(ax, pts[order], [str(int(lm["id"][k])) for k in order], fontsize=7, color="darkred", zorder=5,
-                     bbox={"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.75})
+        label_points(
+            ax,
+            pts[order],
+            [str(int(lm["id"][k])) for k in order],
+            fontsize=7,
+            color="darkred",
+            zorder=5,
+            bbox={"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.75},
+        )
     return save_figure(fig, path)
 
 

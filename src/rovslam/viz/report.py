@@ -83,8 +83,13 @@ def table1(res: RunResults, gt_xy_m: np.ndarray | None, landmark_id: int = 0) ->
     k0 = k_of[0]
     out = []
     for k in k_of:
-        row = {"t_s": float(t[k]), "x_est_m": float(est[k, 0] - est[k0, 0]), "y_est_m": float(est[k, 1] - est[k0, 1]),
-               "sigma_x_m": float(sd[k, 0]), "sigma_y_m": float(sd[k, 1])}
+        row = {
+            "t_s": float(t[k]),
+            "x_est_m": float(est[k, 0] - est[k0, 0]),
+            "y_est_m": float(est[k, 1] - est[k0, 1]),
+            "sigma_x_m": float(sd[k, 0]),
+            "sigma_y_m": float(sd[k, 1]),
+        }
         if gt_xy_m is not None:
             row["x_gt_m"] = float(gt_xy_m[k, 0] - gt_xy_m[k0, 0])
             row["y_gt_m"] = float(gt_xy_m[k, 1] - gt_xy_m[k0, 1])
@@ -96,12 +101,19 @@ def _table1_html(rows: list[dict[str, float]], landmark_id: int, limit: int = 40
     if not rows:
         return f"<p>Landmark {landmark_id} was never observed.</p>"
     gt = "x_gt_m" in rows[0]
-    head = "<tr><th>time [s]</th><th>x&#770; [m]</th><th>y&#770; [m]</th><th>2&sigma; x [cm]</th><th>2&sigma; y [cm]</th>"
+    head = (
+        "<tr><th>time [s]</th><th>x&#770; [m]</th><th>y&#770; [m]</th><th>2&sigma; x [cm]</th><th>2&sigma; y [cm]</th>"
+    )
     head += "<th>x<sub>GT</sub> [m]</th><th>y<sub>GT</sub> [m]</th><th>error [cm]</th></tr>" if gt else "</tr>"
     body = []
     for r in rows[:limit]:
-        cells = [f"{r['t_s']:.1f}", f"{r['x_est_m']:.3f}", f"{r['y_est_m']:.3f}", f"{200 * r['sigma_x_m']:.2f}",
-                 f"{200 * r['sigma_y_m']:.2f}"]
+        cells = [
+            f"{r['t_s']:.1f}",
+            f"{r['x_est_m']:.3f}",
+            f"{r['y_est_m']:.3f}",
+            f"{200 * r['sigma_x_m']:.2f}",
+            f"{200 * r['sigma_y_m']:.2f}",
+        ]
         if gt:
             err = math.hypot(r["x_est_m"] - r["x_gt_m"], r["y_est_m"] - r["y_gt_m"])
             cells += [f"{r['x_gt_m']:.3f}", f"{r['y_gt_m']:.3f}", f"{100 * err:.2f}"]
@@ -110,12 +122,15 @@ def _table1_html(rows: list[dict[str, float]], landmark_id: int, limit: int = 40
     return f"<table>{head}{''.join(body)}</table>{more}"
 
 
-def _key_figures(res: RunResults, acc: dict | None, alt: runinfo.SourceShare, head: runinfo.SourceShare,
-                 gt_xy: np.ndarray | None) -> list[tuple[str, str]]:
+def _key_figures(
+    res: RunResults, acc: dict | None, alt: runinfo.SourceShare, head: runinfo.SourceShare, gt_xy: np.ndarray | None
+) -> list[tuple[str, str]]:
     t = res.t_s
     s = res.summary
     n_lm = len(res.landmarks.get("id", [])) if res.landmarks else 0
-    revisits = sum(max(0, len(runinfo.passages(res, int(i))) - 1) for i in (res.landmarks.get("id", []) if n_lm else []))
+    revisits = sum(
+        max(0, len(runinfo.passages(res, int(i))) - 1) for i in (res.landmarks.get("id", []) if n_lm else [])
+    )
     skipped = int(np.nansum(res.trajectory["skipped"])) if "skipped" in res.trajectory else 0
     fps = s.get("frames_per_second")
     keys = [
@@ -157,8 +172,9 @@ def _choose_landmarks(res: RunResults, landmarks: list[int] | None) -> list[int]
     return ([0] if 0 in ids else []) + runinfo.most_revisited(res, 2, exclude=(0,))
 
 
-def _gallery_section(res: RunResults, out: Path, folder: Path, chosen: list[int], seq: Path | None,
-                     camera_file: Path | None) -> str:
+def _gallery_section(
+    res: RunResults, out: Path, folder: Path, chosen: list[int], seq: Path | None, camera_file: Path | None
+) -> str:
     from rovslam.viz.frames import open_frames
 
     if not chosen:
@@ -175,28 +191,48 @@ def _gallery_section(res: RunResults, out: Path, folder: Path, chosen: list[int]
     tokens = runinfo.read_tokens(folder)
     if not tokens:
         note = (note + " " if note else "") + "This run recorded no speed tokens (tokens.csv missing)."
-    blocks = [(lid, gallery.attach_images(views[lid], images, tokens, folder), gallery.read_template(folder, lid))
-              for lid in chosen]
-    parts = ["<h2>Figures 5 and 6: the landmarks at initialisation and at each revisit</h2>",
-             "<p>Yellow: the landmark's 32x32 template where it was matched; green: the 16x16 speed tokens "
-             "tracked in that frame. Below each view: the template cut at initialisation beside the patch "
-             "matched there, with the normalised correlation and the NIS of the update.</p>"]
+    blocks = [
+        (lid, gallery.attach_images(views[lid], images, tokens, folder), gallery.read_template(folder, lid))
+        for lid in chosen
+    ]
+    parts = [
+        "<h2>Figures 5 and 6: the landmarks at initialisation and at each revisit</h2>",
+        "<p>Yellow: the landmark's 32x32 template where it was matched; green: the 16x16 speed tokens "
+        "tracked in that frame. Below each view: the template cut at initialisation beside the patch "
+        "matched there, with the normalised correlation and the NIS of the update.</p>",
+    ]
     if note:
         parts.append(f"<p class='note'>{html.escape(note)}</p>")
     first, rest = blocks[:1], blocks[1:]
-    p5 = gallery.plot_gallery(first, out / f"fig5_landmark_{first[0][0]}.png",
-                              f"Fig. 5  Camera views when landmark {first[0][0]} is initialised or revisited", note)
+    p5 = gallery.plot_gallery(
+        first,
+        out / f"fig5_landmark_{first[0][0]}.png",
+        f"Fig. 5  Camera views when landmark {first[0][0]} is initialised or revisited",
+        note,
+    )
     parts.append(_img(p5, "Figure 5"))
     if rest:
-        p6 = gallery.plot_gallery(rest, out / "fig6_landmarks.png",
-                                  f"Fig. 6  Camera views of landmark{'s' if len(rest) > 1 else ''} "
-                                  + ", ".join(str(b[0]) for b in rest) + " at initialisation and revisits", note)
+        p6 = gallery.plot_gallery(
+            rest,
+            out / "fig6_landmarks.png",
+            f"Fig. 6  Camera views of landmark{'s' if len(rest) > 1 else ''} "
+            + ", ".join(str(b[0]) for b in rest)
+            + " at initialisation and revisits",
+            note,
+        )
         parts.append(_img(p6, "Figure 6"))
     return "\n".join(parts)
 
 
-def _mosaic_section(folder: Path, out: Path, seq: Path | None, groundtruth: Path | None, every: int | None,
-                    progress: Callable[[int, int], None] | None, camera_file: Path | None) -> str:
+def _mosaic_section(
+    folder: Path,
+    out: Path,
+    seq: Path | None,
+    groundtruth: Path | None,
+    every: int | None,
+    progress: Callable[[int, int], None] | None,
+    camera_file: Path | None,
+) -> str:
     from rovslam.viz.mosaic import mosaic_of_run
 
     head = "<h2>Seabed mosaic</h2>"
@@ -207,20 +243,33 @@ def _mosaic_section(folder: Path, out: Path, seq: Path | None, groundtruth: Path
         est = mosaic_of_run(folder, out / "mosaic.png", seq=seq, every=k, progress=progress, camera_file=camera_file)
         truth = None
         if groundtruth is not None:
-            truth = mosaic_of_run(folder, out / "mosaic_truth.png", seq=seq, every=k, groundtruth=groundtruth,
-                                  grid=est.mosaic.grid, progress=progress, camera_file=camera_file)
+            truth = mosaic_of_run(
+                folder,
+                out / "mosaic_truth.png",
+                seq=seq,
+                every=k,
+                groundtruth=groundtruth,
+                grid=est.mosaic.grid,
+                progress=progress,
+                camera_file=camera_file,
+            )
     except RovslamError as exc:
         return head + f"<p class='note'>No mosaic: {html.escape(str(exc))}</p>"
     g = est.mosaic.grid
-    text = (f"<p>Every {k}{'st' if k == 1 else 'th'} frame laid on the seabed by its pose, altitude and camera model "
-            f"({est.mosaic.frames_used} frames, {g.mm_per_px:g} mm/px, north up). Blue: the path; red: the landmarks. "
-            f"World files (<code>.pgw</code>, metres in the run's frame, x north / y east) are beside the PNGs.</p>")
+    text = (
+        f"<p>Every {k}{'st' if k == 1 else 'th'} frame laid on the seabed by its pose, altitude and camera model "
+        f"({est.mosaic.frames_used} frames, {g.mm_per_px:g} mm/px, north up). Blue: the path; red: the landmarks. "
+        f"World files (<code>.pgw</code>, metres in the run's frame, x north / y east) are beside the PNGs.</p>"
+    )
     if truth is None:
         return head + text + _img(_jpeg(est.png), "mosaic", "laid by the estimate")
-    return (head + text + "<p>Left: laid by the estimate; right: by the ground truth, on the same pixel grid. "
-            "Where they differ, the navigation error shows as a shift or a blur.</p><div class='pair'>"
-            + _img(_jpeg(est.png), "mosaic (estimate)", "estimate") + _img(_jpeg(truth.png), "mosaic (truth)", "ground truth")
-            + "</div>")
+    return (
+        head + text + "<p>Left: laid by the estimate; right: by the ground truth, on the same pixel grid. "
+        "Where they differ, the navigation error shows as a shift or a blur.</p><div class='pair'>"
+        + _img(_jpeg(est.png), "mosaic (estimate)", "estimate")
+        + _img(_jpeg(truth.png), "mosaic (truth)", "ground truth")
+        + "</div>"
+    )
 
 
 def _jpeg(png: Path, quality: int = 88) -> Path:
@@ -244,8 +293,10 @@ def _config_html(folder: Path, res: RunResults) -> str:
         text = json.dumps(res.summary["config"], indent=2)
     sw = res.summary.get("software")
     sw = sw if isinstance(sw, dict) else {}  # a summary.json edited by hand or from another tool
-    meta = (f"<p>rovslam {html.escape(str(sw.get('version', '?')))}; sequence "
-            f"<code>{html.escape(str(res.summary.get('sequence', '?')))}</code>.</p>")
+    meta = (
+        f"<p>rovslam {html.escape(str(sw.get('version', '?')))}; sequence "
+        f"<code>{html.escape(str(res.summary.get('sequence', '?')))}</code>.</p>"
+    )
     return "<h2>Configuration of the run</h2>" + meta + f"<pre>{html.escape(text or 'not recorded')}</pre>"
 
 
@@ -276,8 +327,9 @@ def write_report(
         from rovslam.io.output import file_kind
 
         kind = "a file" if out.is_file() else file_kind(out.stat().st_mode)
-        raise OutputError(f"{out}: is {kind}, where the report's folder goes; move or delete it, then run the report "
-                          "again.")
+        raise OutputError(
+            f"{out}: is {kind}, where the report's folder goes; move or delete it, then run the report again."
+        )
     check_output_folder(out, "the report")  # a link to nothing is refused too
     with output_errors(out, "cannot create the folder"):
         out.mkdir(exist_ok=True)
@@ -295,7 +347,9 @@ def write_report(
         if gt_xy is not None:  # a run without compass: the truth in its frame (its first heading)
             from rovslam.eval.metrics import run_frame_turn_rad, to_run_frame
 
-            gt_xy = to_run_frame(gt_xy, run_frame_turn_rad(res, float(runinfo.truth_at(res, gt.t_s, gt.heading_rad)[0])))  # type: ignore[index]
+            gt_xy = to_run_frame(
+                gt_xy, run_frame_turn_rad(res, float(runinfo.truth_at(res, gt.t_s, gt.heading_rad)[0]))
+            )  # type: ignore[index]
         if gt_xy is None:
             notes.append(f"{groundtruth}: its times do not match the run's frames; accuracy figures left out.")
         else:
@@ -305,8 +359,10 @@ def write_report(
     rep = Report(f"rovslam report: {res.summary.get('sequence_name', folder.name)}")
     rep.keys = _key_figures(res, acc, alt, head, gt_xy)
     if alt.assumed:
-        rep.warnings.append(f"Altitude NOT MEASURED in part or all of the run: {alt.label}. Speeds and positions scale "
-                            "with the assumed value.")
+        rep.warnings.append(
+            f"Altitude NOT MEASURED in part or all of the run: {alt.label}. Speeds and positions scale "
+            "with the assumed value."
+        )
     if head.assumed:
         rep.warnings.append(f"Heading: {head.label}.")
     if res.summary.get("interrupted"):
@@ -326,12 +382,23 @@ def write_report(
     rep.sections.append("<h2>Figures 2 to 4</h2>" + "".join(_img(p, name) for name, p in figs))
     rep.sections.append(_gallery_section(res, out, folder, chosen, seq_path, cam_path))
     t1_id = chosen[0] if chosen else 0
-    rep.sections.append(f"<h2>Table 1: vehicle position at each passage over landmark {t1_id}</h2>"
-                        "<p>Displacement since the landmark was initialised, as in the paper.</p>"
-                        + _table1_html(table1(res, gt_xy, t1_id), t1_id))
+    rep.sections.append(
+        f"<h2>Table 1: vehicle position at each passage over landmark {t1_id}</h2>"
+        "<p>Displacement since the landmark was initialised, as in the paper.</p>"
+        + _table1_html(table1(res, gt_xy, t1_id), t1_id)
+    )
     if mosaic:
-        rep.sections.append(_mosaic_section(folder, out, seq_path, Path(groundtruth) if gt_xy is not None else None,  # type: ignore[arg-type]
-                                            mosaic_every, progress, cam_path))
+        rep.sections.append(
+            _mosaic_section(
+                folder,
+                out,
+                seq_path,
+                Path(groundtruth) if gt_xy is not None else None,  # type: ignore[arg-type]
+                mosaic_every,
+                progress,
+                cam_path,
+            )
+        )
     rep.sections.append(_config_html(folder, res))
     path = out / "index.html"
     atomic_write_text(path, render_html(rep), "the report")
@@ -348,12 +415,14 @@ def render_html(rep: Report) -> str:
     """The report as one HTML document (images already inlined in the sections)."""
     keys = "".join(f"<div class='key'>{k}<b>{v}</b></div>" for k, v in rep.keys)
     warns = "".join(f"<div class='warn'>&#9888; {html.escape(w)}</div>" for w in rep.warnings)
-    return "\n".join([
-        "<!doctype html><html lang='en'><meta charset='utf-8'>",
-        f"<title>{html.escape(rep.title)}</title><style>{_CSS}</style><body>",
-        f"<h1>{html.escape(rep.title)}</h1>",
-        f"<div class='keys'>{keys}</div>",
-        warns,
-        *rep.sections,
-        "</body></html>",
-    ])
+    return "\n".join(
+        [
+            "<!doctype html><html lang='en'><meta charset='utf-8'>",
+            f"<title>{html.escape(rep.title)}</title><style>{_CSS}</style><body>",
+            f"<h1>{html.escape(rep.title)}</h1>",
+            f"<div class='keys'>{keys}</div>",
+            warns,
+            *rep.sections,
+            "</body></html>",
+        ]
+    )

@@ -100,7 +100,9 @@ def heading_source(res: RunResults, sequence: Path | None) -> SourceShare:
     given = res.summary.get("heading_source")
     if isinstance(given, str) and given:
         tokens_only = "token" in given
-        return SourceShare({given: 1.0}, tokens_only, given + (" (no compass: integrated turn, drifts)" if tokens_only else ""))
+        return SourceShare(
+            {given: 1.0}, tokens_only, given + (" (no compass: integrated turn, drifts)" if tokens_only else "")
+        )
     if sequence is None or not sequence.exists():
         return SourceShare({"unknown": 1.0}, True, "unknown (sequence not found)")
     if sequence.is_file():
@@ -116,7 +118,8 @@ def heading_source(res: RunResults, sequence: Path | None) -> SourceShare:
     if share == 1.0:
         return SourceShare({"compass": 1.0}, False, "compass, smoothed with the token rotation (100 %)")
     return SourceShare(
-        {"compass": share, "tokens": 1.0 - share}, True,
+        {"compass": share, "tokens": 1.0 - share},
+        True,
         f"compass ({100 * share:.0f} %), speed tokens only ({100 * (1 - share):.0f} %, no compass)",
     )
 
@@ -200,5 +203,7 @@ def read_tokens(out_dir: Path) -> dict[int, np.ndarray]:
             except (KeyError, TypeError, ValueError):
                 continue  # a torn last line of an interrupted run
     except csv.Error as exc:
-        raise ResultsFormatError(f"{path}: not a readable CSV file ({exc}); run again with --overwrite to rewrite it.") from None
+        raise ResultsFormatError(
+            f"{path}: not a readable CSV file ({exc}); run again with --overwrite to rewrite it."
+        ) from None
     return {k: np.asarray(v) for k, v in out.items()}

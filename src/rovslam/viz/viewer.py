@@ -30,9 +30,22 @@ import numpy as np
 from rovslam.viz.plots import ellipse_points
 
 ENTITY_PATHS = (
-    "camera/image", "camera/lasers", "camera/tokens", "camera/landmarks", "map/path", "map/vehicle",
-    "map/vehicle_ellipse", "map/landmarks", "map/landmark_ellipses", "series/altitude_m", "series/surge_mps",
-    "series/sway_mps", "series/heading_deg", "series/correlation", "series/nis", "series/tokens_tracked",
+    "camera/image",
+    "camera/lasers",
+    "camera/tokens",
+    "camera/landmarks",
+    "map/path",
+    "map/vehicle",
+    "map/vehicle_ellipse",
+    "map/landmarks",
+    "map/landmark_ellipses",
+    "series/altitude_m",
+    "series/surge_mps",
+    "series/sway_mps",
+    "series/heading_deg",
+    "series/correlation",
+    "series/nis",
+    "series/tokens_tracked",
 )
 TOKEN_PX = 16
 LANDMARK_PX = 32
@@ -59,8 +72,16 @@ class RerunViewer:
     2-sigma ellipses (millimetres on a metres map).
     """
 
-    def __init__(self, *, spawn: bool = False, save_path: str | Path | None = None, ellipse_scale: float = 10.0,
-                 map_every: int = 5, jpeg_quality: int = 80, application_id: str = "rovslam"):
+    def __init__(
+        self,
+        *,
+        spawn: bool = False,
+        save_path: str | Path | None = None,
+        ellipse_scale: float = 10.0,
+        map_every: int = 5,
+        jpeg_quality: int = 80,
+        application_id: str = "rovslam",
+    ):
         import rerun as rr
 
         self.rr = rr
@@ -90,9 +111,13 @@ class RerunViewer:
                 self.rec.set_sinks(rr.GrpcSink(), rr.FileSink(str(self.save_path)))
             else:
                 self.rec.save(str(self.save_path))
-        self.rec.log("map/legend", rr.TextDocument(
-            f"Map: east right, north up, metres. Ellipses: 2 sigma, magnified {self.ellipse_scale:g} times."
-        ), static=True)
+        self.rec.log(
+            "map/legend",
+            rr.TextDocument(
+                f"Map: east right, north up, metres. Ellipses: 2 sigma, magnified {self.ellipse_scale:g} times."
+            ),
+            static=True,
+        )
         self._started = True
 
     def __call__(self, frame, res, landmark_rows: Callable[[], list[dict]] | None = None) -> None:
@@ -105,15 +130,22 @@ class RerunViewer:
         self._path.append((res.x_m, res.y_m))
         xy = np.array([[res.x_m, res.y_m]])
         rec.log("map/vehicle", rr.Points2D(_map_xy(xy), radii=0.004, colors=(30, 110, 230)))
-        rec.log("map/vehicle_ellipse", rr.LineStrips2D(
-            [_map_xy(ellipse_points(xy[0], res.cov_xy_m2, 2.0, self.ellipse_scale))], colors=(30, 110, 230)))
+        rec.log(
+            "map/vehicle_ellipse",
+            rr.LineStrips2D(
+                [_map_xy(ellipse_points(xy[0], res.cov_xy_m2, 2.0, self.ellipse_scale))], colors=(30, 110, 230)
+            ),
+        )
         if self._n % self.map_every == 0 or res.new_landmark_id is not None:
             self._log_map(landmark_rows)
         scores = [o.score for o in res.observations if o.kind == "track"]
         nis = [o.nis for o in res.observations if o.kind == "track"]
         series = {
-            "series/altitude_m": res.altitude_m, "series/surge_mps": res.surge_mps, "series/sway_mps": res.sway_mps,
-            "series/heading_deg": math.degrees(res.heading_rad), "series/tokens_tracked": float(res.tokens_tracked),
+            "series/altitude_m": res.altitude_m,
+            "series/surge_mps": res.surge_mps,
+            "series/sway_mps": res.sway_mps,
+            "series/heading_deg": math.degrees(res.heading_rad),
+            "series/tokens_tracked": float(res.tokens_tracked),
         }
         if scores:
             series["series/correlation"] = max(scores)
@@ -129,20 +161,27 @@ class RerunViewer:
         if img is not None:
             import cv2
 
-            ok, buf = cv2.imencode(".jpg", cv2.cvtColor(img, cv2.COLOR_RGB2BGR),
-                                   [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+            ok, buf = cv2.imencode(
+                ".jpg", cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality]
+            )
             if ok:
                 rec.log("camera/image", rr.EncodedImage(contents=buf.tobytes(), media_type="image/jpeg"))
-        rec.log("camera/lasers", rr.Points2D(np.asarray(res.laser_spots_uv_px).reshape(-1, 2), radii=4.0,
-                                             colors=(255, 40, 40)))
+        rec.log(
+            "camera/lasers",
+            rr.Points2D(np.asarray(res.laser_spots_uv_px).reshape(-1, 2), radii=4.0, colors=(255, 40, 40)),
+        )
         tok = np.asarray(getattr(res, "token_uv_px", np.zeros((0, 2)))).reshape(-1, 2)
         rec.log("camera/tokens", rr.Boxes2D(centers=tok, sizes=np.full((len(tok), 2), TOKEN_PX), colors=(0, 230, 0)))
         obs = list(res.observations)
-        rec.log("camera/landmarks", rr.Boxes2D(
-            centers=np.array([o.uv_px for o in obs]).reshape(-1, 2), sizes=np.full((len(obs), 2), LANDMARK_PX),
-            labels=[f"L{o.landmark_id}" + (" new" if o.kind == "init" else "") for o in obs],
-            colors=[(255, 220, 0) if o.accepted else (255, 60, 60) for o in obs],
-        ))
+        rec.log(
+            "camera/landmarks",
+            rr.Boxes2D(
+                centers=np.array([o.uv_px for o in obs]).reshape(-1, 2),
+                sizes=np.full((len(obs), 2), LANDMARK_PX),
+                labels=[f"L{o.landmark_id}" + (" new" if o.kind == "init" else "") for o in obs],
+                colors=[(255, 220, 0) if o.accepted else (255, 60, 60) for o in obs],
+            ),
+        )
 
     def _log_map(self, landmark_rows: Callable[[], list[dict]] | None) -> None:
         rr, rec = self.rr, self.rec
@@ -153,11 +192,19 @@ class RerunViewer:
         if not rows:
             return
         xy = np.array([[r["x_m"], r["y_m"]] for r in rows])
-        rec.log("map/landmarks", rr.Points2D(_map_xy(xy), radii=0.005, colors=(220, 30, 30),
-                                             labels=[str(r["id"]) for r in rows]))
+        rec.log(
+            "map/landmarks",
+            rr.Points2D(_map_xy(xy), radii=0.005, colors=(220, 30, 30), labels=[str(r["id"]) for r in rows]),
+        )
         strips = [
-            _map_xy(ellipse_points(xy[k], np.array([[r["var_x_m2"], r["cov_xy_m2"]], [r["cov_xy_m2"], r["var_y_m2"]]]),
-                                   2.0, self.ellipse_scale))
+            _map_xy(
+                ellipse_points(
+                    xy[k],
+                    np.array([[r["var_x_m2"], r["cov_xy_m2"]], [r["cov_xy_m2"], r["var_y_m2"]]]),
+                    2.0,
+                    self.ellipse_scale,
+                )
+            )
             for k, r in enumerate(rows)
         ]
         rec.log("map/landmark_ellipses", rr.LineStrips2D(strips, colors=(220, 30, 30)))

@@ -97,7 +97,10 @@ class SpeedMeasurement:
 def _scalar(name: str, value: float, *, positive: bool = False, nonnegative: bool = False) -> float:
     """A finite float, or InvalidMeasurementError saying what was wrong."""
     return finite_scalar(
-        name, value, positive=positive, nonnegative=nonnegative,
+        name,
+        value,
+        positive=positive,
+        nonnegative=nonnegative,
         nan_hint="the speed estimate; check the sensor reading or drop the frame",
     )
 
@@ -185,8 +188,19 @@ def speed_from_tokens(
         InvalidMeasurementError: NaN/infinite/non-positive altitude, time step or attitude.
         InvalidArgumentError: token arrays of the wrong shape.
     """
-    step = _checked_step(altitude_prev_m, altitude_curr_m, dt_s, dpsi_rad, altitude_sigma_m, attitude_prev_rad,
-                         attitude_curr_rad, uv_prev_px, uv_curr_px, token_var_px2, attitude_noise_rad)
+    step = _checked_step(
+        altitude_prev_m,
+        altitude_curr_m,
+        dt_s,
+        dpsi_rad,
+        altitude_sigma_m,
+        attitude_prev_rad,
+        attitude_curr_rad,
+        uv_prev_px,
+        uv_curr_px,
+        token_var_px2,
+        attitude_noise_rad,
+    )
     n_tokens = step.uv_prev_px.shape[0]
     if n_tokens == 0:
         return _failure(0, "no tokens", config)
@@ -202,8 +216,9 @@ def speed_from_tokens(
     if fit is None or n_inl < config.min_inliers:
         return _failure(n_tokens, "no consensus", config)
     # Two groups with equal support: refuse rather than pick one.
-    rival = _rival_consensus(a[~inl], b[~inl], theta, step.dpsi_rad, sc.prior_var_rad2, sc.threshold_m, sc.sigma0_m,
-                             sc.joint, sc.scale_var)
+    rival = _rival_consensus(
+        a[~inl], b[~inl], theta, step.dpsi_rad, sc.prior_var_rad2, sc.threshold_m, sc.sigma0_m, sc.joint, sc.scale_var
+    )
     if rival is not None and rival[1] >= n_inl:
         return _failure(n_tokens, "ambiguous consensus", config)
 
@@ -218,9 +233,19 @@ def speed_from_tokens(
     mask.setflags(write=False)
     theta_sigma = math.sqrt(fit.theta_var_rad2) if sc.joint else math.inf
     return SpeedMeasurement(
-        True, float(speed[0]), float(speed[1]), cov, n_tokens, n_inl, mask, "",
-        float(theta if sc.joint else step.dpsi_rad), theta_sigma, relief_sample(a[inl], b[inl], theta, d, fit.scale),
-        fit.residual_var_m2 * sc.px_per_m**2, fit.residual_dof,
+        True,
+        float(speed[0]),
+        float(speed[1]),
+        cov,
+        n_tokens,
+        n_inl,
+        mask,
+        "",
+        float(theta if sc.joint else step.dpsi_rad),
+        theta_sigma,
+        relief_sample(a[inl], b[inl], theta, d, fit.scale),
+        fit.residual_var_m2 * sc.px_per_m**2,
+        fit.residual_dof,
     )
 
 
@@ -241,8 +266,19 @@ class _Step:
     attitude_noise_rad: float
 
 
-def _checked_step(altitude_prev_m, altitude_curr_m, dt_s, dpsi_rad, altitude_sigma_m, attitude_prev_rad,
-                  attitude_curr_rad, uv_prev_px, uv_curr_px, token_var_px2, attitude_noise_rad) -> _Step:
+def _checked_step(
+    altitude_prev_m,
+    altitude_curr_m,
+    dt_s,
+    dpsi_rad,
+    altitude_sigma_m,
+    attitude_prev_rad,
+    attitude_curr_rad,
+    uv_prev_px,
+    uv_curr_px,
+    token_var_px2,
+    attitude_noise_rad,
+) -> _Step:
     """The inputs of :func:`speed_from_tokens` as numbers and arrays, or the error saying what is wrong."""
     z_prev = _scalar("altitude_prev_m", altitude_prev_m, positive=True)
     z_curr = _scalar("altitude_curr_m", altitude_curr_m, positive=True)
@@ -289,8 +325,9 @@ class _FitScales:
     scale_var: float  # the zoom prior's variance (0: a rigid fit)
 
 
-def _fit_scales(camera: Camera, step: _Step, n_valid: int, dpsi_sigma_rad: float | None,
-                config: OdometryConfig) -> _FitScales:
+def _fit_scales(
+    camera: Camera, step: _Step, n_valid: int, dpsi_sigma_rad: float | None, config: OdometryConfig
+) -> _FitScales:
     """The pixel quantities of ``config`` at this step's altitude, and whether the turn is fitted."""
     px_per_m = camera.focal_px / (0.5 * (step.z_prev_m + step.z_curr_m))
     joint = dpsi_sigma_rad is not None and n_valid >= 2
@@ -308,8 +345,9 @@ def _fit_scales(camera: Camera, step: _Step, n_valid: int, dpsi_sigma_rad: float
     return _FitScales(px_per_m, joint, prior_var, sigma0, pool_var, thr, scale_var)
 
 
-def _consensus(a: np.ndarray, b: np.ndarray, dpsi_rad: float, sc: _FitScales,
-               config: OdometryConfig) -> tuple[float, np.ndarray, np.ndarray, _RigidFit | None]:
+def _consensus(
+    a: np.ndarray, b: np.ndarray, dpsi_rad: float, sc: _FitScales, config: OdometryConfig
+) -> tuple[float, np.ndarray, np.ndarray, _RigidFit | None]:
     """``(theta, d (2,), inlier mask (M,), fit or None)``: the best hypothesis, refitted on its inliers.
 
     Rigid hypotheses (similarities with ``token_scale``) are scored by truncated residuals and
@@ -317,21 +355,32 @@ def _consensus(a: np.ndarray, b: np.ndarray, dpsi_rad: float, sc: _FitScales,
     re-selected, at most three times, the gate following the residuals they show. ``fit`` is
     None when the inliers were too few to fit.
     """
-    theta, d, support = _best_hypothesis(a, b, dpsi_rad, sc.prior_var_rad2, sc.threshold_m, sc.sigma0_m, sc.joint,
-                                         sc.scale_var)
+    theta, d, support = _best_hypothesis(
+        a, b, dpsi_rad, sc.prior_var_rad2, sc.threshold_m, sc.sigma0_m, sc.joint, sc.scale_var
+    )
     inl = support
     fit = None
     for _ in range(3):  # refit on the inliers; the threshold follows the residuals they show
         if int(inl.sum()) < config.min_inliers:
             break
-        fit = _rigid_fit(a[inl], b[inl], theta, dpsi_rad, sc.prior_var_rad2, sc.joint, sc.sigma0_m, sc.pool_var_m2,
-                         config.token_noise_prior_dof, sc.scale_var)
+        fit = _rigid_fit(
+            a[inl],
+            b[inl],
+            theta,
+            dpsi_rad,
+            sc.prior_var_rad2,
+            sc.joint,
+            sc.sigma0_m,
+            sc.pool_var_m2,
+            config.token_noise_prior_dof,
+            sc.scale_var,
+        )
         theta, d = fit.theta_rad, fit.d_m
         res = a - fit.scale * (b @ rot2(theta).T) - d
         r2 = np.einsum("mj,mj->m", res, res)
         # the dive's pooled scatter keeps a step whose few tokens happen to agree from gating out its own inliers
         sigma = math.sqrt(max(fit.residual_var_m2, sc.pool_var_m2, sc.sigma0_m**2))
-        gate = min(sc.threshold_m, max(_CHI2_2DOF_99 ** 0.5 * sigma, 3.0 * sc.sigma0_m))
+        gate = min(sc.threshold_m, max(_CHI2_2DOF_99**0.5 * sigma, 3.0 * sc.sigma0_m))
         new = r2 <= gate**2
         if np.array_equal(new, inl):
             break
@@ -339,9 +388,19 @@ def _consensus(a: np.ndarray, b: np.ndarray, dpsi_rad: float, sc: _FitScales,
     return theta, d, inl, fit
 
 
-def _speed_covariance(fit: _RigidFit, speed: np.ndarray, d: np.ndarray, rival: tuple[np.ndarray, int] | None,
-                      n_inl: int, n_valid: int, step: _Step, sc: _FitScales, config: OdometryConfig,
-                      relief_var: float, altitude_samples: int) -> np.ndarray:
+def _speed_covariance(
+    fit: _RigidFit,
+    speed: np.ndarray,
+    d: np.ndarray,
+    rival: tuple[np.ndarray, int] | None,
+    n_inl: int,
+    n_valid: int,
+    step: _Step,
+    sc: _FitScales,
+    config: OdometryConfig,
+    relief_var: float,
+    altitude_samples: int,
+) -> np.ndarray:
     """The ``(2, 2)`` covariance Q of the speed (read-only): the fit's, plus the errors its tokens cannot show."""
     z_prev, z_curr, dt = step.z_prev_m, step.z_curr_m, step.dt_s
     # The tokens' scatter shows their independent errors; an error they all share (block artefacts of
@@ -494,9 +553,22 @@ class SpeedEstimator:
     ) -> SpeedMeasurement:
         """Same arguments as :func:`speed_from_tokens` (without ``config`` and ``relief_var``)."""
         m = speed_from_tokens(
-            camera, uv_prev_px, uv_curr_px, altitude_prev_m, altitude_curr_m, dt_s, dpsi_rad,
-            altitude_sigma_m, attitude_prev_rad, attitude_curr_rad, self.config, dpsi_sigma_rad, altitude_samples,
-            self.relief_var, attitude_noise_rad, self.token_var_px2,
+            camera,
+            uv_prev_px,
+            uv_curr_px,
+            altitude_prev_m,
+            altitude_curr_m,
+            dt_s,
+            dpsi_rad,
+            altitude_sigma_m,
+            attitude_prev_rad,
+            attitude_curr_rad,
+            self.config,
+            dpsi_sigma_rad,
+            altitude_samples,
+            self.relief_var,
+            attitude_noise_rad,
+            self.token_var_px2,
         )
         if m.ok:
             self._learn_relief(m.relief_sample, float(dt_s), float(np.sum((m.speed_mps * dt_s) ** 2)))

@@ -43,7 +43,6 @@ def _floor_eigenvalues(cov: np.ndarray, floor_var: float) -> np.ndarray:
     return np.array([[a + k * (lam1 - a), b - k * b], [b - k * b, c + k * (lam1 - c)]])
 
 
-
 # chi-square quantile (2 dof, 99 %): the inlier gate is sqrt(9.21) = 3.03 residual sigmas.
 _CHI2_2DOF_99 = 9.21
 
@@ -61,9 +60,18 @@ class _RigidFit:
     scale: float = 1.0  # the zoom ``s`` of ``a ~ s R(theta) b + d`` (1: rigid)
 
 
-def _rigid_fit(a: np.ndarray, b: np.ndarray, theta0: float, prior_rad: float, prior_var: float,
-               joint: bool, sigma0_m: float, noise_prior_var_m2: float = 0.0, noise_prior_dof: float = 0.0,
-               scale_var: float = 0.0) -> _RigidFit:
+def _rigid_fit(
+    a: np.ndarray,
+    b: np.ndarray,
+    theta0: float,
+    prior_rad: float,
+    prior_var: float,
+    joint: bool,
+    sigma0_m: float,
+    noise_prior_var_m2: float = 0.0,
+    noise_prior_dof: float = 0.0,
+    scale_var: float = 0.0,
+) -> _RigidFit:
     """Rotation and translation from (M, 2) matched points, the rotation fixed when not ``joint``.
 
     The turn is the least-squares rotation of the centred points (Gauss-Newton from
