@@ -5,12 +5,12 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 BENCH_STAMP := $(VENV)/.bench-installed
 
-.PHONY: demo test test-all lint bench clean
+.PHONY: demo test test-all lint docs bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet -e '.[test,docs]'
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -22,8 +22,12 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check src tests benchmarks scripts docs
 	$(BIN)/mypy
 
-test: $(STAMP)
+test: lint
 	$(BIN)/pytest -n 2 -m "not slow" -q
+
+# The documentation site (build/site); fails on a broken link or a module without its page.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 DISABLE_MKDOCS_2_WARNING=true $(BIN)/mkdocs build --strict --quiet
 
 test-all: $(STAMP)
 	$(BIN)/pytest -n 2 -q
@@ -36,4 +40,4 @@ bench: $(BENCH_STAMP)
 	$(BIN)/python -m benchmarks
 
 clean:
-	rm -rf $(VENV) rovslam-demo .pytest_cache
+	rm -rf $(VENV) rovslam-demo .pytest_cache build

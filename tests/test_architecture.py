@@ -161,3 +161,32 @@ def test_input_never_depends_on_navigation():
     assert io_modules
     users = [str(p.relative_to(SRC)) for p in io_modules if any(m.startswith("rovslam.nav") for m in _imports(p))]
     assert users == []
+
+
+MAX_MODULE_LINES, MAX_CLASS_LINES, MAX_FUNCTION_LINES = 800, 400, 100
+
+
+def _oversized(path: Path) -> list[str]:
+    """What in ``path`` is over the size limits (docstrings and comments counted, as the code reads)."""
+    text = path.read_text(encoding="utf-8")
+    found = []
+    if len(text.splitlines()) > MAX_MODULE_LINES:
+        found.append(f"module {len(text.splitlines())} lines")
+    for node in ast.walk(ast.parse(text)):
+        lines = getattr(node, "end_lineno", 0) - getattr(node, "lineno", 0) + 1
+        if isinstance(node, ast.ClassDef) and lines > MAX_CLASS_LINES:
+            found.append(f"class {node.name} {lines} lines")
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) and lines > MAX_FUNCTION_LINES:
+            found.append(f"function {node.name} {lines} lines")
+    return found
+
+
+def test_no_module_class_or_function_is_over_its_size_limit():
+    over = {str(p.relative_to(SRC)): _oversized(p) for p in MODULES}
+    assert {k: v for k, v in over.items() if v} == {}
+
+
+def test_the_size_check_sees_a_long_function(tmp_path):
+    body = "\n".join(f"    x{i} = {i}" for i in range(MAX_FUNCTION_LINES))
+    (tmp_path / "m.py").write_text(f"def f():\n{body}\n")
+    assert _oversized(tmp_path / "m.py") == [f"function f {MAX_FUNCTION_LINES + 1} lines"]

@@ -135,12 +135,10 @@ class BandpassConfig(_Checked):
     """
 
     TABLE: ClassVar[str] = "bandpass"
-    sigma_fine_px: float = _num(
-        1.0, gt=0, le=MAX_BLUR_SIGMA_PX
-    )  # removes wavelengths shorter than ~2*pi*sigma_fine (noise)
-    sigma_coarse_px: float = _num(
-        4.0, gt=0, le=MAX_BLUR_SIGMA_PX
-    )  # removes wavelengths longer than ~2*pi*sigma_coarse (illumination)
+    # removes wavelengths shorter than ~2*pi*sigma_fine (noise)
+    sigma_fine_px: float = _num(1.0, gt=0, le=MAX_BLUR_SIGMA_PX)
+    # removes wavelengths longer than ~2*pi*sigma_coarse (illumination)
+    sigma_coarse_px: float = _num(4.0, gt=0, le=MAX_BLUR_SIGMA_PX)
     channel: Channel = "green"  # red is reserved for the lasers
     # >= 2: remove bright specks (marine snow) narrower than this first; 0: off (paper). At most
     # MAX_OPENING_PX: a disc kernel's memory grows with its square (100001 px asked for 10 GB).
@@ -251,9 +249,8 @@ class AssociationConfig(_Checked):
     recovery_min_landmarks: int = _num(2, ge=1)  # different landmarks that must speak against the estimate
     recovery_memory_s: float = _num(10.0, ge=0)  # how long a refused match's told offset counts as evidence
     recovery_offset_agreement_m: float = _num(0.01, gt=0)  # the refused matches' vehicle offsets agree within this
-    wide_search_after_frames: int = _num(
-        5, ge=1
-    )  # a confirmed landmark expected but not found this many frames: wide search
+    # a confirmed landmark expected but not found this many frames: wide search
+    wide_search_after_frames: int = _num(5, ge=1)
     wide_search_radius_px: int = _num(150, ge=1)  # radius of that wide search
 
 
@@ -297,9 +294,8 @@ class LaserConfig(_Checked):
     min_altitude_m: float = _num(0.05, gt=0)  # altitudes (laser or sonar) outside this range are rejected
     max_altitude_m: float = _num(30.0, gt=0)  # altitudes (laser or sonar) above this are rejected
     assumed_altitude_m: float = _num(1.31, gt=0)  # no laser, no sonar, no [vehicle] altitude_m: the paper's 1.31 m
-    altitude_accel_sigma_mps2: float = _num(
-        0.05, gt=0
-    )  # vertical acceleration of the altitude filter (rovslam.sensor.altitude)
+    # vertical acceleration of the altitude filter (rovslam.sensor.altitude)
+    altitude_accel_sigma_mps2: float = _num(0.05, gt=0)
 
     def _check_relations(self) -> None:
         if self.max_spot_area_px < self.min_spot_area_px:
@@ -317,9 +313,9 @@ class OdometryConfig(_Checked):
     min_inliers: int = _num(2, ge=1)  # fewer tokens agreeing than this: no speed measured this frame
     min_speed_sigma_mps: float = _num(0.0005, gt=0)  # floor of the speed standard deviation
     token_sigma_px: float = _num(0.15, gt=0)  # one token's displacement noise (floor)
-    token_noise_prior_dof: float = _num(
-        4.0, ge=0
-    )  # the dive's recent token scatter counts as this many degrees of freedom in each step's noise (0: each step alone)
+    # the dive's recent token scatter counts as this many degrees of freedom in each step's noise (0: each step
+    # alone)
+    token_noise_prior_dof: float = _num(4.0, ge=0)
     # true: the zoom between the two frames from the tokens (a similarity fit), the measured altitudes'
     # ratio its prior (the lasers' step-to-step noise over relief zooms one frame against the next).
     # 10 to 50 % less ATE on the check matrix, but the real-photo survey with turns' worst seed falls
@@ -331,20 +327,16 @@ class OdometryConfig(_Checked):
     # speeds have shown harder accelerations (swell: SpeedEstimator.accel_sigma_mps2)
     held_speed_drift_mps2: float = _num(0.1, ge=0)
     initial_speed_sigma_mps: float = _num(0.2, gt=0)  # speed sigma held before the first good measurement
-    max_accel_mps2: float = _num(
-        0.0, ge=0
-    )  # > 0: a speed changing faster than this (+3 sigma) is a wrong consensus (0: off)
+    # > 0: a speed changing faster than this (+3 sigma) is a wrong consensus (0: off)
+    max_accel_mps2: float = _num(0.0, ge=0)
     max_speed_mps: float = _num(3.0, gt=0)  # a measured speed above this is not a vehicle's: refused
     survey_speed_mps: float = _num(0.15, gt=0)  # speed bound for the landmark search before any speed is measured
-    relief_scale_gain: float = _num(
-        2.0, ge=0
-    )  # relief parallax scale error: x its one-step estimate (step correlation)
-    relief_prior_sigma: float = _num(
-        0.02, ge=0
-    )  # relief height spread / altitude assumed before the tokens measured it
-    relief_prior_s: float = _num(
-        2.0, ge=0
-    )  # ... its share fades as exp(-seconds measured / this) (0: no prior, start as flat)
+    # relief parallax scale error: x its one-step estimate (step correlation)
+    relief_scale_gain: float = _num(2.0, ge=0)
+    # relief height spread / altitude assumed before the tokens measured it
+    relief_prior_sigma: float = _num(0.02, ge=0)
+    # ... its share fades as exp(-seconds measured / this) (0: no prior, start as flat)
+    relief_prior_s: float = _num(2.0, ge=0)
     compass_sigma_rad: float = _num(0.0087, ge=0)  # compass white noise (0.5 deg); 0 uses the compass as it is (paper)
     # how fast the vehicle may turn (14 deg/s): without a compass, a step whose turn the tokens missed adds this
     # times the step to the heading's error; with one, it bounds a plausible reading (compass_gate_sigmas)
@@ -354,20 +346,17 @@ class OdometryConfig(_Checked):
     compass_gate_sigmas: float = _num(6.0, ge=0)
     compass_gate_max_readings: int = _num(10, ge=0)  # see compass_gate_sigmas above
     compass_sigma_learned: bool = True  # the compass noise its readings show is used when above compass_sigma_rad
-    compass_drift_sigma_rad: float = _num(
-        0.0175, ge=0
-    )  # slow compass error no smoothing removes (magnetic disturbance, 1 deg)
+    # slow compass error no smoothing removes (magnetic disturbance, 1 deg)
+    compass_drift_sigma_rad: float = _num(0.0175, ge=0)
     # the tokens' turn errors are correlated from step to step over relief: the variance of their sum over
     # turn_noise_window_steps steps, checked against the compass, scales each step's (never below 1; false: as measured)
     turn_noise_learned: bool = True
     turn_noise_window_steps: int = _num(25, ge=2)  # see turn_noise_learned above
-    compass_offset_sigma_rad: float = _num(
-        0.0087, ge=0
-    )  # the compass's constant error (deviation, 0.5 deg calibrated): turns the whole estimate
+    # the compass's constant error (deviation, 0.5 deg calibrated): turns the whole estimate
+    compass_offset_sigma_rad: float = _num(0.0087, ge=0)
     attitude_sigma_rad: float = _num(0.0035, ge=0)  # AHRS roll / pitch accuracy (0.2 deg), when frames.csv has them
-    attitude_noise_sigma_rad: float = _num(
-        0.0002, ge=0
-    )  # AHRS reading-to-reading noise (0.01 deg): moves each frame's seabed
+    # AHRS reading-to-reading noise (0.01 deg): moves each frame's seabed
+    attitude_noise_sigma_rad: float = _num(0.0002, ge=0)
 
 
 @dataclass(frozen=True)
@@ -385,20 +374,16 @@ class SlamConfig(_Checked):
     innovation_gate: float = _num(13.82, gt=0)  # chi-square 2 dof, 99.9 %
     augmentation: Augmentation = "full"  # "full" (correct cross-covariances) | "paper" ((4) diagonal block)
     gate_covariance: GateCovariance = "relative"  # (5), (6): "relative" (P_Xi + P_x - C - C^T) | "paper" (P_Xi + P_x)
-    heading_bias_sigma_rad: float = _num(
-        0.0175, ge=0
-    )  # > 0: estimate the slow compass error in the state (1 deg; 0: paper)
+    # > 0: estimate the slow compass error in the state (1 deg; 0: paper)
+    heading_bias_sigma_rad: float = _num(0.0175, ge=0)
     heading_bias_tau_s: float = _num(120.0, gt=0)  # its correlation time (Ornstein-Uhlenbeck)
     backend: Backend = "ekf"  # the online estimate: "ekf" (the paper's) or "isam2" (GTSAM, [smoother])
-    landmark_height_sigma_m: float = _num(
-        0.03, ge=0
-    )  # > 0: each landmark's height in the state, this prior (0: flat seabed, the paper)
-    altitude_bias_sigma_m: float = _num(
-        0.01, ge=0
-    )  # > 0: the measured altitude's offset from the seabed datum in the state
-    altitude_bias_tau_s: float = _num(
-        30.0, gt=0
-    )  # its correlation time (the altimeter's lasting offset: its calibration, a codec's spot)
+    # > 0: each landmark's height in the state, this prior (0: flat seabed, the paper)
+    landmark_height_sigma_m: float = _num(0.03, ge=0)
+    # > 0: the measured altitude's offset from the seabed datum in the state
+    altitude_bias_sigma_m: float = _num(0.01, ge=0)
+    # its correlation time (the altimeter's lasting offset: its calibration, a codec's spot)
+    altitude_bias_tau_s: float = _num(30.0, gt=0)
     # the laser rig's lasting share of the altitude (its baseline's calibration: 0.76 %, 1 cm at 1.31 m); with
     # altitude_bias_sigma_m > 0, b's sigma at depth Z is hypot(altitude_bias_sigma_m, altitude_scale_sigma Z) (0: an offset alone)
     altitude_scale_sigma: float = _num(0.0076, ge=0, le=0.1)
@@ -408,16 +393,13 @@ class SlamConfig(_Checked):
     # relief under the laser spots
     altitude_bias_relief: bool = False
     altitude_bias_relief_tau_s: float = _num(5.0, gt=0)  # correlation time of that relief term
-    altitude_bias_consider: bool = (
-        True  # b a consider state (Schmidt): its uncertainty carried, never learned (False: learned)
-    )
-    speed_bias_sigma_mps: float = _num(
-        0.002, ge=0
-    )  # > 0: the odometry's slow world-frame speed error w in the state, while sunlight drags the tokens (0: none)
+    # b a consider state (Schmidt): its uncertainty carried, never learned (False: learned)
+    altitude_bias_consider: bool = True
+    # > 0: the odometry's slow world-frame speed error w in the state, while sunlight drags the tokens (0: none)
+    speed_bias_sigma_mps: float = _num(0.002, ge=0)
     speed_bias_tau_s: float = _num(60.0, gt=0)  # its correlation time (Ornstein-Uhlenbeck)
-    speed_bias_when: SpeedBiasWhen = (
-        "sunlight"  # "sunlight": while it is taken out | "always" (slow caustics the watch misses)
-    )
+    # "sunlight": while it is taken out | "always" (slow caustics the watch misses)
+    speed_bias_when: SpeedBiasWhen = "sunlight"
 
 
 RobustLoss = Literal["huber", "cauchy", "none"]
