@@ -303,7 +303,7 @@ def _fly(
         flight.error = exc
     finally:
         if steps is not None:
-            steps.close()
+            steps.close()  # type: ignore[attr-defined]
     return flight
 
 

@@ -71,7 +71,9 @@ class RunSummary:
     status: str = "complete"  # "complete" | "interrupted" | "unusable" | "failed"
     reason: str | None = None
     sonar_rejected: list[tuple[int, float, str]] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)  # what the source left out (a damaged video), a map that was not used
+    warnings: list[str] = field(
+        default_factory=list
+    )  # what the source left out (a damaged video), a map that was not used
 
     @property
     def fps(self) -> float:
@@ -144,8 +146,15 @@ def open_source(path: str | Path, camera_file: str | Path | None = None, options
         from rovslam.io.folder import ImageFolderSource, is_image_folder
 
         if (p / "sequence.toml").exists() or (p / "frames.csv").exists():
-            _refuse_options(p, "a sequence folder (its times and navigation are in frames.csv)", opts, bag=True, fps=True,
-                            times=True, nav=True)
+            _refuse_options(
+                p,
+                "a sequence folder (its times and navigation are in frames.csv)",
+                opts,
+                bag=True,
+                fps=True,
+                times=True,
+                nav=True,
+            )
             return open_sequence(p)
         _refuse_options(p, "a folder that is not a ROS bag", opts, bag=True)
         if not is_image_folder(p):
@@ -153,9 +162,14 @@ def open_source(path: str | Path, camera_file: str | Path | None = None, options
                 f"{p}: no sequence.toml, frames.csv or image files (PNG, JPEG, TIFF) in this folder: it is not a sequence "
                 "folder, a folder of images or a ROS 2 bag (metadata.yaml)."
             )
-        missing = [flag for flag, absent in (("--camera CAMERA.toml", opts.camera_file is None),
-                                             ("--fps F or --times FILE", opts.fps is None and opts.times_file is None))
-                   if absent]
+        missing = [
+            flag
+            for flag, absent in (
+                ("--camera CAMERA.toml", opts.camera_file is None),
+                ("--fps F or --times FILE", opts.fps is None and opts.times_file is None),
+            )
+            if absent
+        ]
         if missing:
             raise SequenceFormatError(
                 f"{p}: a folder of images without sequence.toml and frames.csv runs with --camera CAMERA.toml "
@@ -189,7 +203,9 @@ def _with_navigation(src: Any, opts: InputOptions, span_s: tuple[float, float] |
     """``src`` with the NAV.csv of ``opts`` attached (or ``src`` itself without one)."""
     if opts.nav_file is None:
         if opts.nav_map or opts.nav_time_offset_s is not None:
-            raise SequenceFormatError("--nav-map and --nav-time-offset describe a navigation log: give it with --nav NAV.csv.")
+            raise SequenceFormatError(
+                "--nav-map and --nav-time-offset describe a navigation log: give it with --nav NAV.csv."
+            )
         return src
     from rovslam.io.nav import NavigatedSource, nav_mapping, read_nav_csv
 
@@ -198,8 +214,16 @@ def _with_navigation(src: Any, opts: InputOptions, span_s: tuple[float, float] |
     return NavigatedSource(src, read_nav_csv(opts.nav_file, mapping), span_s, what)
 
 
-def _refuse_options(path: Path, kind: str, opts: InputOptions, *, bag: bool = False, fps: bool = False,
-                    times: bool = False, nav: bool = False) -> None:
+def _refuse_options(
+    path: Path,
+    kind: str,
+    opts: InputOptions,
+    *,
+    bag: bool = False,
+    fps: bool = False,
+    times: bool = False,
+    nav: bool = False,
+) -> None:
     """Refuse the options that do not apply to ``path`` (``kind`` says what it is)."""
     given = [option_flag(k) for k in opts.bag_options] if bag else []
     given += ["--fps"] if fps and opts.fps is not None else []
@@ -231,7 +255,11 @@ def check_source_against_config(info: Any, config: RunConfig, fallback_altitude_
     """
     lo, hi = config.laser.min_altitude_m, config.laser.max_altitude_m
     if not lo <= fallback_altitude_m <= hi:
-        given = "vehicle.altitude_m" if info.fixed_altitude_m is not None else "the default altitude (no [vehicle] altitude_m)"
+        given = (
+            "vehicle.altitude_m"
+            if info.fixed_altitude_m is not None
+            else "the default altitude (no [vehicle] altitude_m)"
+        )
         raise SequenceFormatError(
             f"{where}: {given} = {fallback_altitude_m:g} m is outside the plausible altitude range [{lo:g}, {hi:g}] m "
             "(laser.min_altitude_m, laser.max_altitude_m of the configuration)."
@@ -260,8 +288,16 @@ def implausible_result(res: FrameResult, max_distance_m: float) -> str | None:
     Not finite, farther than ``max_distance_m`` from the start (estimate or dead reckoning), or
     with a 1-sigma position uncertainty beyond ``max_distance_m``.
     """
-    values = (res.t_s, res.x_m, res.y_m, res.altitude_m, res.heading_rad, res.dr_x_m, res.dr_y_m,
-              *(float(v) for v in res.cov_xy_m2.ravel()))
+    values = (
+        res.t_s,
+        res.x_m,
+        res.y_m,
+        res.altitude_m,
+        res.heading_rad,
+        res.dr_x_m,
+        res.dr_y_m,
+        *(float(v) for v in res.cov_xy_m2.ravel()),
+    )
     if not all(math.isfinite(v) for v in values):
         return "the estimate is not finite (NaN or infinite): the filter diverged"
     for label, x, y in (("position", res.x_m, res.y_m), ("dead-reckoning position", res.dr_x_m, res.dr_y_m)):
@@ -374,16 +410,28 @@ def _rig_note(info: Any, config: RunConfig, where: str) -> str:
     if not lost:
         return ""
     names = ", ".join(f"#{i + 1} (origin_m {list(info.lasers[i].origin_m)})" for i in lost)
-    return (f"the spot of [[laser]] {names} of {where} never falls inside the image at any altitude from "
-            f"{config.laser.min_altitude_m:g} to {config.laser.max_altitude_m:g} m, so it gives no altitude: origin_m "
-            "is in metres (forward, starboard, down from the camera centre) and direction along the beam; check both")
+    return (
+        f"the spot of [[laser]] {names} of {where} never falls inside the image at any altitude from "
+        f"{config.laser.min_altitude_m:g} to {config.laser.max_altitude_m:g} m, so it gives no altitude: origin_m "
+        "is in metres (forward, starboard, down from the camera centre) and direction along the beam; check both"
+    )
 
 
 class _Run:
     """One run's loop and its finalisation (kept apart so that every way out writes the same files)."""
 
-    def __init__(self, seq: Any, pipe: SlamPipeline, writer: ResultWriter, gallery: GalleryWriter, out: Path,
-                 config: RunConfig, stop: StopRequest, min_usable_fraction: float, max_distance_m: float) -> None:
+    def __init__(
+        self,
+        seq: Any,
+        pipe: SlamPipeline,
+        writer: ResultWriter,
+        gallery: GalleryWriter,
+        out: Path,
+        config: RunConfig,
+        stop: StopRequest,
+        min_usable_fraction: float,
+        max_distance_m: float,
+    ) -> None:
         self.seq, self.pipe, self.writer, self.out, self.config, self.stop = seq, pipe, writer, out, config, stop
         self.gallery = gallery
         from rovslam.io.measurements import MeasurementWriter
@@ -498,11 +546,15 @@ class _Run:
         """Close every file, then write landmarks.csv and summary.json; the first error wins."""
         writer = self.writer
         # Each in its own try, the trajectory first: one file that cannot be closed or written loses no other.
-        for step in (lambda: writer.close(quiet=error is not None), self.measurements.close, self.gallery.close,
-                     writer.release_reserve,  # the disk space held back, for what follows
-                     lambda: self.status == "failed" and writer.write_summary(self._summary(wall), compact=True),
-                     lambda: writer.write_landmarks(self.pipe.landmark_rows()),
-                     lambda: writer.salvage(self._summary(wall))):  # rows a full disk kept out, if room is left
+        for step in (
+            lambda: writer.close(quiet=error is not None),
+            self.measurements.close,
+            self.gallery.close,
+            writer.release_reserve,  # the disk space held back, for what follows
+            lambda: self.status == "failed" and writer.write_summary(self._summary(wall), compact=True),
+            lambda: writer.write_landmarks(self.pipe.landmark_rows()),
+            lambda: writer.salvage(self._summary(wall)),
+        ):  # rows a full disk kept out, if room is left
             try:
                 step()
             except OutputError as exc:
@@ -551,10 +603,19 @@ class _Run:
             "compass": {**pipe.heading.compass_summary(), "warnings": pipe.heading.compass_warnings()},
             "source_frames_left_out": int(getattr(self.seq, "left_out", 0)),
             "landmarks": pipe.ekf.n_landmarks,
-            "processing": {"scale": pipe.scale.scale, "width_px": pipe.camera.width_px, "height_px": pipe.camera.height_px},
+            "processing": {
+                "scale": pipe.scale.scale,
+                "width_px": pipe.camera.width_px,
+                "height_px": pipe.camera.height_px,
+            },
             "recoveries": [
-                {"frame": e.frame, "t_s": e.t_s, "offset_m": list(e.offset_m), "landmarks": list(e.landmarks),
-                 "cause": e.cause}
+                {
+                    "frame": e.frame,
+                    "t_s": e.t_s,
+                    "offset_m": list(e.offset_m),
+                    "landmarks": list(e.landmarks),
+                    "cause": e.cause,
+                }
                 for e in pipe.recovery.events
             ],
             "wall_time_s": wall,
@@ -565,12 +626,26 @@ class _Run:
     def _run_summary(self, wall: float) -> RunSummary:
         interrupted = self.status == "interrupted"
         return RunSummary(
-            self.n, self.total, list(self.pipe.skipped), self.pipe.ekf.n_landmarks, wall, interrupted, self.out,
-            signal=self.stop.name if interrupted else None, signum=self.stop.signum if interrupted else None,
-            status=self.status, reason=self.reason, sonar_rejected=list(self.sonar_rejected),
-            warnings=(list(getattr(self.seq, "warnings", [])) + self.pipe.sunlight_warnings()
-                      + self.pipe.heading.compass_warnings() + self.map_use.warnings() + self.time_gaps.warnings()
-                      + ([self.rig_note] if self.rig_note else [])),
+            self.n,
+            self.total,
+            list(self.pipe.skipped),
+            self.pipe.ekf.n_landmarks,
+            wall,
+            interrupted,
+            self.out,
+            signal=self.stop.name if interrupted else None,
+            signum=self.stop.signum if interrupted else None,
+            status=self.status,
+            reason=self.reason,
+            sonar_rejected=list(self.sonar_rejected),
+            warnings=(
+                list(getattr(self.seq, "warnings", []))
+                + self.pipe.sunlight_warnings()
+                + self.pipe.heading.compass_warnings()
+                + self.map_use.warnings()
+                + self.time_gaps.warnings()
+                + ([self.rig_note] if self.rig_note else [])
+            ),
         )
 
 
@@ -621,13 +696,29 @@ def write_smoothed_result(out_dir: Path, res, config=None) -> None:
     cov = res.cov_xy_m2 + apparent_frame_cov_m2(res.xy_m, res.altitude_m, tilt, np.where(compass, rot, 0.0), scale)
     lcov = res.landmarks_cov_m2
     if n and len(lcov):
-        lcov = lcov + apparent_frame_cov_m2(res.landmarks_xy_m, res.altitude_m[-1], tilt[-1],
-                                            rot if compass[-1] else 0.0, scale[-1])
+        lcov = lcov + apparent_frame_cov_m2(
+            res.landmarks_xy_m, res.altitude_m[-1], tilt[-1], rot if compass[-1] else 0.0, scale[-1]
+        )
     rows = [
-        {"id": int(i), "x_m": float(xy[0]), "y_m": float(xy[1]), "var_x_m2": float(c[0, 0]), "cov_xy_m2": float(c[0, 1]),
-         "var_y_m2": float(c[1, 1]), "first_t_s": float(t), "observations": int(n), "downweighted": int(d)}
-        for i, xy, c, t, n, d in zip(res.landmark_ids, res.landmarks_xy_m, lcov,
-                                      res.landmark_first_t_s, res.landmark_observations, res.landmark_downweighted)
+        {
+            "id": int(i),
+            "x_m": float(xy[0]),
+            "y_m": float(xy[1]),
+            "var_x_m2": float(c[0, 0]),
+            "cov_xy_m2": float(c[0, 1]),
+            "var_y_m2": float(c[1, 1]),
+            "first_t_s": float(t),
+            "observations": int(n),
+            "downweighted": int(d),
+        }
+        for i, xy, c, t, n, d in zip(
+            res.landmark_ids,
+            res.landmarks_xy_m,
+            lcov,
+            res.landmark_first_t_s,
+            res.landmark_observations,
+            res.landmark_downweighted,
+        )
     ]
     write_smoothed(out_dir, res.t_s, res.xy_m, cov, res.heading_rad, res.altitude_m, rows)
 
@@ -684,6 +775,11 @@ def smooth_run(
     t2 = time.perf_counter()
     write_smoothed_result(out, res, dataclasses.replace(run_config, smoother=smoother.config))
     return SmoothSummary(
-        frames=len(frames), landmarks=len(res.landmark_ids), observations=int(res.landmark_observations.sum()),
-        downweighted=int(res.landmark_downweighted.sum()), online_s=t1 - t0, final_s=t2 - t1, out_dir=out,
+        frames=len(frames),
+        landmarks=len(res.landmark_ids),
+        observations=int(res.landmark_observations.sum()),
+        downweighted=int(res.landmark_downweighted.sum()),
+        online_s=t1 - t0,
+        final_s=t2 - t1,
+        out_dir=out,
     )

@@ -112,17 +112,17 @@ def _run(spec: CellSpec, cell_dir: Path, keep_sequence: bool) -> dict[str, Any]:
 
         seq = cell_dir / "sequence"
         simulate(
-            spec.scenario,
+            spec.scenario,  # type: ignore[arg-type]
             seq,
             frames=spec.frames,
-            seed=spec.seed,
+            seed=spec.seed,  # type: ignore[arg-type]
             image_format=spec.image_format,
             calibration=CalibrationErrors() if spec.calibration_errors else None,
         )
         groundtruth = seq / "groundtruth.csv"
         max_frames = None
     else:
-        seq, groundtruth, max_frames = Path(spec.sequence_path), Path(spec.groundtruth_path), spec.frames
+        seq, groundtruth, max_frames = Path(spec.sequence_path), Path(spec.groundtruth_path), spec.frames  # type: ignore[arg-type]
         if not seq.exists():
             raise SequenceFormatError(f"{seq}: sequence not found (a [[sequence]] path is relative to the matrix file)")
         if not groundtruth.is_file():

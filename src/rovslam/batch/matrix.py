@@ -111,10 +111,10 @@ def load_matrix(path: str | Path, scenarios: dict[str, Any] | None = None) -> Ma
         where = f"{p}: [[scenario]] #{i + 1}"
         _check_keys(entry, _SCENARIO_KEYS, where)
         name = entry.get("name")
-        if name not in scenarios:
-            raise ConfigError(f"{where}: unknown scenario {name!r}; known: {', '.join(scenarios)}")
+        if name not in scenarios:  # type: ignore[operator]
+            raise ConfigError(f"{where}: unknown scenario {name!r}; known: {', '.join(scenarios)}")  # type: ignore[arg-type]
         label = _name(entry.get("label", name), f"{where}: label")
-        frames = _frames(entry, scenarios[name], where)
+        frames = _frames(entry, scenarios[name], where)  # type: ignore[index]
         cfg, cfg_path = (
             _config(entry.get("config"), base, f"{where}: config", configs) if "config" in entry else default_cfg
         )

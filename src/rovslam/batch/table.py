@@ -133,7 +133,7 @@ def summarise(rows: Sequence[dict[str, Any]], groups: Sequence[str] | None = Non
             median[f.key] = float(np.median(vals)) if vals else None
             worst[f.key] = (max(vals) if f.worst == "max" else min(vals)) if vals else None
         ranked = [r for r in ok if _number(r.get("ate_rmse_m")) is not None]
-        worst_cell = max(ranked, key=lambda r: _number(r["ate_rmse_m"]))["cell"] if ranked else None
+        worst_cell = max(ranked, key=lambda r: _number(r["ate_rmse_m"]))["cell"] if ranked else None  # type: ignore[arg-type,return-value]
         out.append(GroupSummary(g, len(cells), len(ok), median, worst, worst_cell))
     return out
 

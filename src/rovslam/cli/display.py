@@ -75,8 +75,8 @@ class ProgressBar:
         cols.append(TimeRemainingColumn())
         progress = Progress(*cols, console=Console(stderr=True), transient=False)
         progress.start()
-        self._p = progress
-        self._task = self._p.add_task(self.label, total=None, fps=0.0, landmarks=0, tokens=0)
+        self._p = progress  # type: ignore[assignment]
+        self._task = self._p.add_task(self.label, total=None, fps=0.0, landmarks=0, tokens=0)  # type: ignore[attr-defined]
         import time
 
         self._t0 = time.perf_counter()
@@ -95,7 +95,7 @@ class ProgressBar:
             if total is not None:
                 kw["total"] = total
                 self._total = total
-            self._p.update(self._task, **kw)
+            self._p.update(self._task, **kw)  # type: ignore[attr-defined]
 
         self._bar = bar
 
@@ -127,15 +127,15 @@ class CellProgress:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        self._p = Progress(
+        self._p = Progress(  # type: ignore[assignment]
             TextColumn("[bold]cells"),
             BarColumn(),
             MofNCompleteColumn(),
             TimeElapsedColumn(),
             console=Console(stderr=True),
         )
-        self._p.start()
-        self._task = self._p.add_task("cells", total=total, completed=done)
+        self._p.start()  # type: ignore[attr-defined]
+        self._task = self._p.add_task("cells", total=total, completed=done)  # type: ignore[attr-defined]
 
     def cell(self, row: dict) -> None:
         if self._p is None:

@@ -117,7 +117,7 @@ def with_inputs(fn):
         values = {name: kwargs.pop(name) for name in _INPUT_PARAMS}
         return fn(*args, inputs=_input_options(**values), **kwargs)
 
-    wrapper.__signature__ = sig.replace(parameters=[*own, *added])  # type: ignore[attr-defined]
+    wrapper.__signature__ = sig.replace(parameters=[*own, *added])
     return wrapper
 
 

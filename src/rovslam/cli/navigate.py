@@ -71,7 +71,7 @@ def navigate(
                 ),
             }
         )
-        summary = fly(scenario, pois, out, estimator, survey_s, hold_s, seed, cfg, overwrite=overwrite, **callbacks)
+        summary = fly(scenario, pois, out, estimator, survey_s, hold_s, seed, cfg, overwrite=overwrite, **callbacks)  # type: ignore[arg-type]
         late.ignore_after = summary.status == "interrupted"
     rows = summary.arrivals
     errs = [r["true_err_m"] for r in rows if r["reached"]]

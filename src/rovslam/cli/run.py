@@ -142,7 +142,7 @@ def import_cmd(
     )
     if summary.stopped:
         error_line(f"{msg}; the frames written form a readable sequence", f"rovslam: stopped by {stop.name}: ")
-        raise typer.Exit(128 + int(stop.signum))
+        raise typer.Exit(128 + int(stop.signum))  # type: ignore[arg-type]
     typer.echo(msg)
 
 

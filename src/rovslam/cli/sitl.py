@@ -16,29 +16,62 @@ __all__ = ["sitl"]
 
 
 def sitl(
-    scenario: Optional[str] = typer.Option(None, "--scenario", help="Simulator preset to fly (rovslam simulate --list)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Folder for the truth: groundtruth.csv, camera.toml, "
-                             "received.csv (new or empty)."),
+    scenario: Optional[str] = typer.Option(
+        None, "--scenario", help="Simulator preset to fly (rovslam simulate --list)."
+    ),
+    out: Path = typer.Option(
+        ..., "--out", "-o", help="Folder for the truth: groundtruth.csv, camera.toml, received.csv (new or empty)."
+    ),
     seed: int = typer.Option(0, help="Random seed of the seabed, the path and the sensors (as rovslam simulate)."),
-    video: str = typer.Option("udp://127.0.0.1:5600", "--video", help="Where to stream the camera: udp://HOST:PORT "
-                              "(H.264 in MPEG-TS; with --rtp: H.264 over RTP and OUT/stream.sdp, as BlueOS)."),
-    mavlink: str = typer.Option("udpout:127.0.0.1:14550", "--mavlink", help="pymavlink connection string of the "
-                                "autopilot link (udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, /dev/ttyX,BAUD)."),
-    duration_s: Optional[float] = typer.Option(None, "--duration-s", help="Dive time to stream (s); default: the "
-                                               "preset's dive, or the whole --from sequence."),
-    from_seq: Optional[Path] = typer.Option(None, "--from", help="Stream this sequence folder (rovslam simulate "
-                                            "writes one) at its own frame times instead of rendering live."),
+    video: str = typer.Option(
+        "udp://127.0.0.1:5600",
+        "--video",
+        help="Where to stream the camera: udp://HOST:PORT "
+        "(H.264 in MPEG-TS; with --rtp: H.264 over RTP and OUT/stream.sdp, as BlueOS).",
+    ),
+    mavlink: str = typer.Option(
+        "udpout:127.0.0.1:14550",
+        "--mavlink",
+        help="pymavlink connection string of the "
+        "autopilot link (udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, /dev/ttyX,BAUD).",
+    ),
+    duration_s: Optional[float] = typer.Option(
+        None, "--duration-s", help="Dive time to stream (s); default: the preset's dive, or the whole --from sequence."
+    ),
+    from_seq: Optional[Path] = typer.Option(
+        None,
+        "--from",
+        help="Stream this sequence folder (rovslam simulate "
+        "writes one) at its own frame times instead of rendering live.",
+    ),
     rtp: bool = typer.Option(False, "--rtp", help="H.264 over RTP (BlueOS's default on UDP 5600) with its SDP file."),
-    pace: float = typer.Option(1.0, "--pace", help="Wall seconds per dive second: 1 real time, 2 half speed (the "
-                               "stream's presentation times stay the capture times)."),
-    mode: str = typer.Option("ALT_HOLD", "--mode", help="ArduSub mode the heartbeat reports (MANUAL, STABILIZE, "
-                             "ALT_HOLD, POSHOLD, GUIDED, ...)."),
-    linger_s: float = typer.Option(2.0, "--linger-s", help="After the last frame, keep receiving this long (the "
-                                   "answers to the last frames) before closing."),
-    crf: int = typer.Option(20, "--crf", help="H.264 quality of the stream (x264 CRF: lower is better; MPEG-TS "
-                            "frames are kept under 60 kB whatever it is)."),
-    wait_for_peer_s: float = typer.Option(0.0, "--wait-for-peer-s", help="Hold the first frame until a companion's "
-                                          "HEARTBEAT arrives (at most this long; 0: start at once)."),
+    pace: float = typer.Option(
+        1.0,
+        "--pace",
+        help="Wall seconds per dive second: 1 real time, 2 half speed (the "
+        "stream's presentation times stay the capture times).",
+    ),
+    mode: str = typer.Option(
+        "ALT_HOLD",
+        "--mode",
+        help="ArduSub mode the heartbeat reports (MANUAL, STABILIZE, ALT_HOLD, POSHOLD, GUIDED, ...).",
+    ),
+    linger_s: float = typer.Option(
+        2.0,
+        "--linger-s",
+        help="After the last frame, keep receiving this long (the answers to the last frames) before closing.",
+    ),
+    crf: int = typer.Option(
+        20,
+        "--crf",
+        help="H.264 quality of the stream (x264 CRF: lower is better; MPEG-TS "
+        "frames are kept under 60 kB whatever it is).",
+    ),
+    wait_for_peer_s: float = typer.Option(
+        0.0,
+        "--wait-for-peer-s",
+        help="Hold the first frame until a companion's HEARTBEAT arrives (at most this long; 0: start at once).",
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress lines."),
 ) -> None:
     """Fly a preset as an ArduSub vehicle: camera stream, MAVLink telemetry, truth on disk, for `rovslam live`.
@@ -64,17 +97,32 @@ def sitl(
         if not quiet:
             typer.echo(text)
 
-    config = SitlConfig(scenario, out, video=video, mavlink=mavlink, seed=seed, duration_s=duration_s,
-                        from_seq=from_seq, rtp=rtp, pace=pace, mode=mode.upper(), wait_for_peer_s=wait_for_peer_s,
-                        crf=crf)
+    config = SitlConfig(
+        scenario,
+        out,
+        video=video,
+        mavlink=mavlink,
+        seed=seed,
+        duration_s=duration_s,
+        from_seq=from_seq,
+        rtp=rtp,
+        pace=pace,
+        mode=mode.upper(),
+        wait_for_peer_s=wait_for_peer_s,
+        crf=crf,
+    )
     vehicle = SitlVehicle(config)
     src = vehicle.source
     cam = src.info.camera
     with StopRequest() as stop:
         vehicle.start()
-        stream = f"{video} as RTP, SDP {out / 'stream.sdp'}" if rtp or video.startswith("rtp:") else f"{video} (MPEG-TS)"
-        say(f"sitl: {src.info.name}: {src.n_frames} frames {cam.width_px}x{cam.height_px} at "
-            f"{src.frame_rate_hz:g} Hz, pace {pace:g}")
+        stream = (
+            f"{video} as RTP, SDP {out / 'stream.sdp'}" if rtp or video.startswith("rtp:") else f"{video} (MPEG-TS)"
+        )
+        say(
+            f"sitl: {src.info.name}: {src.n_frames} frames {cam.width_px}x{cam.height_px} at "
+            f"{src.frame_rate_hz:g} Hz, pace {pace:g}"
+        )
         say(f"sitl: video {stream}; MAVLink {mavlink} as system 1 (ArduSub, {mode.upper()}); truth in {out}")
         say("sitl: rendering the first frame..." if from_seq is None else "sitl: reading the first frame...")
         if wait_for_peer_s > 0:
@@ -86,8 +134,10 @@ def sitl(
             summary = vehicle.stop()
     link = summary["mavlink"] or {}
     ins = ", ".join(f"{k} {v}" for k, v in link.get("messages_in", {}).items()) or "none"
-    line = (f"{summary['frames_sent']}/{summary['frames_planned']} frames sent ({summary['late_frames']} late); "
-            f"messages in: {ins}; garbage {link.get('bad_packets', 0)} -> {out}")
+    line = (
+        f"{summary['frames_sent']}/{summary['frames_planned']} frames sent ({summary['late_frames']} late); "
+        f"messages in: {ins}; garbage {link.get('bad_packets', 0)} -> {out}"
+    )
     if stop.signum is not None:
         typer.echo(f"sitl: stopped by {stop.name}: {line}; every file written is complete", err=True)
         raise typer.Exit(128 + stop.signum)
@@ -109,8 +159,10 @@ def _watch(vehicle, stop, say, linger_s: float) -> None:
             say("sitl: streaming (Ctrl-C ends the dive, the files complete)")
         if time.monotonic() - last_note >= 10.0:
             last_note = time.monotonic()
-            say(f"sitl: t = {vehicle.stream_time_s() or 0.0:.1f} s, {vehicle.frames_sent}/{n} frames, "
-                f"{sum(vehicle.link.counts_in.values()) if vehicle.link else 0} messages in")
+            say(
+                f"sitl: t = {vehicle.stream_time_s() or 0.0:.1f} s, {vehicle.frames_sent}/{n} frames, "
+                f"{sum(vehicle.link.counts_in.values()) if vehicle.link else 0} messages in"
+            )
     end = time.monotonic() + max(0.0, linger_s)
     while stop.signum is None and time.monotonic() < end:
         time.sleep(0.05)

@@ -298,7 +298,7 @@ def read_frames_csv(path: Path, folder: Path, check_images: bool = True) -> list
         if text == "":
             raise SequenceFormatError(f"{where}: column 'heading_rad' is empty; write nan when there is no compass.")
         heading = float_cell(row, "heading_rad", where, allow_nan=True)
-        if abs(heading) > MAX_HEADING_RAD:  # NaN passes: no compass
+        if abs(heading) > MAX_HEADING_RAD:  # type: ignore[arg-type]  # NaN passes: no compass
             raise SequenceFormatError(
                 f"{where}: column 'heading_rad' is {heading} rad, beyond +-{MAX_HEADING_RAD:g} rad: not a heading "
                 "(write nan where the compass gave no reading; headings are in radians)."

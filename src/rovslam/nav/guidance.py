@@ -69,7 +69,9 @@ class GuidanceConfig:
     heading_rad: float | None = None  # held heading (None: the first estimate)
     arrival_radius_m: float = 0.005
     settle_s: float = 2.0  # the estimate stays within the radius this long before the arrival
-    integral_gain_per_s2: float = 0.01  # integral action near a point of interest (removes what the current estimate misses)
+    integral_gain_per_s2: float = (
+        0.01  # integral action near a point of interest (removes what the current estimate misses)
+    )
     integral_radius_m: float = 0.01  # ... within this distance of the point
     integral_limit_mps: float = 0.005
     max_ellipse_m: float = 0.015  # 2-sigma semi-major axis of the position estimate
@@ -81,19 +83,37 @@ class GuidanceConfig:
     thruster_tau_s: tuple[float, float] = (1.0, 1.5)  # the controller's model of its surge / sway response
 
     def __post_init__(self) -> None:
-        for name in ("cruise_speed_mps", "approach_gain_per_s", "max_speed_mps", "max_yaw_rate_radps", "yaw_gain_per_s",
-                     "arrival_radius_m", "max_ellipse_m", "waypoint_radius_m", "goal_timeout_s", "current_tau_s"):
+        for name in (
+            "cruise_speed_mps",
+            "approach_gain_per_s",
+            "max_speed_mps",
+            "max_yaw_rate_radps",
+            "yaw_gain_per_s",
+            "arrival_radius_m",
+            "max_ellipse_m",
+            "waypoint_radius_m",
+            "goal_timeout_s",
+            "current_tau_s",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InvalidArgumentError(f"GuidanceConfig.{name} must be a finite number > 0, got {v!r}")
-        for name in ("min_transit_speed_mps", "ellipse_wait_s", "hold_s", "settle_s", "integral_gain_per_s2",
-                     "integral_radius_m", "integral_limit_mps"):
+        for name in (
+            "min_transit_speed_mps",
+            "ellipse_wait_s",
+            "hold_s",
+            "settle_s",
+            "integral_gain_per_s2",
+            "integral_radius_m",
+            "integral_limit_mps",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InvalidArgumentError(f"GuidanceConfig.{name} must be a finite number >= 0, got {v!r}")
         if self.cruise_speed_mps > self.max_speed_mps:
             raise InvalidArgumentError(
-                f"GuidanceConfig.cruise_speed_mps ({self.cruise_speed_mps}) exceeds max_speed_mps ({self.max_speed_mps})")
+                f"GuidanceConfig.cruise_speed_mps ({self.cruise_speed_mps}) exceeds max_speed_mps ({self.max_speed_mps})"
+            )
 
 
 @dataclass(frozen=True)
@@ -139,8 +159,9 @@ def saturate(vec: np.ndarray, limit: float) -> np.ndarray:
     return v * (limit / n) if n > limit else v
 
 
-def waypoint_velocity(est_xy_m: np.ndarray, target_xy_m: np.ndarray, cfg: GuidanceConfig,
-                      pass_through: bool = False) -> np.ndarray:
+def waypoint_velocity(
+    est_xy_m: np.ndarray, target_xy_m: np.ndarray, cfg: GuidanceConfig, pass_through: bool = False
+) -> np.ndarray:
     """(2,) desired ground velocity (world): towards the target at ``min(cruise, gain * distance)``.
 
     ``pass_through`` (a survey way-point): at least ``min_transit_speed_mps`` until it is passed.
@@ -155,14 +176,20 @@ def waypoint_velocity(est_xy_m: np.ndarray, target_xy_m: np.ndarray, cfg: Guidan
     return d / dist * speed
 
 
-def body_command(ground_velocity_mps: np.ndarray, current_mps: np.ndarray, heading_rad: float,
-                 heading_ref_rad: float, cfg: GuidanceConfig) -> Command:
+def body_command(
+    ground_velocity_mps: np.ndarray,
+    current_mps: np.ndarray,
+    heading_rad: float,
+    heading_ref_rad: float,
+    cfg: GuidanceConfig,
+) -> Command:
     """The command for a desired ground velocity: water velocity = ground - current, in the body frame, saturated.
 
     Yaw rate: ``yaw_gain_per_s`` times the wrapped heading error, saturated to ``max_yaw_rate_radps``.
     """
-    water = saturate(np.asarray(ground_velocity_mps, dtype=np.float64) - np.asarray(current_mps, dtype=np.float64),
-                     cfg.max_speed_mps)
+    water = saturate(
+        np.asarray(ground_velocity_mps, dtype=np.float64) - np.asarray(current_mps, dtype=np.float64), cfg.max_speed_mps
+    )
     body = rot2(heading_rad).T @ water
     err = (heading_ref_rad - heading_rad + math.pi) % (2.0 * math.pi) - math.pi
     r = max(-cfg.max_yaw_rate_radps, min(cfg.max_yaw_rate_radps, cfg.yaw_gain_per_s * err))
@@ -206,8 +233,13 @@ class Mission:
     events (:class:`Arrival`, :class:`HoldEnd`) of this frame.
     """
 
-    def __init__(self, goals: list[Goal], cfg: GuidanceConfig = GuidanceConfig(), resolve=None,
-                 survey_until_s: float | None = None) -> None:
+    def __init__(
+        self,
+        goals: list[Goal],
+        cfg: GuidanceConfig = GuidanceConfig(),
+        resolve=None,
+        survey_until_s: float | None = None,
+    ) -> None:
         self.goals = list(goals)
         self.survey_until_s = survey_until_s  # survey way-points left at this time are dropped
         self.cfg = cfg
@@ -263,8 +295,9 @@ class Mission:
         if float(np.hypot(*error_m)) > cfg.integral_radius_m:
             return self.p.integral_mps
         if dt_s > 0:
-            self.p.integral_mps = saturate(self.p.integral_mps + cfg.integral_gain_per_s2 * error_m * dt_s,
-                                           cfg.integral_limit_mps)
+            self.p.integral_mps = saturate(
+                self.p.integral_mps + cfg.integral_gain_per_s2 * error_m * dt_s, cfg.integral_limit_mps
+            )
         return self.p.integral_mps
 
     def _next(self, t_s: float, events: list, reached: bool = True, reason: str = "") -> None:
@@ -315,8 +348,17 @@ class Mission:
                     settled = t - self.p.settled_s >= cfg.settle_s - 1e-9
                     if settled and (state == "arrived" or t - self.p.within_s >= cfg.ellipse_wait_s):
                         hold = cfg.hold_s if goal.hold_s is None else goal.hold_s
-                        events.append(Arrival(self.p.index, goal.name, t, target.copy(), np.array(est.xy_m, dtype=float),
-                                              ellipse_semi_major_m(est.cov_m2), state == "arrived"))
+                        events.append(
+                            Arrival(
+                                self.p.index,
+                                goal.name,
+                                t,
+                                target.copy(),
+                                np.array(est.xy_m, dtype=float),
+                                ellipse_semi_major_m(est.cov_m2),
+                                state == "arrived",
+                            )
+                        )
                         self.p.phase, self.p.hold_until_s = "hold", t + hold
             if self.p.phase == "hold" and t >= self.p.hold_until_s:  # type: ignore[operator]
                 self._next(t, events)

@@ -112,7 +112,7 @@ class RayCaster:
             cos_v, sin_v = np.cos(psi).astype(np.float32), np.sin(psi).astype(np.float32)
         else:
             cx, cy = np.array([[pose.x_m]]), np.array([[pose.y_m]])
-            cos_v, sin_v = np.float32(np.cos(pose.heading_rad)), np.float32(np.sin(pose.heading_rad))
+            cos_v, sin_v = np.float32(np.cos(pose.heading_rad)), np.float32(np.sin(pose.heading_rad))  # type: ignore[assignment]
         dx = cos_v * ax - sin_v * ay  # world direction per unit depth, north
         dy = sin_v * ax + cos_v * ay  # east
         h_lo, h_hi = world.relief.height_range_m if world.relief is not None else (0.0, 0.0)
@@ -154,7 +154,7 @@ class RayCaster:
             slopes = hs[..., 1:]  # at the last step's t: the Newton step moved t by far less than a texel
             relief_maps = (rc, row_map, col_map, b_row, b_col)
         else:
-            t = np.full(ax.shape, z, dtype=np.float32)
+            t = np.full(ax.shape, z, dtype=np.float32)  # type: ignore[assignment]
         north, east = cx + t * dx, cy + t * dy
         # The albedo where the rays land, prefiltered for the pixel footprint as on the plane path;
         # its map is interpolated from the ray grid to every pixel (exact where it is linear).
@@ -174,14 +174,14 @@ class RayCaster:
         inv_t = 1.0 / (tex * step)
         col_a = ((cy / tex - canvas.col0) / step).astype(np.float32) + t * (dy * np.float32(inv_t))
         row_a = ((cx / tex - canvas.row0) / step).astype(np.float32) + t * (dx * np.float32(inv_t))
-        albedo = cv2.remap(
+        albedo = cv2.remap(  # type: ignore[call-overload]
             canvas.texels,
             self.upsample(cv2.merge([col_a, row_a])),
             None,
             cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_REPLICATE,
         )
-        return RayHits(t, albedo, slopes, ax, ay, sec, north.astype(np.float32), east.astype(np.float32), relief_maps)
+        return RayHits(t, albedo, slopes, ax, ay, sec, north.astype(np.float32), east.astype(np.float32), relief_maps)  # type: ignore[arg-type]
 
     def upsample(self, grid: np.ndarray) -> np.ndarray:
         """A field on the ray grid (with its apron) -> ``(H, W[, C])`` at every pixel, bilinear.

@@ -103,7 +103,7 @@ class FrameRenderer:
             self._ideal_pts = ideal.astype(np.float32).reshape(-1, 1, 2)
         else:
             ideal = pix
-            self._ideal_pts = None
+            self._ideal_pts = None  # type: ignore[assignment]
         # Border pixels (every 4th, plus corners), to bound the footprint of a frame.
         border = np.zeros((h, w), dtype=bool)
         border[0, ::4] = border[-1, ::4] = border[::4, 0] = border[::4, -1] = True
@@ -153,7 +153,7 @@ class FrameRenderer:
                 borderMode=cv2.BORDER_REPLICATE,
             )
         maps = cv2.perspectiveTransform(self._ideal_pts, hom).reshape(cam.height_px, cam.width_px, 2)
-        return cv2.remap(canvas.texels, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return cv2.remap(canvas.texels, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)  # type: ignore[call-overload]
 
     # ------------------------------------------------------------------ ray-cast geometry
     def uses_rays(self, world: World) -> bool:
@@ -237,7 +237,7 @@ class FrameRenderer:
         wts = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy]) * np.tile(energy, 4)
         key = (np.tile(level, 4) * hh + rows) * ww + cols
         layers = np.bincount(key, wts, minlength=len(_SNOW_SIGMAS_PX) * hh * ww)
-        layers = layers.astype(np.float32).reshape(len(_SNOW_SIGMAS_PX), hh, ww)
+        layers = layers.astype(np.float32).reshape(len(_SNOW_SIGMAS_PX), hh, ww)  # type: ignore[assignment]
         total = np.zeros((h, w), dtype=np.float32)
         for lev in np.unique(level):
             total += cv2.GaussianBlur(layers[lev], (0, 0), float(_SNOW_SIGMAS_PX[lev]), borderType=cv2.BORDER_CONSTANT)[
@@ -311,12 +311,12 @@ class FrameRenderer:
         if sp.psf_sigma_px >= 0.1 or sp.psf_glare_fraction > 0:
             img = self._lens_psf(img)
         if not noise_free and (sp.shot_noise_dn > 0 or sp.read_noise_dn > 0):
-            std = cv2.sqrt(cv2.max(img, 0.0) * sp.shot_noise_dn + sp.read_noise_dn**2)
-            img += fast_standard_normal(rng, img.shape) * std
-        out = cv2.convertScaleAbs(cv2.max(img, 0.0))  # round, saturate to 0..255
+            std = cv2.sqrt(cv2.max(img, 0.0) * sp.shot_noise_dn + sp.read_noise_dn**2)  # type: ignore[call-overload]
+            img += fast_standard_normal(rng, img.shape) * std  # type: ignore[arg-type]
+        out = cv2.convertScaleAbs(cv2.max(img, 0.0))  # type: ignore[call-overload]  # round, saturate to 0..255
         if sp.jpeg_quality is not None and not noise_free:
             ok, buf = cv2.imencode(".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(sp.jpeg_quality)])
-            out = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1]
+            out = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1]  # type: ignore[index]
             out = np.ascontiguousarray(out)
         return out
 

@@ -430,7 +430,7 @@ def build_world(
     """
     photo, mm = None, None
     if texture_path is not None:
-        photo, mm = Path(texture_path), float(texture_mm_per_px)
+        photo, mm = Path(texture_path), float(texture_mm_per_px)  # type: ignore[arg-type]
     elif sc.seabed_photo is not None:
         photo, mm = shared_data_file(sc.seabed_photo), sc.photo_mm_per_px
     if photo is None:

@@ -114,8 +114,8 @@ class VehicleLamps:
             inv_n = 1.0 / np.sqrt(1.0 + glx * glx + gly * gly)
             nx, ny, nz = -glx * inv_n, -gly * inv_n, -inv_n
         else:
-            nx = ny = np.float32(0.0)
-            nz = np.float32(-1.0)
+            nx = ny = np.float32(0.0)  # type: ignore[assignment]
+            nz = np.float32(-1.0)  # type: ignore[assignment]
         r_lb = level_from_body(pose.roll_rad, pose.pitch_rad)
         total = np.zeros(t.shape, dtype=np.float32)
         r_sum = np.zeros(t.shape, dtype=np.float32)
@@ -152,12 +152,12 @@ class VehicleLamps:
         relief, and takes the largest height by which the relief pokes above the light ray.
         """
         lp = self.lighting
-        rc, row_map, col_map, b_row, b_col = hits.relief_maps
+        rc, row_map, col_map, b_row, b_col = hits.relief_maps  # type: ignore[misc]
         lx, ly, lz = vec
         c, s = float(np.cos(pose.heading_rad)), float(np.sin(pose.heading_rad))
-        inv_r = np.float32(1.0 / world.relief.texel_m)
+        inv_r = np.float32(1.0 / world.relief.texel_m)  # type: ignore[union-attr]
         lrow, lcol = (c * lx - s * ly) * inv_r, (s * lx + c * ly) * inv_r  # P -> lamp, in relief texels
-        h_lo, h_hi = world.relief.height_range_m
+        h_lo, h_hi = world.relief.height_range_m  # type: ignore[union-attr]
         h_p = np.float32(pose.altitude_m) - hits.depth_m
         rise_per_step = 1.0 / np.maximum(-lz, np.float32(1e-3))  # tau per metre of rise
         occl = np.full(h_p.shape, -1.0, dtype=np.float32)
@@ -179,13 +179,13 @@ class VehicleLamps:
         """(H, W) float32 sunlight on the seabed: two drifting layers of the caustic network, mean ``strength``."""
         cp = self.lighting.caustics
         pattern = caustic_pattern(world.seed)
-        k = np.float32(CAUSTIC_TEXELS / (4.0 * cp.scale_m))  # pattern texels per metre (4 cells per period)
+        k = np.float32(CAUSTIC_TEXELS / (4.0 * cp.scale_m))  # type: ignore[union-attr]  # pattern texels per metre (4 cells per period)
         out = np.zeros(hits.depth_m.shape, dtype=np.float32)
         for angle, stretch, sign in ((0.0, 1.0, 1.0), (2.1, 1.37, -0.7)):
             ca, sa = np.float32(np.cos(angle) * stretch * k), np.float32(np.sin(angle) * stretch * k)
-            ox = (sign * cp.drift_mps[0] * t_s) * float(k)
-            oy = (sign * cp.drift_mps[1] * t_s) * float(k)
+            ox = (sign * cp.drift_mps[0] * t_s) * float(k)  # type: ignore[union-attr]
+            oy = (sign * cp.drift_mps[1] * t_s) * float(k)  # type: ignore[union-attr]
             u = np.mod(ca * hits.east_m - sa * hits.north_m - np.float32(oy), np.float32(CAUSTIC_TEXELS))
             v = np.mod(sa * hits.east_m + ca * hits.north_m - np.float32(ox), np.float32(CAUSTIC_TEXELS))
             out += cv2.remap(pattern, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-        return out * np.float32(0.5 * cp.strength)
+        return out * np.float32(0.5 * cp.strength)  # type: ignore[operator,union-attr]

@@ -90,8 +90,11 @@ def write_camera_file(path: Path, info) -> None:
 def _interpolate(a: SitlFrame, b: SitlFrame, w: float) -> tuple[float, float, float]:
     """(roll, pitch, heading) readings a fraction ``w`` of the way from frame ``a`` to ``b`` (heading the short way)."""
     dh = (b.heading_rad - a.heading_rad + math.pi) % (2.0 * math.pi) - math.pi
-    return (a.roll_rad + w * (b.roll_rad - a.roll_rad), a.pitch_rad + w * (b.pitch_rad - a.pitch_rad),
-            a.heading_rad + w * dh)
+    return (
+        a.roll_rad + w * (b.roll_rad - a.roll_rad),
+        a.pitch_rad + w * (b.pitch_rad - a.pitch_rad),
+        a.heading_rad + w * dh,
+    )
 
 
 class SitlVehicle:
@@ -114,8 +117,11 @@ class SitlVehicle:
         out = Path(c.out)
         if out.exists() and (not out.is_dir() or any(out.iterdir())):
             raise SimulationError(f"--out {out}: exists and is not an empty folder; give a new folder")
-        self.source: FrameSource = (sequence_frames(Path(c.from_seq), c.duration_s) if c.from_seq is not None
-                                    else preset_frames(str(c.scenario), c.seed, c.duration_s))
+        self.source: FrameSource = (
+            sequence_frames(Path(c.from_seq), c.duration_s)
+            if c.from_seq is not None
+            else preset_frames(str(c.scenario), c.seed, c.duration_s)
+        )
         self.out = out
         self._t0: float | None = None  # monotonic time of the first frame
         self._stop = threading.Event()
@@ -155,8 +161,15 @@ class SitlVehicle:
         self.out.mkdir(parents=True, exist_ok=True)
         write_camera_file(self.out / "camera.toml", src.info)
         cam = src.info.camera
-        video = self.video = VideoOut(c.video, cam.width_px, cam.height_px, src.frame_rate_hz, rtp=c.rtp,
-                                      sdp_path=self.out / "stream.sdp", crf=c.crf)
+        video = self.video = VideoOut(
+            c.video,
+            cam.width_px,
+            cam.height_px,
+            src.frame_rate_hz,
+            rtp=c.rtp,
+            sdp_path=self.out / "stream.sdp",
+            crf=c.crf,
+        )
         try:
             link = self.link = MavlinkLink(c.mavlink, self.out / "received.csv", self.stream_time_s, mode=c.mode)
         except BaseException:
@@ -182,6 +195,7 @@ class SitlVehicle:
                 if self._error is None:
                     self._error = exc
                 self._stop.set()
+
         return run
 
     def _produce(self) -> None:
@@ -318,10 +332,16 @@ class SitlVehicle:
         c = self.config
         return {
             "scenario": c.scenario if c.from_seq is None else self.source.info.metadata.get("scenario"),
-            "from": None if c.from_seq is None else str(c.from_seq), "seed": c.seed, "pace": c.pace,
-            "video": c.video, "rtp": c.rtp, "frame_rate_hz": self.source.frame_rate_hz,
-            "peer_heartbeat_before_first_frame": self.peer_seen, "frames_planned": self.source.n_frames,
-            "frames_sent": self.frames_sent, "late_frames": self.late_frames,
+            "from": None if c.from_seq is None else str(c.from_seq),
+            "seed": c.seed,
+            "pace": c.pace,
+            "video": c.video,
+            "rtp": c.rtp,
+            "frame_rate_hz": self.source.frame_rate_hz,
+            "peer_heartbeat_before_first_frame": self.peer_seen,
+            "frames_planned": self.source.n_frames,
+            "frames_sent": self.frames_sent,
+            "late_frames": self.late_frames,
             "complete": self.frames_sent == self.source.n_frames,
             "video_bytes": 0 if self.video is None else self.video.bytes,
             "mavlink": None if self.link is None else self.link.stats(),

@@ -118,7 +118,7 @@ class LaserSpots:
                 + sp.halo_fraction * np.exp(-(r * r) / (2.0 * sp.halo_sigma_px**2))
             )
             if not noise_free and sp.speckle > 0:
-                spot *= np.maximum(1.0 + sp.speckle * fast_standard_normal(rng, spot.shape), 0.0)
+                spot *= np.maximum(1.0 + sp.speckle * fast_standard_normal(rng, spot.shape), 0.0)  # type: ignore[arg-type]
             r0, r1 = max(0, iv - rad), min(h, iv + rad + 1)
             c0, c1 = max(0, iu - rad), min(w, iu + rad + 1)
             if r0 >= r1 or c0 >= c1:

@@ -400,7 +400,7 @@ class ProceduralSeabed(ChunkedGrid):
                 axis=-1,
             )
             for lst, val in zip(cols, (x, y, a, b, angle, rgb, extra, harm)):
-                lst.append(val)  # type: ignore[arg-type]
+                lst.append(val)
         if not cols[0]:
             empty = np.zeros(0)
             return _Objects(empty, empty, empty, empty, empty, np.zeros((0, 3)), empty, np.zeros((0, 4, 2)))

@@ -94,7 +94,7 @@ class GridPattern:
                 d = float(np.hypot(*(wp[0] - start_near)))
                 if best is None or d < best[0] - 1e-12:
                     best = (d, wp)
-        return best[1]
+        return best[1]  # type: ignore[index]
 
 
 @dataclass(frozen=True)
@@ -405,8 +405,8 @@ def _fly_grid(v: VehicleParams, grid: GridPattern, n_frames: int, dt: float, dis
         vx, vy = wx + cx, wy + cy
         if v.has_waves:
             cw, sw = math.cos(psi_true), math.sin(psi_true)
-            vx += cw * float(wave_u[i]) - sw * float(wave_v[i])
-            vy += sw * float(wave_u[i]) + cw * float(wave_v[i])
+            vx += cw * float(wave_u[i]) - sw * float(wave_v[i])  # type: ignore[index]
+            vy += sw * float(wave_u[i]) + cw * float(wave_v[i])  # type: ignore[index]
         if i % sub == 0:
             k = i // sub
             c, sn = math.cos(psi_true), math.sin(psi_true)

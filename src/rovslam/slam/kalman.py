@@ -46,8 +46,8 @@ def observe_landmarks(
         its landmark's block (``A = f/depth R^T``, then ``d h / d h_i = h / depth``); the other columns are zero.
     """
     lm_rows = layout.landmark_rows(rows)  # (K, lm)
-    h = observe_mn(x[lm_rows[:, :2]], vehicle_xy_m, theta_rad, depth_m[:, None], focal_px)  # one depth per landmark
-    a, j_psi = observation_jacobians(h, theta_rad, depth_m[:, None, None], focal_px)  # (K, 2, 2), (K, 2)
+    h = observe_mn(x[lm_rows[:, :2]], vehicle_xy_m, theta_rad, depth_m[:, None], focal_px)  # type: ignore[arg-type]  # one depth per landmark
+    a, j_psi = observation_jacobians(h, theta_rad, depth_m[:, None, None], focal_px)  # type: ignore[arg-type]  # (K, 2, 2), (K, 2)
     blocks = [-a]
     if layout.eps is not None:
         blocks.append(-j_psi[:, :, None])

@@ -247,7 +247,7 @@ def extract_templates(
     if score is None:
         return []
     threshold = max(float(min_local_variance), np.finfo(np.float32).tiny)
-    return _choose_greedily(img, score, size, max_count, threshold, spacing, max_self_similarity, similarity_radius_px)
+    return _choose_greedily(img, score, size, max_count, threshold, spacing, max_self_similarity, similarity_radius_px)  # type: ignore[arg-type]
 
 
 def _check_extract_args(
