@@ -372,3 +372,32 @@ def test_help_lists_the_commands_in_the_order_of_the_workflow():
         "navigate",
         "sitl",
     ]
+
+
+def test_the_demo_ends_with_the_next_step(tmp_path):
+    from typer.testing import CliRunner
+
+    from rovslam.cli import app
+
+    result = CliRunner().invoke(app, ["demo", "--out", str(tmp_path / "d"), "--frames", "40", "-q"])
+    assert result.exit_code == 0, result.output
+    last = result.output.strip().splitlines()[-1]
+    assert last.startswith("next: ") and "rovslam run VIDEO" in last and "rovslam live" in last
+    assert (tmp_path / "d" / "results" / "report" / "index.html").is_file()
+
+
+def test_an_assumed_altitude_is_said_on_the_console(tmp_path):
+    import json
+
+    from rovslam.cli.run import assumed_altitude_note
+
+    summary = tmp_path / "summary.json"
+    detail = "assumed constant: 1.8 m, [vehicle] altitude_m of cam.toml"
+    summary.write_text(
+        json.dumps({"sources": {"altitude": {"frames": {"assumed constant": 20, "laser": 2}, "detail": detail}}})
+    )
+    note = assumed_altitude_note(summary)
+    assert note.startswith("altitude: assumed on 20 of 22 frames (1.8 m, [vehicle] altitude_m of cam.toml)")
+    summary.write_text(json.dumps({"sources": {"altitude": {"frames": {"laser+sonar": 22}, "detail": "laser"}}}))
+    assert assumed_altitude_note(summary) is None
+    assert assumed_altitude_note(tmp_path / "missing.json") is None

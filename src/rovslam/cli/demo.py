@@ -50,6 +50,11 @@ def demo(
     report = write_report(res, seq / "groundtruth.csv")
     typer.echo(f"{summary.frames} frames at {summary.fps:.0f} frames/s; results in {res}")
     typer.echo(f"report: {report}")
+    typer.echo(
+        "next: open the report in a browser; run your own dive with "
+        "`rovslam run VIDEO --camera CAMERA.toml --nav NAV.csv --out OUT` (README, 'Your own dive'), "
+        "or try it live with `rovslam sitl` and `rovslam live` (README, 'On the vehicle')."
+    )
 
 
 def _is_simulated_sequence(seq: Path) -> bool:

@@ -186,6 +186,28 @@ def _report_run(summary) -> None:
             typer.echo(f"... and {len(items) - 10} more ({label.split(',')[0]}s: see summary.json)", err=True)
     for note in summary.warnings:
         typer.echo(f"warning: {note}", err=True)
+    note = assumed_altitude_note(summary.out_dir / "summary.json")
+    if note:
+        typer.echo(note, err=True)
+
+
+def assumed_altitude_note(summary_json: Path) -> str | None:
+    """One line when frames ran on an assumed altitude (no laser spot, no altimeter): the scale is a guess."""
+    import json
+
+    try:
+        altitude = json.loads(summary_json.read_text(encoding="utf-8"))["sources"]["altitude"]
+        frames = {str(k): int(v) for k, v in altitude["frames"].items()}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    assumed = sum(n for source, n in frames.items() if source.startswith(("assumed", "fixed")))
+    if not assumed:
+        return None
+    detail = str(altitude.get("detail", "")).removeprefix("assumed constant: ")
+    return (
+        f"altitude: assumed on {assumed} of {sum(frames.values())} frames ({detail}): no laser spot and no "
+        "altimeter, so the path's scale is only as good as that assumption"
+    )
 
 
 def _live_viewer(spawn: bool, save_rrd: Path | None, out: Path):
