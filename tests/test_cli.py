@@ -401,3 +401,16 @@ def test_an_assumed_altitude_is_said_on_the_console(tmp_path):
     summary.write_text(json.dumps({"sources": {"altitude": {"frames": {"laser+sonar": 22}, "detail": "laser"}}}))
     assert assumed_altitude_note(summary) is None
     assert assumed_altitude_note(tmp_path / "missing.json") is None
+
+
+def test_help_shows_no_type_after_a_flag_and_arguments_in_capitals():
+    from typer.testing import CliRunner
+
+    from rovslam.cli import app
+
+    out = CliRunner().invoke(app, ["run", "--help"], env={"COLUMNS": "120"}).output
+    usage = next(line for line in out.splitlines() if "Usage:" in line)
+    assert usage.split()[-1] == "SEQUENCE" and "{" not in usage
+    quiet = next(line for line in out.splitlines() if "--quiet" in line)
+    assert "<bool>" not in quiet and "No progress" in quiet
+    assert "<int>" in next(line for line in out.splitlines() if "--max-frames" in line)

@@ -547,7 +547,7 @@ class _Run:
         writer = self.writer
         # Each in its own try, the trajectory first: one file that cannot be closed or written loses no other.
         for step in (
-            lambda: writer.close(quiet=error is not None),
+            lambda quiet=error is not None: writer.close(quiet=quiet),
             self.measurements.close,
             self.gallery.close,
             writer.release_reserve,  # the disk space held back, for what follows

@@ -53,6 +53,30 @@ import typer
 
 from rovslam.cli.errors import error_line
 
+
+def _plain_help() -> None:
+    """Help text as a user reads it: no ``<bool>`` after a flag (it takes no value) and an argument's name
+    in capitals in the usage line (``SEQUENCE``, ``[OUT]``) instead of typer's ``{sequence}``.
+
+    typer (pinned in pyproject.toml) decides both in two small methods; they are replaced here once.
+    """
+    from typer.core import TyperArgument, TyperOption
+
+    shown = TyperOption.display_type_rich
+
+    def display_type_rich(self, ctx):  # a flag takes no value: no type to show
+        return None if self.is_flag and not self.count else shown(self, ctx)
+
+    def usage_name(self) -> str:
+        name = self.display_name_raw.upper() + ("..." if self.nargs != 1 else "")
+        return name if self.required else f"[{name}]"
+
+    TyperOption.display_type_rich = display_type_rich  # type: ignore[method-assign]
+    TyperArgument._usage_display_name = usage_name  # type: ignore[method-assign]
+
+
+_plain_help()
+
 app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,

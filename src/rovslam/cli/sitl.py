@@ -5,7 +5,6 @@ command runs.
 """
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -16,7 +15,7 @@ __all__ = ["sitl"]
 
 
 def sitl(
-    scenario: Optional[str] = typer.Option(
+    scenario: str | None = typer.Option(
         None, "--scenario", help="Simulator preset to fly (rovslam simulate --list)."
     ),
     out: Path = typer.Option(
@@ -35,10 +34,10 @@ def sitl(
         help="pymavlink connection string of the "
         "autopilot link (udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, /dev/ttyX,BAUD).",
     ),
-    duration_s: Optional[float] = typer.Option(
+    duration_s: float | None = typer.Option(
         None, "--duration-s", help="Dive time to stream (s); default: the preset's dive, or the whole --from sequence."
     ),
-    from_seq: Optional[Path] = typer.Option(
+    from_seq: Path | None = typer.Option(
         None,
         "--from",
         help="Stream this sequence folder (rovslam simulate "
