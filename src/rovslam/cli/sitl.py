@@ -15,9 +15,7 @@ __all__ = ["sitl"]
 
 
 def sitl(
-    scenario: str | None = typer.Option(
-        None, "--scenario", help="Simulator preset to fly (rovslam simulate --list)."
-    ),
+    scenario: str | None = typer.Option(None, "--scenario", help="Simulator preset to fly (rovslam simulate --list)."),
     out: Path = typer.Option(
         ..., "--out", "-o", help="Folder for the truth: groundtruth.csv, camera.toml, received.csv (new or empty)."
     ),
