@@ -1,4 +1,4 @@
-"""Frames per second of the per-frame loop on an HD camera, from memory, one core (issue 12).
+"""Frames per second of the per-frame loop on an HD camera, from memory, one core.
 
 Run: ``python benchmarks/bench_any_camera.py [--frames 40] [--repeats 3]``. Simulates
 ``hd-survey`` (1920x1080, seeded) and ``portofino`` (360x272) into a temporary folder, decodes

@@ -14,7 +14,7 @@ first on the least-loaded of ``--cores`` one-thread workers (as ``rovslam batch`
 them); the wall time is that of the busiest worker. CPU time, not wall time, is measured,
 so a machine shared with other work still gives the figure of a quiet one.
 
-Scenarios missing from this build are measured on a stand-in, and the table says which:
+Scenarios missing from the build measured are measured on a stand-in, and the table says which:
 a 1920x1080, 25 frames/s variant of ``portofino`` for names with ``hd``, a 1.5 frames/s
 variant for names with ``still``, otherwise ``portofino`` itself (360x272, 5 frames/s).
 """
@@ -43,7 +43,7 @@ STAGES = ("simulate", "run", "eval")
 
 
 def _stand_in(name: str):
-    """The scenario to measure for ``name``: itself, or a stand-in when this build lacks it."""
+    """The scenario to measure for ``name``: itself, or a stand-in when the build measured lacks it."""
     if name in SCENARIOS:
         return SCENARIOS[name], ""
     base = SCENARIOS["portofino"]

@@ -1,4 +1,4 @@
-"""Whole-pipeline speed of ``rovslam run`` (issue 13): frames/s, the baseline, the stages, the profile.
+"""Whole-pipeline speed of ``rovslam run`` : frames/s, the baseline, the stages, the profile.
 
 Run: ``python -m benchmarks pipeline`` (``--quick`` for a short look; ``--cases 360-sim-png``
 for one case; ``--profile`` adds a pyinstrument profile of two runs). Prints the tables and
@@ -18,7 +18,7 @@ thread included), ``2 cores`` that it may use both. Figures are medians over ``-
   correlation alone. ``ratio`` = ``rovslam run`` time / baseline time;
 * ``decode``: ``cv2.imread`` alone;
 * ``stages``: one instrumented run (one core, decoding in the main thread) split into the stages
-  of issue 13 by timers wrapped around the library's step methods (``benchmarks/_stages.py``);
+  of the loop by timers wrapped around the library's step methods (``benchmarks/_stages.py``);
   the stages add up to the run's wall time, ``loop and glue`` being what no timer covers.
 """
 
@@ -290,7 +290,7 @@ def main() -> int:
         default=None,
         metavar="SRC",
         help="also measure the build whose package is in SRC (e.g. `git archive REV src | tar -x -C /tmp/old` "
-        "then --against /tmp/old/src), each measurement right after the same one of this build",
+        "then --against /tmp/old/src), each measurement right after the same one of the build measured",
     )
     ap.add_argument("--json", type=Path, default=None, help="default benchmarks/results/pipeline.json")
     args = ap.parse_args()
@@ -382,7 +382,7 @@ def main() -> int:
 
 
 def _print_speedup(cases: dict) -> None:
-    print("\nspeed-up of this build over the --against build (rovslam run, frames/s)")
+    print("\nspeed-up of the build measured over the --against build (rovslam run, frames/s)")
     print(f"{'case':<16}{'1 core':>22}{'2 cores':>22}")
     for name, r in cases["this"].items():
         o = cases["against"][name]

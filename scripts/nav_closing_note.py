@@ -1,4 +1,4 @@
-"""Closing-note figures of issue 16: closed-loop navigation to points of interest, slam against dead reckoning.
+"""The figures of closed-loop navigation to points of interest, slam against dead reckoning.
 
 For each preset, seed and estimator: a survey of ``--survey-s`` seconds, then ``--points``
 points spread over a ``--span-m`` square centred on the start (a seeded, shuffled grid of

@@ -1,4 +1,4 @@
-"""What holds rovslam's accuracy over a relief: one dive, its inputs made exact one at a time (issue 10).
+"""What holds rovslam's accuracy over a relief: one dive, its inputs made exact one at a time.
 
 One dive (``--scenario``, ``--seed``, ``--frames``) is simulated three times: as the preset makes
 it, without its lamps (the lamp cone fixed to the image: no cast shadows) and over a flat seabed

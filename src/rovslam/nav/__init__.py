@@ -1,4 +1,4 @@
-"""Navigation to points of interest: guidance and control fed by the per-frame estimate (issue 16).
+"""Navigation to points of interest: guidance and control fed by the per-frame estimate.
 
 * :mod:`~rovslam.nav.guidance`: the way-point law, speed limits, arrival and station keeping, :class:`Mission`;
 * :mod:`~rovslam.nav.estimate`: the estimate steered by, ``slam`` or ``dead-reckoning``;

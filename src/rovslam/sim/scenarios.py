@@ -13,7 +13,7 @@ Presets:
   about 1 degree (attitude sensor columns written), turbid water with marine snow, a
   noisier compass. ``rough-turns-short``: its first 600 frames.
 
-The presets of issue 9, as hard as the real seabed (each 3 to 10 minutes of dive):
+The harder presets, as hard as the real seabed (each 3 to 10 minutes of dive):
 
 * ``portofino-relief`` - the paper's trial camera, site and grid over about 12 cm of relief
   (sand ripples, stones, boulders, a ledge) lit by two lamps on the vehicle, cast shadows.
@@ -144,7 +144,7 @@ _ROUGH = Scenario(
 )
 
 
-# ------------------------------------------------------------------ issue 9: as hard as the real seabed
+# ------------------------------------------------------------------ as hard as the real seabed
 # (the ledge's face, 5 cm over 2.5 cm, is steep enough for the lamps to cast a shadow below it)
 _RELIEF_12CM = ReliefParams(
     ripple_height_m=0.005, stone_height_ratio=0.6, ledge_height_m=0.05, ledge_width_m=0.025, undulation_m=0.008

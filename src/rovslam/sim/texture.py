@@ -75,7 +75,7 @@ class TextureParams:
     weed_rgb: RGB = (0.25, 0.27, 0.15)
     light_azimuth_rad: float = 2.4  # sun / ambient light direction for the relief shading
     light_elevation_rad: float = 0.95
-    # Features that fool correlation (issue 9); all off by default, so the original presets
+    # Features that fool correlation; all off by default, so the original presets
     # are unchanged. Boulders are large stones (the relief gives them height).
     boulder_density_per_m2: float = 0.0
     boulder_radius_mm: float = 80.0
