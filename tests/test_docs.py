@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 import importlib.util
 import typing
 from pathlib import Path
@@ -51,3 +52,18 @@ def test_every_public_module_has_an_api_page():
     ]
     assert len(pages) == len(modules) - 0  # __main__ files start with "_" and are left out
     assert pages["rovslam/config.md"] == "# `rovslam.config`\n\n::: rovslam.config\n"
+
+
+HISTORY = re.compile(r"\bstops? [0-9]+|\bissue [0-9]+|this build|this stop|this session", re.IGNORECASE)
+
+
+def test_the_readme_and_the_pages_speak_about_the_software_not_its_history():
+    root = DOCS.parent
+    readme = (root / "README.md").read_text(encoding="utf-8")
+    assert len(readme.splitlines()) <= 400
+    found = []
+    for page in [root / "README.md", *sorted(DOCS.glob("*.md"))]:
+        for number, line in enumerate(page.read_text(encoding="utf-8").splitlines(), 1):
+            if HISTORY.search(line):
+                found.append(f"{page.name}:{number}: {line.strip()[:80]}")
+    assert found == []
