@@ -27,7 +27,7 @@ from rovslam.io.output import (
     check_output_folder,
     output_errors,
 )
-from rovslam.io.results import RunResults, read_results
+from rovslam.io.run_results import RunResults, read_results
 from rovslam.viz import gallery, plots, runinfo
 
 _CSS = """
