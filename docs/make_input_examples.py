@@ -103,7 +103,7 @@ def plot(panels: list[tuple[Path, str, np.ndarray | None, str]], png: Path) -> l
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from rovslam.io.results import read_results
+    from rovslam.io.run_results import read_results
 
     fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 4.6), dpi=110, squeeze=False)
     out = []
@@ -151,7 +151,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--keep", type=Path, help="Work in this folder and keep it (default: a temporary folder).")
     args = ap.parse_args()
-    from rovslam.io.results import read_results
+    from rovslam.io.run_results import read_results
     from rovslam.io.sequence import read_groundtruth
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -1625,7 +1625,7 @@ def check_outcome(case: Case, code: int, stdout: str, stderr: str, argv: list[st
 
 def check_outputs(argv: list[str]) -> list[str]:
     """After exit 0: result files complete, finite and readable."""
-    from rovslam.io.results import read_results
+    from rovslam.io.run_results import read_results
 
     problems = []
     if argv[0] == "run":

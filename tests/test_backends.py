@@ -10,7 +10,7 @@ import pytest
 from rovslam.config import RunConfig, SlamConfig
 from rovslam.eval import evaluate_run
 from rovslam.io.measurements import read_measurements
-from rovslam.io.results import read_results
+from rovslam.io.run_results import read_results
 from rovslam.runner import run_sequence, smooth_run
 from rovslam.sim import simulate
 

@@ -94,7 +94,7 @@ def test_summary_key_of_the_wrong_type_is_named(base, tmp_path, key, value):
 
 
 def test_a_valid_summary_still_reads(base):
-    from rovslam.io.results import read_results
+    from rovslam.io.run_results import read_results
 
     assert read_results(base[1]).summary["software"]["name"] == "rovslam"
 

@@ -134,7 +134,7 @@ def test_max_frames_must_be_positive(small_seq, tmp_path, value):
 
 
 def test_max_frames_processes_exactly_n(small_seq, tmp_path):
-    from rovslam.io.results import read_results
+    from rovslam.io.run_results import read_results
 
     res = runner.invoke(app, ["run", str(small_seq), "--out", str(tmp_path / "o"), "--max-frames", "3", "-q"])
     assert res.exit_code == 0 and "3/3 frames" in res.stdout
@@ -142,7 +142,7 @@ def test_max_frames_processes_exactly_n(small_seq, tmp_path):
 
 
 def test_existing_results_are_refused_then_replaced_with_overwrite(small_seq, tmp_path):
-    from rovslam.io.results import read_results
+    from rovslam.io.run_results import read_results
 
     out = tmp_path / "o"
     assert runner.invoke(app, ["run", str(small_seq), "--out", str(out), "-q"]).exit_code == 0
@@ -189,7 +189,7 @@ def test_a_dive_with_no_usable_frame_fails_and_says_why(small_seq, tmp_path):
 
 def test_a_diverging_estimate_is_never_written(small_seq, tmp_path):
     """A last frame 1e12 s later: its position uncertainty is absurd, so the row is refused."""
-    from rovslam.io.results import read_results
+    from rovslam.io.run_results import read_results
 
     fc.set_cell(small_seq / "frames.csv", fc.N_FRAMES, "t_s", "1e12")
     out = tmp_path / "o"
@@ -216,7 +216,8 @@ def _enospc(*args, **kwargs):
 
 
 def test_disk_full_during_a_run(small_seq, tmp_path, monkeypatch):
-    from rovslam.io.results import ResultWriter, read_summary
+    from rovslam.io.results import ResultWriter
+    from rovslam.io.run_results import read_summary
 
     real = ResultWriter.write_frame
     calls = []

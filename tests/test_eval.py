@@ -302,7 +302,7 @@ def test_eval_judges_the_measured_speed_of_a_simulated_dive_against_the_truth(sh
 
     from rovslam.cli import app
     from rovslam.eval import evaluate_run
-    from rovslam.io.results import read_results
+    from rovslam.io.run_results import read_results
 
     f = evaluate_run(short_run / "out", short_run / "seq" / "groundtruth.csv")
     s = f.speed

@@ -61,7 +61,7 @@ def test_sonar_readings_outside_the_range_are_dropped_and_recorded(shared, tmp_p
     from typer.testing import CliRunner
 
     from rovslam.cli import app
-    from rovslam.io.results import read_results
+    from rovslam.io.run_results import read_results
 
     seq = tmp_path / "seq"
     shutil.copytree(shared.base_seq, seq)
@@ -285,7 +285,7 @@ def test_sequence_toml_parser(data, garbage, parser_folder):
     summary=st.one_of(st.none(), st.binary(max_size=40), st.sampled_from([b"{}", b"[]", b"null", b'{"a": NaN}'])),
 )
 def test_results_reader(column, line, value, cut, summary, shared, tmp_path_factory):
-    from rovslam.io.results import read_results
+    from rovslam.io.run_results import read_results
 
     res = tmp_path_factory.mktemp("res")
     shutil.copytree(shared.base_results, res, dirs_exist_ok=True)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from rovslam.eval import evaluate
-from rovslam.io.results import read_results
+from rovslam.io.run_results import read_results
 from rovslam.io.sequence import open_sequence, read_groundtruth
 from rovslam.runner import run_sequence
 from rovslam.sim import simulate

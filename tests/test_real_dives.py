@@ -23,7 +23,7 @@ from rosbag_writer import sequence_to_bag
 from typer.testing import CliRunner
 
 from rovslam.cli import app
-from rovslam.io.results import read_results
+from rovslam.io.run_results import read_results
 from rovslam.io.sequence import open_sequence
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -15,7 +15,7 @@ import pytest
 from typer.testing import CliRunner
 
 from rovslam.cli import app
-from rovslam.io.results import read_results
+from rovslam.io.run_results import read_results
 from rovslam.io.sequence import open_sequence, read_groundtruth
 from rovslam.runner import run_sequence
 from rovslam.sim import simulate

@@ -18,7 +18,7 @@ import fuzz_corpus as fc
 import numpy as np
 import pytest
 
-from rovslam.io.results import read_results
+from rovslam.io.run_results import read_results
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from rovslam.errors import SequenceFormatError
-from rovslam.io.results import read_results
+from rovslam.io.run_results import read_results
 from rovslam.io.video import open_video
 from rovslam.runner import run_sequence
 

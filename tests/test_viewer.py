@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 from rovslam.cli import app
-from rovslam.io.results import read_results
+from rovslam.io.run_results import read_results
 from rovslam.runner import run_sequence
 from rovslam.sim import simulate
 from rovslam.viz.viewer import ENTITY_PATHS, RerunViewer, entity_paths_in, scalar_series

@@ -30,7 +30,8 @@ from rovslam import __version__
 from rovslam.config import RunConfig, to_dict
 from rovslam.core import Goal
 from rovslam.errors import InvalidArgumentError, OutputError
-from rovslam.io.results import ResultWriter, atomic_write_text, output_errors, prepare_output_folder
+from rovslam.io.result_folder import prepare_output_folder
+from rovslam.io.results import ResultWriter, atomic_write_text, output_errors
 from rovslam.nav.closed_loop import ARRIVAL_COLUMNS, ArrivalBook, ClosedLoop, LoopStep
 from rovslam.nav.estimate import check_estimator
 from rovslam.nav.guidance import GuidanceConfig

@@ -25,6 +25,6 @@ def load_config(path: Path):
 def check_sequence_of_run(results: Path, seq: Path | None, option: str) -> None:
     """Refuse a --seq / --sequence that is clearly another dive's (name or frame count unlike summary.json's)."""
     if seq is not None:
-        from rovslam.io.results import check_sequence_of_run as check
+        from rovslam.io.run_results import check_sequence_of_run as check
 
         check(results, seq, option)

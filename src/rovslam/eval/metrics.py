@@ -22,7 +22,7 @@ from rovslam.camera import rot2, step_mean_heading_rad
 from rovslam.core import GroundTruth
 from rovslam.errors import InvalidArgumentError, ResultsFormatError, SequenceFormatError
 from rovslam.eval.align import align_by_time
-from rovslam.io.results import RunResults, failure_of_run
+from rovslam.io.run_results import RunResults, failure_of_run
 
 _COV_FLOOR_M2 = 1e-12  # the start is known exactly; keep P invertible there
 
@@ -486,7 +486,7 @@ def evaluate_run(
     With ``sequence_dir`` (the sequence that was run) the phase-correlation baseline is
     computed on its images, scaled by the altitude the run measured.
     """
-    from rovslam.io.results import read_results
+    from rovslam.io.run_results import read_results
     from rovslam.io.sequence import open_sequence, read_groundtruth
 
     results = read_results(results_dir)

@@ -438,74 +438,19 @@ def read_nav_csv(path: str | Path, mapping: NavMapping = NavMapping()) -> Naviga
         used = [c for key, c in cols.items() if c and key != "time"]
         rows = _drop_repeats(rows, [name for c in used for name in ((c,) if isinstance(c, str) else c)])
     where = [f"{p}, line {line}" for line, _ in rows]
-    t = _numbers(rows, mapping.time, where, required=True) * TIME_UNITS[mapping.time_unit] - mapping.time_offset_s
-    for i in range(1, len(t)):
-        if not t[i] > t[i - 1]:
-            raise NavigationError(
-                f"{where[i]}: time {rows[i][1][mapping.time].strip()} is not after the previous row's; rows must be in "
-                "strictly increasing time"
-                + ("" if mapping.drop_repeated_rows else " (a log that repeats rows: [nav] drop_repeated_rows = true)")
-                + "."
-            )
-    heading = roll = pitch = None
-    heading_detail = attitude_detail = ""
-    conv = mapping.heading_convention
+    t = _nav_times(rows, where, mapping)
+    heading = roll = pitch = altitude = None
+    heading_detail = attitude_detail = altitude_detail = ""
     if mapping.quaternion is not None:
-        q = np.column_stack([_numbers(rows, c, where) for c in mapping.quaternion])
-        have = np.all(np.isfinite(q), axis=1)
-        h, r, pt = quaternions_to_heading(
-            q[have],
-            [w for w, k in zip(where, have) if k],
-            mapping.quaternion_world,
-            mapping.body,
-            mapping.quaternion_rotates,
+        heading, roll, pitch, heading_detail, attitude_detail = _quaternion_tracks(
+            p, rows, where, t, mapping.quaternion, mapping
         )
-        qdesc = (
-            f"quaternion {','.join(mapping.quaternion)} ({mapping.quaternion_world} world, {mapping.body} body, "
-            f"{mapping.quaternion_rotates})"
-        )
-        heading = _track(p, t[have], h, "quaternion", angle=True)
-        heading_detail = f"{p.name}, {qdesc}"
-        if mapping.attitude:
-            roll, pitch = _track(p, t[have], r, "quaternion"), _track(p, t[have], pt, "quaternion")
-            attitude_detail = f"{p.name}, {qdesc}"
     elif cols["heading"]:
-        unit = _angle_unit(mapping, cols["heading"])
-        v = _numbers(rows, cols["heading"], where) * ANGLE_UNITS[unit]
-        if conv == "enu":
-            v = math.pi / 2 - v
-        have = np.isfinite(v)
-        heading = _track(p, t[have], v[have], cols["heading"], angle=True)
-        heading_detail = f"{p.name}, column {cols['heading']} ({unit}, {'compass: from north towards east' if conv == 'ned' else 'ENU yaw'})"
+        heading, heading_detail = _heading_column(p, rows, where, t, cols["heading"], mapping)
     if mapping.attitude and cols["roll"] and mapping.quaternion is None:
-        unit = _angle_unit(mapping, cols["roll"])
-        r = _numbers(rows, cols["roll"], where) * ANGLE_UNITS[unit]
-        pt = _numbers(rows, cols["pitch"], where) * ANGLE_UNITS[unit]
-        if conv == "enu":
-            pt = -pt
-        for name, v in ((cols["roll"], r), (cols["pitch"], pt)):
-            bad = np.nonzero(np.abs(v) >= MAX_ATTITUDE_RAD)[0]
-            if len(bad):
-                raise NavigationError(
-                    f"{where[bad[0]]}: column '{name}' is {v[bad[0]]:.4g} rad, beyond +-90 degrees: "
-                    f"check angle_unit (now {unit})."
-                )
-        have = np.isfinite(r) & np.isfinite(pt)
-        roll, pitch = _track(p, t[have], r[have], cols["roll"]), _track(p, t[have], pt[have], cols["pitch"])
-        attitude_detail = f"{p.name}, columns {cols['roll']}, {cols['pitch']} ({unit})"
-    altitude = None
-    altitude_detail = ""
+        roll, pitch, attitude_detail = _attitude_columns(p, rows, where, t, cols, mapping)
     if cols["altitude"]:
-        a = _numbers(rows, cols["altitude"], where)
-        neg = np.nonzero(a <= 0)[0]
-        if len(neg):
-            raise NavigationError(
-                f"{where[neg[0]]}: column '{cols['altitude']}' is {a[neg[0]]:g}: an altitude above the seabed is positive "
-                "(a depth is not an altitude)."
-            )
-        have = np.isfinite(a)
-        altitude = _track(p, t[have], a[have], cols["altitude"])
-        altitude_detail = f"{p.name}, column {cols['altitude']} (m)"
+        altitude, altitude_detail = _altitude_column(p, rows, where, t, cols["altitude"])
     tracks = [x for x in (heading, roll, pitch, altitude) if x is not None]
     if not tracks:
         raise NavigationError(
@@ -523,6 +468,95 @@ def read_nav_csv(path: str | Path, mapping: NavMapping = NavMapping()) -> Naviga
         altitude_detail=altitude_detail,
         attitude_detail=attitude_detail,
     )
+
+
+_Rows = list[tuple[int, dict[str, str]]]  # (line number, the row's cells by column name) per row
+
+
+def _nav_times(rows: _Rows, where: list[str], mapping: NavMapping) -> np.ndarray:
+    """(N,) the rows' times in seconds on the frames' clock, or NavigationError where they do not increase."""
+    t = _numbers(rows, mapping.time, where, required=True) * TIME_UNITS[mapping.time_unit] - mapping.time_offset_s
+    for i in range(1, len(t)):
+        if not t[i] > t[i - 1]:
+            raise NavigationError(
+                f"{where[i]}: time {rows[i][1][mapping.time].strip()} is not after the previous row's; rows must be in "
+                "strictly increasing time"
+                + ("" if mapping.drop_repeated_rows else " (a log that repeats rows: [nav] drop_repeated_rows = true)")
+                + "."
+            )
+    return t
+
+
+def _quaternion_tracks(
+    p: Path, rows: _Rows, where: list[str], t: np.ndarray, quaternion: tuple[str, ...], mapping: NavMapping
+) -> tuple[NavTrack, NavTrack | None, NavTrack | None, str, str]:
+    """(heading, roll, pitch, heading detail, attitude detail) from the ``quaternion`` columns (x, y, z, w);
+    roll and pitch only when ``mapping.attitude`` (else None and "")."""
+    q = np.column_stack([_numbers(rows, c, where) for c in quaternion])
+    have = np.all(np.isfinite(q), axis=1)
+    h, r, pt = quaternions_to_heading(
+        q[have],
+        [w for w, k in zip(where, have) if k],
+        mapping.quaternion_world,
+        mapping.body,
+        mapping.quaternion_rotates,
+    )
+    qdesc = (
+        f"quaternion {','.join(quaternion)} ({mapping.quaternion_world} world, {mapping.body} body, "
+        f"{mapping.quaternion_rotates})"
+    )
+    heading, detail = _track(p, t[have], h, "quaternion", angle=True), f"{p.name}, {qdesc}"
+    if not mapping.attitude:
+        return heading, None, None, detail, ""
+    return heading, _track(p, t[have], r, "quaternion"), _track(p, t[have], pt, "quaternion"), detail, detail
+
+
+def _heading_column(
+    p: Path, rows: _Rows, where: list[str], t: np.ndarray, column: str, mapping: NavMapping
+) -> tuple[NavTrack, str]:
+    """(heading, its detail) from the heading column ``column``, turned into rovslam's convention."""
+    conv = mapping.heading_convention
+    unit = _angle_unit(mapping, column)
+    v = _numbers(rows, column, where) * ANGLE_UNITS[unit]
+    if conv == "enu":
+        v = math.pi / 2 - v
+    have = np.isfinite(v)
+    kind = "compass: from north towards east" if conv == "ned" else "ENU yaw"
+    return _track(p, t[have], v[have], column, angle=True), f"{p.name}, column {column} ({unit}, {kind})"
+
+
+def _attitude_columns(
+    p: Path, rows: _Rows, where: list[str], t: np.ndarray, cols: dict[str, Any], mapping: NavMapping
+) -> tuple[NavTrack, NavTrack, str]:
+    """(roll, pitch, their detail) from the roll and pitch columns, or NavigationError at an angle beyond +-90 degrees."""
+    unit = _angle_unit(mapping, cols["roll"])
+    r = _numbers(rows, cols["roll"], where) * ANGLE_UNITS[unit]
+    pt = _numbers(rows, cols["pitch"], where) * ANGLE_UNITS[unit]
+    if mapping.heading_convention == "enu":
+        pt = -pt
+    for name, v in ((cols["roll"], r), (cols["pitch"], pt)):
+        bad = np.nonzero(np.abs(v) >= MAX_ATTITUDE_RAD)[0]
+        if len(bad):
+            raise NavigationError(
+                f"{where[bad[0]]}: column '{name}' is {v[bad[0]]:.4g} rad, beyond +-90 degrees: "
+                f"check angle_unit (now {unit})."
+            )
+    have = np.isfinite(r) & np.isfinite(pt)
+    roll, pitch = _track(p, t[have], r[have], cols["roll"]), _track(p, t[have], pt[have], cols["pitch"])
+    return roll, pitch, f"{p.name}, columns {cols['roll']}, {cols['pitch']} ({unit})"
+
+
+def _altitude_column(p: Path, rows: _Rows, where: list[str], t: np.ndarray, column: str) -> tuple[NavTrack, str]:
+    """(altitude, its detail) from the altitude column ``column``, or NavigationError at a value not above 0."""
+    a = _numbers(rows, column, where)
+    neg = np.nonzero(a <= 0)[0]
+    if len(neg):
+        raise NavigationError(
+            f"{where[neg[0]]}: column '{column}' is {a[neg[0]]:g}: an altitude above the seabed is positive "
+            "(a depth is not an altitude)."
+        )
+    have = np.isfinite(a)
+    return _track(p, t[have], a[have], column), f"{p.name}, column {column} (m)"
 
 
 def _columns(p: Path, header: list[str], m: NavMapping) -> dict[str, Any]:

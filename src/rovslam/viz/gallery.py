@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rovslam.io.results import RunResults
+from rovslam.io.run_results import RunResults
 from rovslam.viz.plots import pyplot, save_figure
 from rovslam.viz.runinfo import passages
 

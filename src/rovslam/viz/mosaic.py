@@ -563,7 +563,7 @@ def mosaic_of_run(
     its ``.pgw`` world file; with ``overlay`` the path (and, for the estimate, the landmarks) is drawn.
     ``camera_file`` is the camera of a video run (default: the one summary.json names).
     """
-    from rovslam.io.results import read_results
+    from rovslam.io.run_results import read_results
     from rovslam.viz.frames import open_frames
 
     if out_png is not None:

@@ -8,7 +8,7 @@
                           factor, labels that never overlap, the true and dead-reckoning paths.
 * ``errors.png``          position error against the truth with the filter's +-2 sigma bounds.
 
-Every function takes the :class:`~rovslam.io.results.RunResults` of a run (and the truth,
+Every function takes the :class:`~rovslam.io.run_results.RunResults` of a run (and the truth,
 aligned with its rows, when known), writes one PNG and returns its path.
 """
 
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rovslam.io.results import RunResults
+from rovslam.io.run_results import RunResults
 from rovslam.viz.labels import label_points
 from rovslam.viz.runinfo import SourceShare, altitude_sources
 

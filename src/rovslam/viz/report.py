@@ -27,7 +27,7 @@ from rovslam.io.output import (
     check_output_folder,
     output_errors,
 )
-from rovslam.io.results import RunResults, read_results
+from rovslam.io.run_results import RunResults, read_results
 from rovslam.viz import gallery, plots, runinfo
 
 _CSS = """
@@ -321,57 +321,16 @@ def write_report(
         from rovslam.errors import ResultsFormatError
 
         raise ResultsFormatError(f"{folder / 'trajectory.csv'}: no frame; nothing to report.")
-    out = folder / "report"
-    if out.exists() and not out.is_dir():
-        from rovslam.errors import OutputError
-        from rovslam.io.output import file_kind
-
-        kind = "a file" if out.is_file() else file_kind(out.stat().st_mode)
-        raise OutputError(
-            f"{out}: is {kind}, where the report's folder goes; move or delete it, then run the report again."
-        )
-    check_output_folder(out, "the report")  # a link to nothing is refused too
-    with output_errors(out, "cannot create the folder"):
-        out.mkdir(exist_ok=True)
+    out = _report_folder(folder)
     seq_path = Path(seq) if seq is not None else None
     cam_path = Path(camera_file) if camera_file is not None else None
     chosen = _choose_landmarks(res, landmarks)
-    gt_xy = None
-    acc = None
-    notes = []
-    if groundtruth is not None:
-        from rovslam.io.sequence import read_groundtruth
-
-        gt = read_groundtruth(groundtruth)
-        gt_xy = runinfo.truth_at(res, gt.t_s, gt.xy_m)
-        if gt_xy is not None:  # a run without compass: the truth in its frame (its first heading)
-            from rovslam.eval.metrics import run_frame_turn_rad, to_run_frame
-
-            gt_xy = to_run_frame(
-                gt_xy, run_frame_turn_rad(res, float(runinfo.truth_at(res, gt.t_s, gt.heading_rad)[0]))
-            )  # type: ignore[index]
-        if gt_xy is None:
-            notes.append(f"{groundtruth}: its times do not match the run's frames; accuracy figures left out.")
-        else:
-            acc = runinfo.accuracy(res, gt_xy)
+    gt_xy, acc, notes = _truth(res, groundtruth)
     alt = runinfo.altitude_sources(res)
     head = runinfo.heading_source(res, _frames_source(res, seq_path))
     rep = Report(f"rovslam report: {res.summary.get('sequence_name', folder.name)}")
     rep.keys = _key_figures(res, acc, alt, head, gt_xy)
-    if alt.assumed:
-        rep.warnings.append(
-            f"Altitude NOT MEASURED in part or all of the run: {alt.label}. Speeds and positions scale "
-            "with the assumed value."
-        )
-    if head.assumed:
-        rep.warnings.append(f"Heading: {head.label}.")
-    if res.summary.get("interrupted"):
-        rep.warnings.append("The run was interrupted: these are the frames processed before it stopped.")
-    for key in ("sunlight", "map_use"):  # what the run noticed about the seabed's appearance
-        part = res.summary.get(key)
-        if isinstance(part, dict):
-            rep.warnings += [w[:1].upper() + w[1:] + "." for w in part.get("warnings", []) if isinstance(w, str)]
-    rep.warnings += notes
+    rep.warnings = _warnings(res, alt, head) + notes
     figs = [
         ("Figure 2", plots.plot_altitude_speed(res, out / "altitude_speed.png", alt)),
         ("Figure 3", plots.plot_position(res, out / "position.png", gt_xy)),
@@ -403,6 +362,61 @@ def write_report(
     path = out / "index.html"
     atomic_write_text(path, render_html(rep), "the report")
     return path
+
+
+def _report_folder(folder: Path) -> Path:
+    """``folder/report``, created if needed, or OutputError when something else (a file, a link) is in its place."""
+    out = folder / "report"
+    if out.exists() and not out.is_dir():
+        from rovslam.errors import OutputError
+        from rovslam.io.output import file_kind
+
+        kind = "a file" if out.is_file() else file_kind(out.stat().st_mode)
+        raise OutputError(
+            f"{out}: is {kind}, where the report's folder goes; move or delete it, then run the report again."
+        )
+    check_output_folder(out, "the report")  # a link to nothing is refused too
+    with output_errors(out, "cannot create the folder"):
+        out.mkdir(exist_ok=True)
+    return out
+
+
+def _truth(res: RunResults, groundtruth: str | Path | None) -> tuple[np.ndarray | None, dict | None, list[str]]:
+    """(the truth's (N, 2) positions at the run's frames in the run's frame, the accuracy figures, notes for the
+    reader); (None, None, []) without a ground truth, (None, None, [why]) when its times do not match the run's."""
+    if groundtruth is None:
+        return None, None, []
+    from rovslam.io.sequence import read_groundtruth
+
+    gt = read_groundtruth(groundtruth)
+    gt_xy = runinfo.truth_at(res, gt.t_s, gt.xy_m)
+    if gt_xy is not None:  # a run without compass: the truth in its frame (its first heading)
+        from rovslam.eval.metrics import run_frame_turn_rad, to_run_frame
+
+        first_heading_rad = runinfo.truth_at(res, gt.t_s, gt.heading_rad)[0]  # type: ignore[index]
+        gt_xy = to_run_frame(gt_xy, run_frame_turn_rad(res, float(first_heading_rad)))
+    if gt_xy is None:
+        return None, None, [f"{groundtruth}: its times do not match the run's frames; accuracy figures left out."]
+    return gt_xy, runinfo.accuracy(res, gt_xy), []
+
+
+def _warnings(res: RunResults, alt: runinfo.SourceShare, head: runinfo.SourceShare) -> list[str]:
+    """The report's warnings: an assumed altitude or heading, an interrupted run, what the run noticed."""
+    warnings = []
+    if alt.assumed:
+        warnings.append(
+            f"Altitude NOT MEASURED in part or all of the run: {alt.label}. Speeds and positions scale "
+            "with the assumed value."
+        )
+    if head.assumed:
+        warnings.append(f"Heading: {head.label}.")
+    if res.summary.get("interrupted"):
+        warnings.append("The run was interrupted: these are the frames processed before it stopped.")
+    for key in ("sunlight", "map_use"):  # what the run noticed about the seabed's appearance
+        part = res.summary.get(key)
+        if isinstance(part, dict):
+            warnings += [w[:1].upper() + w[1:] + "." for w in part.get("warnings", []) if isinstance(w, str)]
+    return warnings
 
 
 def _frames_source(res: RunResults, seq: Path | None) -> Path | None:

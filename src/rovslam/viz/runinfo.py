@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from rovslam.errors import ResultsFormatError
-from rovslam.io.results import RunResults
+from rovslam.io.run_results import RunResults
 from rovslam.io.text import read_text
 
 # Altitude sources written by the laser altimeter (rovslam.vision.laser): measured or assumed.
