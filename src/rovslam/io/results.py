@@ -68,7 +68,7 @@ TRAJECTORY_COLUMNS = (
     "skipped",
 )
 OBSERVATION_COLUMNS = ("t_s", "frame", "landmark_id", "kind", "u_px", "v_px", "score", "nis", "accepted")
-# Written since the consistency work (issue 10); readers do not require them (older runs lack them).
+# Written since the consistency work; readers do not require them (older runs lack them).
 OBSERVATION_EXTRA_COLUMNS = ("reason", "tentative")
 TRAJECTORY_EXTRA_COLUMNS = ("var_surge_mps2", "cov_surge_sway_mps2", "var_sway_mps2", "tokens_inliers", "recovery")
 LANDMARK_EXTRA_COLUMNS = ("height_m", "height_sigma_m", "self_similarity", "confirmed", "rejected")
