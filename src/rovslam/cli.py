@@ -912,6 +912,9 @@ def navigate(
         _fail(f"not every point was reached (see {out / 'arrivals.csv'})")
 
 
+app.command(name="live")(_guard(__import__("rovslam.live.command", fromlist=["live"]).live))  # rovslam live (typer only at import)
+
+
 def _fig(value: Optional[float], scale: float, unit: str, digits: int) -> str:
     """A figure for the tables: ``n/a`` when undefined (too short a run)."""
     return "n/a" if value is None else f"{value * scale:.{digits}f} {unit}"

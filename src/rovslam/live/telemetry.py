@@ -1,0 +1,145 @@
+"""The autopilot's telemetry by time: attitude and altitude samples interpolated to a frame's time.
+
+Pure bookkeeping (no sockets): :mod:`rovslam.live.mavlink` feeds it, the live source reads it.
+Times are the local monotonic clock (seconds). A vehicle's own time stamps (``time_boot_ms``)
+are put on that clock by :class:`ClockMap`: the smallest ``arrival - sent`` seen so far is the
+offset (the one-way delay's floor), so the jitter of the network does not move the samples.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import threading
+from typing import Any
+
+ATTITUDE_HOLD_S = 0.3  # a frame this far past the newest attitude sample still gets it (held)
+ALTITUDE_HOLD_S = 1.0  # the sonar reports slower than the AHRS
+TELEMETRY_GAP_S = 1.0  # no attitude for this long: a telemetry gap
+KEEP_S = 30.0
+
+
+class ClockMap:
+    """Maps a sender's clock (seconds) to the local clock; restarts when the sender's clock jumps back."""
+
+    def __init__(self) -> None:
+        self.offset_s: float | None = None
+        self._last_remote_s: float | None = None
+
+    def local_s(self, remote_s: float, arrival_s: float) -> float:
+        if self._last_remote_s is not None and remote_s < self._last_remote_s - 1.0:
+            self.offset_s = None  # the vehicle rebooted
+        self._last_remote_s = remote_s
+        d = arrival_s - remote_s
+        self.offset_s = d if self.offset_s is None else min(self.offset_s, d)
+        return remote_s + self.offset_s
+
+
+class TimeSeries:
+    """Samples of a few values by time; ``at(t)`` interpolates linearly (angles: unwrap them first).
+
+    ``hold_s``: a time past the newest sample by at most this gets the newest; farther, None.
+    """
+
+    def __init__(self, hold_s: float, keep_s: float = KEEP_S) -> None:
+        self.hold_s = float(hold_s)
+        self.keep_s = float(keep_s)
+        self.t_s: list[float] = []
+        self.values: list[tuple[float, ...]] = []
+
+    def add(self, t_s: float, values: tuple[float, ...]) -> None:
+        if not all(math.isfinite(v) for v in (t_s, *values)):
+            return
+        if self.t_s and t_s <= self.t_s[-1]:
+            if t_s < self.t_s[-1] - 1.0:  # the clock restarted: start again
+                self.t_s.clear()
+                self.values.clear()
+            else:
+                return
+        self.t_s.append(float(t_s))
+        self.values.append(tuple(float(v) for v in values))
+        if self.t_s[0] < t_s - self.keep_s:
+            cut = bisect.bisect_left(self.t_s, t_s - self.keep_s)
+            del self.t_s[:cut], self.values[:cut]
+
+    @property
+    def last(self) -> tuple[float, ...] | None:
+        return self.values[-1] if self.values else None
+
+    def at(self, t_s: float) -> tuple[float, ...] | None:
+        """The values at ``t_s`` (interpolated, or held within ``hold_s`` of the nearest end); None without."""
+        ts = self.t_s
+        if not ts:
+            return None
+        if t_s >= ts[-1]:
+            return self.values[-1] if t_s - ts[-1] <= self.hold_s else None
+        if t_s <= ts[0]:
+            return self.values[0] if ts[0] - t_s <= self.hold_s else None
+        k = bisect.bisect_right(ts, t_s)
+        t0, t1 = ts[k - 1], ts[k]
+        if t1 - t0 > 2 * self.hold_s + TELEMETRY_GAP_S:  # inside a gap: nothing to interpolate between
+            return None
+        w = (t_s - t0) / (t1 - t0)
+        return tuple(a + w * (b - a) for a, b in zip(self.values[k - 1], self.values[k]))
+
+
+def unwrap_to(angle_rad: float, previous_rad: float | None) -> float:
+    """``angle_rad`` plus the whole turns that bring it nearest ``previous_rad``."""
+    if previous_rad is None:
+        return float(angle_rad)
+    return float(angle_rad + 2 * math.pi * round((previous_rad - angle_rad) / (2 * math.pi)))
+
+
+class Telemetry:
+    """Attitude (roll, pitch, unwrapped yaw) and altitude samples, thread-safe; gaps and counts.
+
+    ``add_attitude`` / ``add_altitude`` take local times (:class:`ClockMap` maps a vehicle's).
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.attitude = TimeSeries(ATTITUDE_HOLD_S)
+        self.altitude = TimeSeries(ALTITUDE_HOLD_S)
+        self.gaps: list[dict[str, float]] = []
+        self._last_attitude_arrival_s: float | None = None
+        self.first_attitude_s: float | None = None
+
+    def add_attitude(self, t_s: float, roll_rad: float, pitch_rad: float, yaw_rad: float, arrival_s: float) -> None:
+        with self._lock:
+            prev = self.attitude.last
+            self.attitude.add(t_s, (roll_rad, pitch_rad, unwrap_to(yaw_rad, prev[2] if prev else None)))
+            last = self._last_attitude_arrival_s
+            if last is not None and arrival_s - last > TELEMETRY_GAP_S:
+                self.gaps.append({"what": "ATTITUDE", "gap_s": arrival_s - last, "ended_at_s": arrival_s})
+            if self.first_attitude_s is None:
+                self.first_attitude_s = arrival_s
+            self._last_attitude_arrival_s = arrival_s
+
+    def add_altitude(self, t_s: float, altitude_m: float) -> None:
+        with self._lock:
+            self.altitude.add(t_s, (altitude_m,))
+
+    def attitude_at(self, t_s: float) -> tuple[float, float, float] | None:
+        """(roll, pitch, yaw) in radians at ``t_s``, yaw unwrapped; None when no sample is near."""
+        with self._lock:
+            v = self.attitude.at(t_s)
+        return None if v is None else (v[0], v[1], v[2])
+
+    def altitude_at(self, t_s: float) -> float | None:
+        with self._lock:
+            v = self.altitude.at(t_s)
+        return None if v is None else v[0]
+
+    def silent_for_s(self, now_s: float) -> float | None:
+        """Seconds since the last attitude sample arrived (None: none ever)."""
+        with self._lock:
+            last = self._last_attitude_arrival_s
+        return None if last is None else now_s - last
+
+    def summary(self, now_s: float) -> dict[str, Any]:
+        with self._lock:
+            gaps = list(self.gaps)
+            last = self._last_attitude_arrival_s
+        if last is not None and now_s - last > TELEMETRY_GAP_S:  # still silent at the end
+            gaps.append({"what": "ATTITUDE", "gap_s": now_s - last, "ended_at_s": None})
+        return {"telemetry_gaps": gaps}
