@@ -53,9 +53,10 @@ def sequence_images(seq: Path) -> list[tuple[float, np.ndarray]]:
     return [(float(r["t_s"]), cv2.cvtColor(cv2.imread(str(seq / r["image"])), cv2.COLOR_BGR2RGB)) for r in rows]
 
 
-def encode_frames(container, images: list[tuple[float, np.ndarray]], pace_s: float = 0.0, stop_after: int | None = None,
+def encode_frames(container, images: list[tuple[float, np.ndarray]], pace_s: float | None = 0.0, stop_after: int | None = None,
                   pause_s: float = 0.0) -> None:
-    """Encode ``images`` (t_s, RGB) as H.264 into ``container``; ``pace_s`` between frames, ``pause_s`` after ``stop_after``."""
+    """Encode ``images`` (t_s, RGB) as H.264 into ``container``; ``pace_s`` between frames (None: their own times),
+    ``pause_s`` after the first ``stop_after`` frames instead."""
     import av
 
     h, w = images[0][1].shape[:2]
@@ -69,8 +70,9 @@ def encode_frames(container, images: list[tuple[float, np.ndarray]], pace_s: flo
         frame.pts, frame.time_base = int(round(t_s * 1000)), tb
         for packet in stream.encode(frame):
             container.mux(packet)
-        if pace_s:
-            time.sleep(pause_s if stop_after is not None and k + 1 == stop_after else pace_s)
+        step_s = (images[k + 1][0] - t_s if k + 1 < len(images) else 0.0) if pace_s is None else pace_s
+        if step_s:
+            time.sleep(pause_s if stop_after is not None and k + 1 == stop_after else step_s)
     for packet in stream.encode():
         container.mux(packet)
 
@@ -82,7 +84,7 @@ def write_ts(seq: Path, path: Path) -> None:
         encode_frames(c, sequence_images(seq))
 
 
-def stream_udp(seq: Path, port: int, start_delay_s: float = 0.0, pace_s: float = 1.0 / FPS,
+def stream_udp(seq: Path, port: int, start_delay_s: float = 0.0, pace_s: float | None = None,
                stop_after: int | None = None, pause_s: float = 0.0) -> threading.Thread:
     """A thread streaming the dive as MPEG-TS to udp://127.0.0.1:port (a pause of ``pause_s`` after ``stop_after`` frames)."""
     import av
@@ -104,11 +106,14 @@ class Vehicle:
 
     ``yaw_rad(t)``: the yaw it reports at its time ``t`` (s since it started); ``attitude_until_s``:
     it stops sending ATTITUDE then; ``garbage``: it also sends that many malformed packets;
-    ``heartbeat``: False plays a vehicle that never answers.
+    ``heartbeat``: False plays a vehicle that never answers; ``attitude_stop_after``: it stops
+    sending ATTITUDE once it received that many VISION_POSITION_ESTIMATE. Garbage is sent once
+    ``live`` answered (its HEARTBEAT), so that it reaches a bound socket.
     """
 
     def __init__(self, port: int, *, yaw_rad=lambda t: 0.3, altitude_m: float = 1.5, attitude_until_s: float = 1e9,
-                 garbage: int = 0, heartbeat: bool = True, lifetime_s: float = 120.0, rate_hz: float = 20.0) -> None:
+                 garbage: int = 0, heartbeat: bool = True, lifetime_s: float = 120.0, rate_hz: float = 20.0,
+                 attitude_stop_after: int | None = None) -> None:
         from pymavlink import mavutil
 
         self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", dialect="ardupilotmega", source_system=1,
@@ -117,6 +122,8 @@ class Vehicle:
         self.yaw_rad, self.altitude_m = yaw_rad, altitude_m
         self.attitude_until_s, self.garbage, self.heartbeat = attitude_until_s, garbage, heartbeat
         self.rate_hz = rate_hz
+        self.attitude_stop_after = attitude_stop_after
+        self.attitude_stopped_at_s: float | None = None
         self.received: list = []
         self.sent_attitude = 0
         self._stop = threading.Event()
@@ -136,12 +143,15 @@ class Vehicle:
             t = time.monotonic() - self._t0
             if self.heartbeat and k % int(self.rate_hz) == 0:
                 mav.heartbeat_send(12, 3, 0, 0, 4)  # MAV_TYPE_SUBMARINE, MAV_AUTOPILOT_ARDUPILOTMEGA, active
-            if self.heartbeat and t < self.attitude_until_s:
+            if (self.attitude_stop_after is not None and self.attitude_stopped_at_s is None
+                    and len(self.of_type("VISION_POSITION_ESTIMATE")) >= self.attitude_stop_after):
+                self.attitude_stopped_at_s = t
+            if self.heartbeat and t < self.attitude_until_s and self.attitude_stopped_at_s is None:
                 mav.attitude_send(int(t * 1000), 0.01, -0.02, math.remainder(self.yaw_rad(t), 2 * math.pi), 0, 0, 0)
                 self.sent_attitude += 1
                 if k % 2 == 0:
                     mav.distance_sensor_send(int(t * 1000), 20, 5000, int(round(self.altitude_m * 100)), 1, 0, 25, 4)
-            if garbage_left > 0:
+            if garbage_left > 0 and self.received:
                 junk = bytes(rng.integers(0, 256, 40, dtype=np.uint8))
                 self.conn.write(b"\xfd" + junk if garbage_left % 2 else b"\xfe\x09" + junk)
                 garbage_left -= 1

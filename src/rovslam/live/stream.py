@@ -54,7 +54,7 @@ def resolve_video(video: str, sdp_folder: Path | None = None) -> VideoInput:
         SequenceFormatError: a path that does not exist and is no URL.
     """
     low = video.lower()
-    low_latency = {"fflags": "nobuffer", "probesize": "500000", "analyzeduration": "500000"}
+    low_latency = {"probesize": "262144", "analyzeduration": "200000"}  # a short probe; "nobuffer" loses frames
     if low.startswith("rtp://"):
         host, _, port = video[6:].partition(":")
         port = port.split("?")[0].split("/")[0]
@@ -280,11 +280,19 @@ class VideoStream:
     def _decode(self, container: Any, av: Any) -> bool:
         """Decode until the end of the container (True) or a stop (False)."""
         stream = container.streams.video[0]
-        stream.thread_type = "AUTO"
         wall0: float | None = None
-        for packet in container.demux(stream):
+        packets = container.demux(stream)
+        while True:
             if self._stop.is_set():
                 return False
+            try:
+                packet = next(packets, None)
+            except (av.error.ExitError, TimeoutError):  # the stream paused: the frames the decoder holds first
+                for vf in self._flush(stream, av):
+                    self._frame(vf, float(vf.time) if vf.time is not None else None)
+                raise
+            if packet is None:
+                return True
             try:
                 decoded = packet.decode()
             except av.error.FFmpegError:
@@ -297,7 +305,13 @@ class VideoStream:
                     if delay > 0 and self._stop.wait(delay):
                         return False
                 self._frame(vf, pts_s)
-        return True
+
+    @staticmethod
+    def _flush(stream: Any, av: Any) -> list:
+        try:
+            return list(stream.codec_context.decode(None))
+        except (av.error.FFmpegError, EOFError, ValueError):
+            return []
 
     def _frame(self, vf: Any, pts_s: float | None) -> None:
         arrival = time.monotonic()
