@@ -18,7 +18,7 @@ from collections.abc import Callable
 from typing import Any
 
 from rovslam.errors import InvalidArgumentError, RovslamError
-from rovslam.live.telemetry import ClockMap, Telemetry
+from rovslam.live.telemetry import Telemetry
 
 COMPONENT_ID = 197  # MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY
 MAV_TYPE_ONBOARD_CONTROLLER = 18
@@ -89,7 +89,6 @@ class MavlinkLink:
         self._found = threading.Event()
         self._stop = threading.Event()
         self._send_lock = threading.Lock()
-        self._clock = ClockMap()
         self._t0 = time.monotonic()
         self._rx = threading.Thread(target=self._receive, name="rovslam-mavlink-rx", daemon=True)
         self._hb = threading.Thread(target=self._heartbeat, name="rovslam-mavlink-hb", daemon=True)
@@ -153,14 +152,13 @@ class MavlinkLink:
         if self.vehicle is None or sysid != self.vehicle["system"]:
             return
         if kind == "ATTITUDE":
-            t = self._clock.local_s(msg.time_boot_ms / 1000.0, now)
-            self.telemetry.add_attitude(t, float(msg.roll), float(msg.pitch), float(msg.yaw), now)
+            self.telemetry.add_attitude(msg.time_boot_ms / 1000.0, float(msg.roll), float(msg.pitch), float(msg.yaw), now)
         elif kind == "DISTANCE_SENSOR" and msg.orientation == ORIENTATION_DOWN:
             d_cm = int(msg.current_distance)
             if msg.min_distance <= d_cm <= msg.max_distance and d_cm > 0:
-                self.telemetry.add_altitude(self._clock.local_s(msg.time_boot_ms / 1000.0, now), d_cm / 100.0)
+                self.telemetry.add_altitude(msg.time_boot_ms / 1000.0, d_cm / 100.0, now)
         elif kind == "RANGEFINDER" and float(msg.distance) > 0:
-            self.telemetry.add_altitude(now, float(msg.distance))
+            self.telemetry.add_altitude(None, float(msg.distance), now)
 
     def _heartbeat(self) -> None:
         next_request = time.monotonic() + REQUEST_AFTER_S

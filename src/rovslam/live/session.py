@@ -123,9 +123,11 @@ class LiveSource:
             sf = self.stream.take(0.1)
             now = time.monotonic()
             if sf is not None:
-                if blind_since is not None:
-                    self.blind.append({"after_t_s": self._last_t_s(), "blind_s": now - blind_since + BLIND_S})
-                    self.say(f"video: back after {now - blind_since + BLIND_S:.1f} s without a frame (t = {sf.t_s:.2f} s)")
+                prev = self.current[1].arrival_s if self.current is not None else None
+                if prev is not None and sf.arrival_s - prev > BLIND_S:  # said as it began, or only now (a late loop)
+                    self.blind.append({"after_t_s": self._last_t_s(), "blind_s": sf.arrival_s - prev})
+                    self.say(f"video: back at t = {sf.t_s:.2f} s after {sf.arrival_s - prev:.1f} s without a frame"
+                             + ("" if blind_since is not None else " (blind: no position was sent in between)"))
                 return sf
             if self.stream.finished:
                 if self.stream.error is not None:
@@ -146,7 +148,7 @@ class LiveSource:
         d = sf.arrival_s - sf.t_s
         self.offset_s = d if self.offset_s is None else min(self.offset_s, d)
         t_local = sf.t_s + self.offset_s
-        att = self.telemetry.attitude_at(t_local)
+        att = self.telemetry.wait_attitude(t_local)
         alt = self.telemetry.altitude_at(t_local)
         had = self.current is not None and self.current[0].has_attitude
         if att is None:

@@ -1,7 +1,7 @@
 """The autopilot's telemetry by time: attitude and altitude samples interpolated to a frame's time.
 
 Pure bookkeeping (no sockets): :mod:`rovslam.live.mavlink` feeds it, the live source reads it.
-Times are the local monotonic clock (seconds). A vehicle's own time stamps (``time_boot_ms``)
+Look-ups are at local monotonic times (seconds). A vehicle's own time stamps (``time_boot_ms``)
 are put on that clock by :class:`ClockMap`: the smallest ``arrival - sent`` seen so far is the
 offset (the one-way delay's floor), so the jitter of the network does not move the samples.
 """
@@ -11,11 +11,14 @@ from __future__ import annotations
 import bisect
 import math
 import threading
+import time
 from typing import Any
 
 ATTITUDE_HOLD_S = 0.3  # a frame this far past the newest attitude sample still gets it (held)
 ALTITUDE_HOLD_S = 1.0  # the sonar reports slower than the AHRS
 TELEMETRY_GAP_S = 1.0  # no attitude for this long: a telemetry gap
+COVER_WAIT_S = 0.06  # a frame waits this long for the attitude sample after it (then the last one is held)
+LATE_WAIT_S = 0.5  # ... and this long when the last one is too old to hold (a receiver that fell behind)
 KEEP_S = 30.0
 
 
@@ -93,41 +96,81 @@ def unwrap_to(angle_rad: float, previous_rad: float | None) -> float:
 class Telemetry:
     """Attitude (roll, pitch, unwrapped yaw) and altitude samples, thread-safe; gaps and counts.
 
-    ``add_attitude`` / ``add_altitude`` take local times (:class:`ClockMap` maps a vehicle's).
+    Samples are kept on the vehicle's clock (``remote_s``: its ``time_boot_ms``) and looked up at
+    a local time through the :class:`ClockMap` as it stands at the look-up: a receiver thread that
+    was late for a while (the GIL, a loaded machine) moves no sample. An altitude without a time
+    stamp (RANGEFINDER) is kept on the local clock at its arrival.
     """
 
     def __init__(self) -> None:
-        self._lock = threading.Lock()
+        self._lock = threading.Condition()
+        self.clock = ClockMap()
         self.attitude = TimeSeries(ATTITUDE_HOLD_S)
         self.altitude = TimeSeries(ALTITUDE_HOLD_S)
+        self.altitude_local = TimeSeries(ALTITUDE_HOLD_S)
         self.gaps: list[dict[str, float]] = []
         self._last_attitude_arrival_s: float | None = None
         self.first_attitude_s: float | None = None
 
-    def add_attitude(self, t_s: float, roll_rad: float, pitch_rad: float, yaw_rad: float, arrival_s: float) -> None:
+    def add_attitude(self, remote_s: float, roll_rad: float, pitch_rad: float, yaw_rad: float, arrival_s: float) -> None:
         with self._lock:
+            self.clock.local_s(remote_s, arrival_s)
             prev = self.attitude.last
-            self.attitude.add(t_s, (roll_rad, pitch_rad, unwrap_to(yaw_rad, prev[2] if prev else None)))
+            self.attitude.add(remote_s, (roll_rad, pitch_rad, unwrap_to(yaw_rad, prev[2] if prev else None)))
             last = self._last_attitude_arrival_s
             if last is not None and arrival_s - last > TELEMETRY_GAP_S:
                 self.gaps.append({"what": "ATTITUDE", "gap_s": arrival_s - last, "ended_at_s": arrival_s})
             if self.first_attitude_s is None:
                 self.first_attitude_s = arrival_s
             self._last_attitude_arrival_s = arrival_s
+            self._lock.notify_all()
 
-    def add_altitude(self, t_s: float, altitude_m: float) -> None:
+    def add_altitude(self, remote_s: float | None, altitude_m: float, arrival_s: float) -> None:
+        """An altitude reading; ``remote_s`` None: no time stamp (kept at its arrival)."""
         with self._lock:
-            self.altitude.add(t_s, (altitude_m,))
+            if remote_s is None:
+                self.altitude_local.add(arrival_s, (altitude_m,))
+            else:
+                self.clock.local_s(remote_s, arrival_s)
+                self.altitude.add(remote_s, (altitude_m,))
+
+    def _remote(self, t_s: float) -> float | None:
+        return None if self.clock.offset_s is None else t_s - self.clock.offset_s
 
     def attitude_at(self, t_s: float) -> tuple[float, float, float] | None:
-        """(roll, pitch, yaw) in radians at ``t_s``, yaw unwrapped; None when no sample is near."""
+        """(roll, pitch, yaw) in radians at local time ``t_s``, yaw unwrapped; None when no sample is near."""
         with self._lock:
-            v = self.attitude.at(t_s)
+            r = self._remote(t_s)
+            v = None if r is None else self.attitude.at(r)
         return None if v is None else (v[0], v[1], v[2])
+
+    def wait_attitude(self, t_s: float, cover_s: float = COVER_WAIT_S, late_s: float = LATE_WAIT_S,
+                      now=time.monotonic) -> tuple[float, float, float] | None:
+        """:meth:`attitude_at` once a sample at or after ``t_s`` is in: waits up to ``cover_s`` for one (to
+        interpolate rather than hold), up to ``late_s`` when even the held value would be too old (a receiver
+        that fell behind); never while the attitude is silent (a telemetry gap costs no latency)."""
+        start = now()
+        with self._lock:
+            while True:
+                r = self._remote(t_s)
+                ts = self.attitude.t_s
+                if r is None or (ts and ts[-1] >= r):
+                    break
+                silent = self._last_attitude_arrival_s is None or now() - self._last_attitude_arrival_s > TELEMETRY_GAP_S
+                waited = now() - start
+                held = bool(ts) and r - ts[-1] <= self.attitude.hold_s
+                limit = cover_s if held else late_s
+                if silent or waited >= limit:
+                    break
+                self._lock.wait(limit - waited)
+        return self.attitude_at(t_s)
 
     def altitude_at(self, t_s: float) -> float | None:
         with self._lock:
-            v = self.altitude.at(t_s)
+            r = self._remote(t_s)
+            v = None if r is None else self.altitude.at(r)
+            if v is None:
+                v = self.altitude_local.at(t_s)
         return None if v is None else v[0]
 
     def silent_for_s(self, now_s: float) -> float | None:
