@@ -13,6 +13,8 @@ import fractions
 import math
 import os
 import socket
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -68,11 +70,13 @@ def encode_frames(container, images: list[tuple[float, np.ndarray]], pace_s: flo
     for k, (t_s, img) in enumerate(images):
         frame = av.VideoFrame.from_ndarray(img, format="rgb24")
         frame.pts, frame.time_base = int(round(t_s * 1000)), tb
+        if stop_after is not None and k == stop_after:  # a camera that resumes starts with a key frame
+            frame.pict_type = av.video.frame.PictureType.I
         for packet in stream.encode(frame):
             container.mux(packet)
         step_s = (images[k + 1][0] - t_s if k + 1 < len(images) else 0.0) if pace_s is None else pace_s
         if step_s:
-            time.sleep(pause_s if stop_after is not None and k + 1 == stop_after else step_s)
+            time.sleep(pause_s if stop_after is not None and k + 1 == stop_after and pace_s is not None else step_s)
     for packet in stream.encode():
         container.mux(packet)
 
@@ -90,6 +94,9 @@ def stream_udp(seq: Path, port: int, start_delay_s: float = 0.0, pace_s: float |
     import av
 
     images = sequence_images(seq)
+    if stop_after is not None and pause_s:  # the camera's clock runs on: the frames of the pause are lost
+        t_stop = images[stop_after - 1][0]
+        images = images[:stop_after] + [im for im in images[stop_after:] if im[0] > t_stop + pause_s]
 
     def run() -> None:
         time.sleep(start_delay_s)
@@ -175,3 +182,24 @@ class Vehicle:
         for th in self._threads:
             th.join(2.0)
         self.conn.close()
+
+
+def start_live(args: list[str], tmp: Path, name: str = "live") -> subprocess.Popen:
+    out, err = (tmp / f"{name}.out").open("w"), (tmp / f"{name}.err").open("w")
+    return subprocess.Popen([sys.executable, "-m", "rovslam", "live", *args], stdout=out, stderr=err,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+
+
+def finish(p: subprocess.Popen, tmp: Path, name: str = "live", timeout_s: float = 180) -> tuple[int, str, str]:
+    try:
+        rc = p.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        p.wait(10)
+        raise
+    return rc, (tmp / f"{name}.out").read_text(), (tmp / f"{name}.err").read_text()
+
+
+def rows(path: Path) -> list[dict]:
+    with path.open(encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))

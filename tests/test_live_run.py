@@ -6,20 +6,15 @@ speed; every wait has a deadline and every process a timeout.
 
 from __future__ import annotations
 
-import csv
 import json
 import math
-import os
-import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-from live_peer import Vehicle, free_udp_port, make_dive, stream_udp
+from live_peer import Vehicle, finish, free_udp_port, make_dive, rows, start_live
 
 YAW_RATE = 0.02  # rad/s, the yaw the vehicle reports turns at this rate
 
@@ -29,27 +24,6 @@ def dive(tmp_path_factory):
     root = tmp_path_factory.getbasetemp() / "live_dive"
     root.mkdir(exist_ok=True)
     return make_dive(root)
-
-
-def start_live(args: list[str], tmp: Path, name: str = "live") -> subprocess.Popen:
-    out, err = (tmp / f"{name}.out").open("w"), (tmp / f"{name}.err").open("w")
-    return subprocess.Popen([sys.executable, "-m", "rovslam", "live", *args], stdout=out, stderr=err,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
-
-
-def finish(p: subprocess.Popen, tmp: Path, name: str = "live", timeout_s: float = 180) -> tuple[int, str, str]:
-    try:
-        rc = p.wait(timeout_s)
-    except subprocess.TimeoutExpired:
-        p.kill()
-        p.wait(10)
-        raise
-    return rc, (tmp / f"{name}.out").read_text(), (tmp / f"{name}.err").read_text()
-
-
-def rows(path: Path) -> list[dict]:
-    with path.open(encoding="utf-8") as fh:
-        return list(csv.DictReader(fh))
 
 
 # --------------------------------------------------------------------------- a whole run, its messages checked

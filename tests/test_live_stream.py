@@ -6,8 +6,8 @@ import csv
 import time
 
 import pytest
-
 from live_peer import free_udp_port, make_dive, stream_udp
+
 from rovslam.errors import SequenceFormatError
 from rovslam.live.stream import VideoStream, resolve_video
 

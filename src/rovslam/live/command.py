@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -15,14 +14,14 @@ def live(
     mavlink: str = typer.Option(..., "--mavlink", help="pymavlink connection: udpin:0.0.0.0:14550, udpout:HOST:PORT, "
                                 "tcp:HOST:PORT, /dev/ttyACM0,115200."),
     out: Path = typer.Option(..., "--out", "-o", help="Folder for the results (new or empty), written as the dive goes."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML configuration (defaults: the paper's)."),
+    config: Path | None = typer.Option(None, "--config", "-c", help="TOML configuration (defaults: the paper's)."),
     record: bool = typer.Option(False, "--record", help="Also write the processed frames with their telemetry as "
                                 "OUT/sequence (rovslam run OUT/sequence reproduces the trajectory)."),
-    duration_s: Optional[float] = typer.Option(None, "--duration-s", help="End the run this many seconds (wall clock) "
+    duration_s: float | None = typer.Option(None, "--duration-s", help="End the run this many seconds (wall clock) "
                                                "after it starts."),
     viewer: bool = typer.Option(False, "--viewer", help="Show the run live in the rerun viewer."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line (events are still said)."),
-    mavlink_out: Optional[str] = typer.Option(None, "--mavlink-out", help="Messages to send, separated by commas: "
+    mavlink_out: str | None = typer.Option(None, "--mavlink-out", help="Messages to send, separated by commas: "
                                               "delta, position, speed, distance (default all), or none."),
     realtime: bool = typer.Option(False, "--realtime", help="Play a video file at its own frame rate."),
     every_frame: bool = typer.Option(False, "--every-frame", help="Process every frame, none dropped, however late "

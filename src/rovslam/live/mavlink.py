@@ -166,7 +166,8 @@ class MavlinkLink:
             self._send("HEARTBEAT", lambda mav: mav.heartbeat_send(MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID,
                                                                   0, 0, MAV_STATE_ACTIVE))
             now = time.monotonic()
-            if now >= next_request and self.requests < 3 and self.telemetry.silent_for_s(now) is None:
+            silent = self.telemetry.silent_for_s(now)
+            if now >= next_request and self.requests < 3 and (silent is None or silent > REQUEST_AFTER_S):
                 self.request_telemetry()
                 next_request = now + 5.0
             self._stop.wait(1.0)
@@ -180,8 +181,8 @@ class MavlinkLink:
                 target, 1, MAV_CMD_SET_MESSAGE_INTERVAL, 0, m, 1e6 / h, 0, 0, 0, 0, 0))
         self.requests += 1
         if self.requests == 1:
-            self.say(f"no ATTITUDE from system {target}: requested ATTITUDE, DISTANCE_SENSOR and RANGEFINDER "
-                     "(MAV_CMD_SET_MESSAGE_INTERVAL)")
+            self.say(f"no ATTITUDE from system {target} for {REQUEST_AFTER_S:g} s: requested ATTITUDE, DISTANCE_SENSOR "
+                     "and RANGEFINDER (MAV_CMD_SET_MESSAGE_INTERVAL)")
 
     # ------------------------------------------------------------------ sending
 

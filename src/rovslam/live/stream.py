@@ -70,7 +70,7 @@ def resolve_video(video: str, sdp_folder: Path | None = None) -> VideoInput:
             raise SequenceFormatError(f"{video}: SDP file not found.")
         return VideoInput(video, "sdp", {"protocol_whitelist": "file,udp,rtp", **low_latency}, False, video)
     if low.startswith("udp://"):
-        return VideoInput(video, None, {"overrun_nonfatal": "1", "fifo_size": "1000000", **low_latency}, False, video)
+        return VideoInput(video, None, {"overrun_nonfatal": "1", **low_latency}, False, video)
     if low.startswith(("rtsp://", "rtsps://")):
         return VideoInput(video, None, {"rtsp_transport": "tcp", **low_latency}, False, video)
     if low.startswith(NETWORK_SCHEMES):
