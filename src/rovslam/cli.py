@@ -979,6 +979,9 @@ def _print_matrix(rows: list, groups) -> None:
     Console().print(t)
 
 
+app.command(name="sitl")(_guard(__import__("runpy").run_path(str(Path(__file__).parent / "sim" / "sitl_command.py"))["sitl"]))  # by path: importing rovslam.sim takes seconds
+
+
 def main() -> None:
     """The console script: like ``app()``, but a command-line usage error is one line too."""
     from typer.main import get_command

@@ -1,0 +1,93 @@
+"""``rovslam sitl``: the simulator as an ArduSub vehicle on the network (the command; the work is in :mod:`rovslam.sim.sitl`).
+
+Registered by :mod:`rovslam.cli`, which turns its errors into one line and exit code 2.
+Only typer is imported here at module level; the simulator, PyAV and pymavlink load when the
+command runs.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+__all__ = ["sitl"]
+
+
+def sitl(
+    scenario: Optional[str] = typer.Option(None, "--scenario", help="Simulator preset to fly (rovslam simulate --list)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for the truth: groundtruth.csv, camera.toml, "
+                             "received.csv (new or empty)."),
+    seed: int = typer.Option(0, help="Random seed of the seabed, the path and the sensors (as rovslam simulate)."),
+    video: str = typer.Option("udp://127.0.0.1:5600", "--video", help="Where to stream the camera: udp://HOST:PORT "
+                              "(H.264 in MPEG-TS; with --rtp: H.264 over RTP and OUT/stream.sdp, as BlueOS)."),
+    mavlink: str = typer.Option("udpout:127.0.0.1:14550", "--mavlink", help="pymavlink connection string of the "
+                                "autopilot link (udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, /dev/ttyX,BAUD)."),
+    duration_s: Optional[float] = typer.Option(None, "--duration-s", help="Dive time to stream (s); default: the "
+                                               "preset's dive, or the whole --from sequence."),
+    from_seq: Optional[Path] = typer.Option(None, "--from", help="Stream this sequence folder (rovslam simulate "
+                                            "writes one) at its own frame times instead of rendering live."),
+    rtp: bool = typer.Option(False, "--rtp", help="H.264 over RTP (BlueOS's default on UDP 5600) with its SDP file."),
+    pace: float = typer.Option(1.0, "--pace", help="Wall seconds per dive second: 1 real time, 2 half speed (the "
+                               "stream's presentation times stay the capture times)."),
+    mode: str = typer.Option("ALT_HOLD", "--mode", help="ArduSub mode the heartbeat reports (MANUAL, STABILIZE, "
+                             "ALT_HOLD, POSHOLD, GUIDED, ...)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress lines."),
+) -> None:
+    """Fly a preset as an ArduSub vehicle: camera stream, MAVLink telemetry, truth on disk, for `rovslam live`.
+
+    Streams the preset's camera as H.264 at its frame rate (each frame's presentation time its
+    capture time), sends HEARTBEAT, ATTITUDE, DISTANCE_SENSOR and SYSTEM_TIME as system 1, and
+    records the VISION_* / DISTANCE_SENSOR / STATUSTEXT messages it receives. Ctrl-C ends the
+    dive with every file complete.
+    """
+    import time
+
+    from rovslam.errors import SimulationError
+    from rovslam.runner import StopRequest
+    from rovslam.sim.sitl import SitlConfig, SitlVehicle
+    from rovslam.sim.sitl_mavlink import ARDUSUB_MODES
+
+    if scenario is not None and from_seq is not None:
+        raise SimulationError("give --scenario or --from, not both (a --from sequence knows its preset)")
+    if mode.upper() not in ARDUSUB_MODES:
+        raise SimulationError(f"--mode {mode!r}: choose one of: {', '.join(ARDUSUB_MODES)}")
+    if seed < 0:
+        raise SimulationError(f"--seed must be a whole number >= 0, got {seed}")
+
+    def say(text: str) -> None:
+        if not quiet:
+            typer.echo(text)
+
+    config = SitlConfig(scenario, out, video=video, mavlink=mavlink, seed=seed, duration_s=duration_s,
+                        from_seq=from_seq, rtp=rtp, pace=pace, mode=mode.upper())
+    vehicle = SitlVehicle(config)
+    src = vehicle.source
+    cam = src.info.camera
+    with StopRequest() as stop:
+        vehicle.start()
+        stream = f"{video} as RTP, SDP {out / 'stream.sdp'}" if vehicle.video.form == "rtp" else f"{video} (MPEG-TS)"
+        say(f"sitl: {src.info.name}: {src.n_frames} frames {cam.width_px}x{cam.height_px} at "
+            f"{src.frame_rate_hz:g} Hz, pace {pace:g}")
+        say(f"sitl: video {stream}; MAVLink {mavlink} as system 1 (ArduSub, {mode.upper()}); truth in {out}")
+        say("sitl: rendering the first frame..." if from_seq is None else "sitl: reading the first frame...")
+        announced, last_note = False, time.monotonic()
+        while stop.signum is None and not vehicle.wait(0.2):
+            if not announced and vehicle.frames_sent > 0:
+                announced = True
+                say("sitl: streaming (Ctrl-C ends the dive, the files complete)")
+            if time.monotonic() - last_note >= 10.0:
+                last_note = time.monotonic()
+                say(f"sitl: t = {vehicle.stream_time_s() or 0.0:.1f} s, {vehicle.frames_sent}/{src.n_frames} frames, "
+                    f"{sum(vehicle.link.counts_in.values())} messages in")
+        stop.ignore_after = stop.signum is not None
+        summary = vehicle.stop()
+    link = summary["mavlink"] or {}
+    ins = ", ".join(f"{k} {v}" for k, v in link.get("messages_in", {}).items()) or "none"
+    line = (f"{summary['frames_sent']}/{summary['frames_planned']} frames sent ({summary['late_frames']} late); "
+            f"messages in: {ins}; garbage {link.get('bad_packets', 0)} -> {out}")
+    if stop.signum is not None:
+        typer.echo(f"sitl: stopped by {stop.name}: {line}; every file written is complete", err=True)
+        raise typer.Exit(128 + stop.signum)
+    say(f"sitl: done: {line}")
