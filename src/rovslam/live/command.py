@@ -29,6 +29,8 @@ def live(
     wait_s: float = typer.Option(30.0, "--wait-s", help="How long to wait for the video to start."),
     heartbeat_timeout_s: float = typer.Option(30.0, "--heartbeat-timeout-s", help="How long to wait for the vehicle's "
                                               "HEARTBEAT."),
+    video_delay_s: float = typer.Option(0.0, "--video-delay-s", help="The camera's delay from capture to sending "
+                                        "(its encoder): the telemetry is taken this much before a frame's arrival."),
 ) -> None:
     """Live on the vehicle: the camera stream and the autopilot's telemetry in, a position with covariance out
     to the autopilot over MAVLink (like a DVL), the results folder of `rovslam run` written as the dive goes."""
@@ -43,11 +45,13 @@ def live(
     for name, value in (("--duration-s", duration_s), ("--wait-s", wait_s), ("--heartbeat-timeout-s", heartbeat_timeout_s)):
         if value is not None and not (value > 0 and value != float("inf")):
             raise InvalidArgumentError(f"{name} must be a positive number of seconds, got {value}")
+    if not 0.0 <= video_delay_s < 10.0:
+        raise InvalidArgumentError(f"--video-delay-s must be from 0 to 10 s, got {video_delay_s}")
     cfg = load_config(config) if config is not None else RunConfig()
     opts = LiveOptions(video=video, camera_file=camera, mavlink=mavlink, out=out, config=cfg, record=record,
                        duration_s=duration_s, every_frame=every_frame, realtime=realtime,
                        mavlink_out=parse_mavlink_out(mavlink_out), wait_s=wait_s,
-                       heartbeat_timeout_s=heartbeat_timeout_s)
+                       heartbeat_timeout_s=heartbeat_timeout_s, video_delay_s=video_delay_s)
 
     def say(text: str) -> None:
         typer.echo(f"live: {text}", err=True)

@@ -48,6 +48,7 @@ class LiveOptions:
     wait_s: float = 30.0
     heartbeat_timeout_s: float = 30.0
     overwrite: bool = False
+    video_delay_s: float = 0.0  # capture to arrival beyond what is measured (a camera's encoder, a sender's buffer)
 
 
 def stop_requested() -> bool:
@@ -77,8 +78,9 @@ class LiveSource:
     """
 
     def __init__(self, stream: VideoStream, telemetry: Telemetry, info: SequenceInfo, given: str,
-                 deadline_s: float | None, say: Callable[[str], None]) -> None:
+                 deadline_s: float | None, say: Callable[[str], None], video_delay_s: float = 0.0) -> None:
         self.stream, self.telemetry, self.info, self.path, self.say = stream, telemetry, info, given, say
+        self.video_delay_s = float(video_delay_s)
         self.deadline_s = deadline_s
         self.warnings: list[str] = []
         self.left_out = 0
@@ -123,10 +125,10 @@ class LiveSource:
             sf = self.stream.take(0.1)
             now = time.monotonic()
             if sf is not None:
-                prev = self.current[1].arrival_s if self.current is not None else None
-                if prev is not None and sf.arrival_s - prev > BLIND_S:  # said as it began, or only now (a late loop)
-                    self.blind.append({"after_t_s": self._last_t_s(), "blind_s": sf.arrival_s - prev})
-                    self.say(f"video: back at t = {sf.t_s:.2f} s after {sf.arrival_s - prev:.1f} s without a frame"
+                prev = self.current[1].delivered_s if self.current is not None else None
+                if prev is not None and sf.delivered_s - prev > BLIND_S:  # said as it began, or only now (a late loop)
+                    self.blind.append({"after_t_s": self._last_t_s(), "blind_s": sf.delivered_s - prev})
+                    self.say(f"video: back at t = {sf.t_s:.2f} s after {sf.delivered_s - prev:.1f} s without a frame"
                              + ("" if blind_since is not None else " (blind: no position was sent in between)"))
                 return sf
             if self.stream.finished:
@@ -135,7 +137,7 @@ class LiveSource:
 
                     raise SequenceFormatError(self.stream.error)
                 return None
-            last = self.current[1].arrival_s if self.current is not None else None
+            last = self.current[1].delivered_s if self.current is not None else None
             if blind_since is None and last is not None and now - last > BLIND_S:
                 blind_since = now
                 self.say(f"video: no frame for {BLIND_S:g} s after t = {self._last_t_s():.2f} s: blind, no position "
@@ -147,7 +149,7 @@ class LiveSource:
     def _frame(self, index: int, sf: StreamFrame) -> Frame:
         d = sf.arrival_s - sf.t_s
         self.offset_s = d if self.offset_s is None else min(self.offset_s, d)
-        t_local = sf.t_s + self.offset_s
+        t_local = sf.t_s + self.offset_s - self.video_delay_s  # when it was captured, on the local clock
         att = self.telemetry.wait_attitude(t_local)
         alt = self.telemetry.altitude_at(t_local)
         had = self.current is not None and self.current[0].has_attitude
@@ -288,17 +290,23 @@ def run_live(opts: LiveOptions, say: Callable[[str], None], on_frame_image: Any 
     stream: VideoStream | None = None
     output: LiveOutput | None = None
     try:
+        cam_info = cam.info
+        # A stream is listened to from the start (one that begins with the vehicle loses no first frame); a file is
+        # played once the vehicle is there.
+        stream = VideoStream(video, cam_info.camera.width_px, cam_info.camera.height_px, every_frame=opts.every_frame,
+                             realtime=opts.realtime, wait_s=opts.wait_s)
+        if not video.is_file:
+            stream.start()
         say(f"waiting for a vehicle's HEARTBEAT on {opts.mavlink} ...")
         v = link.wait_vehicle(opts.heartbeat_timeout_s)
+        if video.is_file:
+            stream.start()
         say(f"vehicle: system {v['system']}, component {v['component']} ({_enum('MAV_TYPE', v['type'])}, "
             f"{_enum('MAV_AUTOPILOT', v['autopilot'])}); sending as system {v['system']}, component 197")
-        cam_info = cam.info
-        stream = VideoStream(video, cam_info.camera.width_px, cam_info.camera.height_px, every_frame=opts.every_frame,
-                             realtime=opts.realtime, wait_s=opts.wait_s).start()
         say(f"waiting for the video on {opts.video} ...")
         first = stream.first_frame()
         say(f"video: {first.image.shape[1]}x{first.image.shape[0]} px")
-        source = LiveSource(stream, telemetry, cam_info, opts.video, deadline, say)
+        source = LiveSource(stream, telemetry, cam_info, opts.video, deadline, say, opts.video_delay_s)
         output = LiveOutput(source, link, sends, opts.config, opts.out / "sequence" if opts.record else None)
         out_ = output
 

@@ -19,7 +19,7 @@ ALTITUDE_HOLD_S = 1.0  # the sonar reports slower than the AHRS
 TELEMETRY_GAP_S = 1.0  # no attitude for this long: a telemetry gap
 COVER_WAIT_S = 0.06  # a frame waits this long for the attitude sample after it (then the last one is held)
 LATE_WAIT_S = 0.5  # ... and this long when the last one is too old to hold (a receiver that fell behind)
-KEEP_S = 30.0
+KEEP_S = 300.0  # samples kept: a loop that lags (every frame processed) still finds its frames'
 
 
 class ClockMap:
