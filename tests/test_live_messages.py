@@ -78,6 +78,7 @@ def test_time_series_interpolates_holds_briefly_and_refuses_gaps():
     for t in (0.0, 0.1, 0.2):
         ts.add(t, (10 * t,))
     assert ts.at(0.15)[0] == pytest.approx(1.5)
+    assert ts.at(0.105)[0] == pytest.approx(1.0)  # within 10 ms of a sample: that sample, as it is
     assert ts.at(0.4)[0] == pytest.approx(2.0) and ts.at(0.6) is None  # held 0.3 s, then nothing
     ts.add(5.0, (50.0,))
     assert ts.at(3.0) is None  # inside a gap of 4.8 s: no interpolation across it
@@ -87,7 +88,7 @@ def test_yaw_is_unwrapped_before_interpolating():
     tel = Telemetry()
     tel.add_attitude(0.0, 0.0, 0.0, math.pi - 0.05, 0.0)
     tel.add_attitude(0.1, 0.0, 0.0, -math.pi + 0.05, 0.1)  # crossed +-pi going on turning right
-    yaw = tel.attitude_at(0.05)[2]
+    yaw = tel.attitude_at(0.05)[2]  # halfway: interpolated
     assert yaw == pytest.approx(math.pi)
     assert unwrap_to(-3.0, 3.0) == pytest.approx(2 * math.pi - 3.0)
 

@@ -29,6 +29,7 @@ from rovslam.live.telemetry import Telemetry
 
 BRIDGE_S = 1.0  # a video gap longer than this (stream time) is not bridged: the estimate's reset_counter goes up
 STATUS_EVERY_S = 10.0
+SETTLE_WAIT_S = 3.0  # at most this long for the first frames' burst to end
 
 
 @dataclass(frozen=True)
@@ -147,9 +148,14 @@ class LiveSource:
         return self.current[0].t_s if self.current is not None else 0.0
 
     def _frame(self, index: int, sf: StreamFrame) -> Frame:
+        if index == 0:  # the first frames come in a burst (the stream's probe): wait for the clock to settle
+            self.stream.settled.wait(SETTLE_WAIT_S)
         d = sf.arrival_s - sf.t_s
         self.offset_s = d if self.offset_s is None else min(self.offset_s, d)
-        t_local = sf.t_s + self.offset_s - self.video_delay_s  # when it was captured, on the local clock
+        floor = self.stream.floor_s
+        # when it was captured, on the local clock: the smallest delay seen over every packet so far
+        t_local = (sf.pts_s + floor if sf.pts_s is not None and floor is not None else sf.t_s + self.offset_s)
+        t_local -= self.video_delay_s
         att = self.telemetry.wait_attitude(t_local)
         alt = self.telemetry.altitude_at(t_local)
         had = self.current is not None and self.current[0].has_attitude

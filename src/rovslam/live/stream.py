@@ -13,6 +13,7 @@ by the wall-clock time between the two frames, so that ``t_s`` always increases.
 from __future__ import annotations
 
 import math
+import queue
 import threading
 import time
 from collections import deque
@@ -29,6 +30,12 @@ BLIND_S = 0.5  # no new frame for this long: the video is blind (no position is 
 # two frames later over MPEG-TS, one over RTP; measured on loopback with a sender that delivers each frame
 # at once (seen on the socket), frames told apart by their images.
 HELD_FRAMES = {"mpegts": 2, "rtp": 1}
+PACKETS_AHEAD = 256  # compressed packets read ahead of the decoder (a few MB)
+
+
+def network_arrival(source: VideoInput) -> bool:
+    """Whether a frame's arrival is its packet's (a network stream) or the time it was decoded (a file, a device)."""
+    return not source.is_file and source.format != "v4l2"
 NETWORK_SCHEMES = ("udp://", "rtp://", "rtsp://", "rtsps://", "tcp://", "srt://", "http://", "https://")
 SDP_TEXT = """v=0
 o=- 0 0 IN IP4 {host}
@@ -99,6 +106,7 @@ class StreamFrame:
     image: np.ndarray
     arrival_s: float  # when its data arrived (a network stream: its packet; a file: when decoded)
     delivered_s: float = 0.0  # when the decoder thread handed it over (monotonic)
+    pts_s: float | None = None  # its presentation time as sent (on the axis of VideoStream.floor_s)
 
 
 class _StreamClock:
@@ -157,6 +165,9 @@ class VideoStream:
         self._clock = _StreamClock()
         self._last_arrival_s: float | None = None
         self._prev_t_s = 0.0
+        self.floor_s: float | None = None  # smallest arrival - pts seen (the local clock at pts 0, delay's floor)
+        self._floor_pts_s: float | None = None
+        self.settled = threading.Event()  # set once frames arrive at the stream's pace (past the probe's burst)
         self._thread = threading.Thread(target=self._run, name="rovslam-video", daemon=True)
         self._started_s = 0.0
 
@@ -285,56 +296,103 @@ class VideoStream:
     def _decode(self, container: Any, av: Any) -> bool:
         """Decode until the end of the container (True) or a stop (False).
 
-        A frame of a network stream arrived :data:`HELD_FRAMES` frame intervals before FFmpeg hands
-        its packet out (``_arrival_s``); the decoder's own delay is not the network's either. The
-        latency measured from there includes FFmpeg's wait.
+        Packets are read by a thread of their own (:meth:`_read`), never held up by the decoder or
+        the loop, so that their arrival times (and :attr:`floor_s`) stay true while frames wait.
         """
         stream = container.streams.video[0]
-        network = not self.source.is_file and self.source.format != "v4l2"
-        held = HELD_FRAMES["mpegts"] if "mpegts" in container.format.name else HELD_FRAMES["rtp"]
+        network = network_arrival(self.source)
+        arrivals: dict[int, float] = {}  # packet pts -> when its data arrived
         wall0: float | None = None
-        packets = container.demux(stream)
-        demuxed: dict[int, float] = {}  # packet pts -> arrival (monotonic)
-        intervals: deque[float] = deque(maxlen=15)  # the last pts intervals (s)
-        prev_pts_s: float | None = None
-        while True:
-            if self._stop.is_set():
-                return False
-            try:
-                packet = next(packets, None)
-            except (av.error.ExitError, TimeoutError):  # the stream paused: the frames the decoder holds first
-                for vf in self._flush(stream, av):
-                    self._frame(vf, float(vf.time) if vf.time is not None else None, demuxed.pop(vf.pts, None))
-                raise
-            if packet is None:
-                return True
-            if packet.pts is not None and network:
-                prev_pts_s = self._arrival_s(packet, prev_pts_s, intervals, demuxed, held)
-            try:
-                decoded = packet.decode()
-            except av.error.FFmpegError:
-                continue  # a damaged packet (lost UDP datagrams): the decoder recovers at the next key frame
-            for vf in decoded:
-                pts_s = float(vf.time) if vf.time is not None else None
-                if self.realtime and pts_s is not None:
-                    wall0 = time.monotonic() - pts_s if wall0 is None else wall0
-                    delay = wall0 + pts_s - time.monotonic()
-                    if delay > 0 and self._stop.wait(delay):
-                        return False
-                self._frame(vf, pts_s, demuxed.pop(vf.pts, None))
+        packets: queue.Queue = queue.Queue(maxsize=PACKETS_AHEAD)
+        done = threading.Event()
+        reader = threading.Thread(target=self._read, args=(container, stream, packets, done), daemon=True,
+                                  name="rovslam-demux")
+        reader.start()
+        try:
+            while True:
+                if self._stop.is_set():
+                    return False
+                try:
+                    item = packets.get(timeout=0.1)
+                except queue.Empty:
+                    continue
+                if item is None:
+                    return True
+                if isinstance(item, BaseException):
+                    if isinstance(item, (av.error.ExitError, TimeoutError)):  # paused: the frames the decoder holds
+                        for vf in self._flush(stream, av):
+                            self._frame(vf, arrivals.pop(vf.pts, None))
+                    raise item
+                packet, arrival = item
+                if network and packet.pts is not None:
+                    if len(arrivals) > 64:  # packets that never became frames
+                        arrivals.clear()
+                    arrivals[packet.pts] = arrival
+                try:
+                    decoded = packet.decode()
+                except av.error.FFmpegError:
+                    continue  # a damaged packet (lost UDP datagrams): the decoder recovers at the next key frame
+                for vf in decoded:
+                    pts_s = float(vf.time) if vf.time is not None else None
+                    if self.realtime and pts_s is not None:
+                        wall0 = time.monotonic() - pts_s if wall0 is None else wall0
+                        delay = wall0 + pts_s - time.monotonic()
+                        if delay > 0 and self._stop.wait(delay):
+                            return False
+                    self._frame(vf, arrivals.pop(vf.pts, None) if network else None)
+        finally:
+            done.set()
+            reader.join(2 * self.read_timeout_s + 1.0)
 
-    @staticmethod
-    def _arrival_s(packet: Any, prev_pts_s: float | None, intervals: deque[float], demuxed: dict[int, float],
-                   held_frames: int) -> float:
-        """Record when ``packet``'s data arrived in ``demuxed``; returns its pts in seconds (for the next call)."""
-        pts_s = float(packet.pts * packet.time_base)
-        if prev_pts_s is not None and pts_s > prev_pts_s:
-            intervals.append(pts_s - prev_pts_s)
-        held_s = held_frames * float(np.median(intervals)) if intervals else 0.0
-        if len(demuxed) > 64:  # packets that never became frames
-            demuxed.clear()
-        demuxed[packet.pts] = time.monotonic() - held_s
-        return pts_s
+    def _read(self, container: Any, stream: Any, packets: queue.Queue, done: threading.Event) -> None:
+        """The demuxer's thread: each packet with the time its data arrived (network streams), then None or the error.
+
+        A frame of a network stream arrived :data:`HELD_FRAMES` frame intervals before FFmpeg hands its
+        packet out; the latency measured from there includes that wait.
+        """
+        network = network_arrival(self.source)
+        held = HELD_FRAMES["mpegts"] if "mpegts" in container.format.name else HELD_FRAMES["rtp"]
+        intervals: deque[float] = deque(maxlen=15)  # the last pts intervals (s)
+        prev: tuple[float, float] | None = None  # (pts_s, demux time) of the previous packet
+        item: Any = None
+        try:
+            for packet in container.demux(stream):
+                if packet.pts is None or packet.size == 0:
+                    continue
+                now = time.monotonic()
+                pts_s = float(packet.pts * packet.time_base)
+                if prev is not None and pts_s > prev[0]:
+                    intervals.append(pts_s - prev[0])
+                    if network and now - prev[1] >= 0.5 * (pts_s - prev[0]):
+                        self.settled.set()  # a packet that came at the stream's pace: past the probe's burst
+                held_s = held * float(np.median(intervals)) if intervals and network else 0.0
+                arrival = now - held_s
+                if network:
+                    self._floor(arrival, pts_s)
+                prev = (pts_s, now)
+                if not self._put(packets, (packet, arrival), done):
+                    return
+        except BaseException as exc:  # noqa: BLE001 - handed to the decoding thread, which raises it
+            item = exc
+        self._put(packets, item, done)
+
+    def _put(self, packets: queue.Queue, item: Any, done: threading.Event) -> bool:
+        while not done.is_set() and not self._stop.is_set():
+            try:
+                packets.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def _floor(self, arrival_s: float, pts_s: float) -> None:
+        """Keep :attr:`floor_s`, the smallest ``arrival - pts`` (a sender whose times went back starts it again)."""
+        with self._cond:
+            if self._floor_pts_s is not None and pts_s < self._floor_pts_s - 1.0:
+                self.floor_s = None
+            self._floor_pts_s = pts_s
+            d = arrival_s - pts_s
+            self.floor_s = d if self.floor_s is None else min(self.floor_s, d)
 
     @staticmethod
     def _flush(stream: Any, av: Any) -> list:
@@ -343,18 +401,22 @@ class VideoStream:
         except (av.error.FFmpegError, EOFError, ValueError):
             return []
 
-    def _frame(self, vf: Any, pts_s: float | None, arrival_s: float | None = None) -> None:
+    def _frame(self, vf: Any, arrival_s: float | None) -> None:
+        pts_s = float(vf.time) if vf.time is not None else None
         arrival = time.monotonic() if arrival_s is None else arrival_s
         t_s = self._clock.t_s(pts_s, arrival)
         if t_s is None:
             return
+        if arrival_s is None and pts_s is not None:  # a file or a device: when decoded (after --realtime's wait)
+            self._floor(arrival, pts_s)
+            self.settled.set()
         image = vf.to_ndarray(format="rgb24")
         if self._last_arrival_s is not None and arrival - self._last_arrival_s > BLIND_S:
             self.gaps.append({"t_s": t_s, "wall_gap_s": arrival - self._last_arrival_s,
                               "stream_gap_s": t_s - self._prev_t_s})
         self._prev_t_s = t_s
         self._last_arrival_s = arrival
-        self._publish(StreamFrame(self.received, t_s, image, arrival, time.monotonic()))
+        self._publish(StreamFrame(self.received, t_s, image, arrival, time.monotonic(), pts_s))
         self.received += 1
 
     def _fail(self, message: str) -> None:

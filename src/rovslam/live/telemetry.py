@@ -19,6 +19,7 @@ ALTITUDE_HOLD_S = 1.0  # the sonar reports slower than the AHRS
 TELEMETRY_GAP_S = 1.0  # no attitude for this long: a telemetry gap
 COVER_WAIT_S = 0.06  # a frame waits this long for the attitude sample after it (then the last one is held)
 LATE_WAIT_S = 0.5  # ... and this long when the last one is too old to hold (a receiver that fell behind)
+SNAP_S = 0.01  # a sample this close to a frame's time is the frame's
 KEEP_S = 300.0  # samples kept: a loop that lags (every frame processed) still finds its frames'
 
 
@@ -70,10 +71,19 @@ class TimeSeries:
         return self.values[-1] if self.values else None
 
     def at(self, t_s: float) -> tuple[float, ...] | None:
-        """The values at ``t_s`` (interpolated, or held within ``hold_s`` of the nearest end); None without."""
+        """The values at ``t_s`` (interpolated, or held within ``hold_s`` of the nearest end); None without.
+
+        A sample within :data:`SNAP_S` of ``t_s`` is taken as it is: an autopilot that samples with the
+        camera gives the frame's own reading, which the clock maps' few milliseconds of error would
+        otherwise blend with its neighbour's.
+        """
         ts = self.t_s
         if not ts:
             return None
+        k = bisect.bisect_left(ts, t_s)
+        near = min((j for j in (k - 1, k) if 0 <= j < len(ts)), key=lambda j: abs(ts[j] - t_s))
+        if abs(ts[near] - t_s) <= SNAP_S:
+            return self.values[near]
         if t_s >= ts[-1]:
             return self.values[-1] if t_s - ts[-1] <= self.hold_s else None
         if t_s <= ts[0]:
