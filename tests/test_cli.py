@@ -371,6 +371,7 @@ def test_help_lists_the_commands_in_the_order_of_the_workflow():
         "config",
         "smooth",
         "navigate",
+        "live",
         "sitl",
     ]
 

@@ -375,10 +375,12 @@ def run_sequence(
         opts = inputs or InputOptions()
         if camera_file is not None and opts.camera_file is None:
             opts = dataclasses.replace(opts, camera_file=Path(camera_file))
-        seq = open_source(sequence_dir, options=opts)
+        given = hasattr(sequence_dir, "frames")  # an opened source (rovslam live's stream) instead of a path
+        seq = sequence_dir if given else open_source(sequence_dir, options=opts)
+        path = Path(seq.path if given else sequence_dir)
         pipe = SlamPipeline(seq.info, config)
         cam = opts.camera_file
-        where = str(cam if cam is not None and not isinstance(seq, Sequence) else Path(sequence_dir) / "sequence.toml")
+        where = str(cam if cam is not None and not isinstance(seq, Sequence) else path / "sequence.toml")
         check_source_against_config(seq.info, config, pipe.altimeter_fallback, where)
         out = prepare_output_folder(out_dir, overwrite)
         writer = ResultWriter(out)
@@ -387,7 +389,8 @@ def run_sequence(
         except OutputError as exc:  # a disk full from the start: the folder still says why
             writer.abandon(str(exc))
             raise
-        run.summary_base["sequence"] = str(Path(sequence_dir).resolve())
+        run.summary_base["sequence"] = str(path if given else path.resolve())
+        run.summary_base.update(getattr(seq, "summary_blocks", {}))  # a source's own blocks (live: filled as it goes)
         run.summary_base["camera_file"] = str(Path(cam).resolve()) if cam is not None else None
         run.summary_base["inputs"] = opts.to_dict()
         run.fallback_detail = _fallback_detail(seq.info, where, pipe.altimeter_fallback)

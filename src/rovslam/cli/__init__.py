@@ -18,6 +18,7 @@ command lives in a module of its own and registers itself on ``app`` when import
 - ``config``: ``config``
 - ``smooth``: ``smooth``
 - ``navigate``: ``navigate``
+- ``live``: ``live`` (on the vehicle: the camera stream and MAVLink)
 - ``sitl``: ``sitl`` (the simulator as a vehicle on the network)
 
 What they share: ``errors`` (``guard``: every error one line on stderr and an exit code;
@@ -121,6 +122,18 @@ def main() -> None:
 
 
 # The commands: importing a module registers its commands on `app`; --help lists them in this order.
-COMMAND_MODULES = ("simulate", "run", "evaluate", "batch", "demo", "report", "config", "smooth", "navigate", "sitl")
+COMMAND_MODULES = (
+    "simulate",
+    "run",
+    "evaluate",
+    "batch",
+    "demo",
+    "report",
+    "config",
+    "smooth",
+    "navigate",
+    "live",
+    "sitl",
+)
 for _module in COMMAND_MODULES:
     importlib.import_module(f"rovslam.cli.{_module}")

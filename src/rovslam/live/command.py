@@ -1,0 +1,134 @@
+"""The ``rovslam live`` command (typer only at import; PyAV, pymavlink and the pipeline inside)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def live(
+    video: str = typer.Option(
+        ...,
+        "--video",
+        help="udp://HOST:PORT (MPEG-TS), an .sdp file or rtp://HOST:PORT (RTP H.264, "
+        "BlueOS: port 5600), rtsp://..., /dev/videoN, or a video file (with --realtime).",
+    ),
+    camera: Path = typer.Option(..., "--camera", help="Camera file of the vehicle's camera and lasers (CAMERA.toml)."),
+    mavlink: str = typer.Option(
+        ...,
+        "--mavlink",
+        help="pymavlink connection: udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT, /dev/ttyACM0,115200.",
+    ),
+    out: Path = typer.Option(
+        ..., "--out", "-o", help="Folder for the results (new or empty), written as the dive goes."
+    ),
+    config: Path | None = typer.Option(None, "--config", "-c", help="TOML configuration (defaults: the paper's)."),
+    record: bool = typer.Option(
+        False,
+        "--record",
+        help="Also write the processed frames with their telemetry as "
+        "OUT/sequence (rovslam run OUT/sequence reproduces the trajectory).",
+    ),
+    duration_s: float | None = typer.Option(
+        None, "--duration-s", help="End the run this many seconds (wall clock) after it starts."
+    ),
+    viewer: bool = typer.Option(False, "--viewer", help="Show the run live in the rerun viewer."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line (events are still said)."),
+    mavlink_out: str | None = typer.Option(
+        None,
+        "--mavlink-out",
+        help="Messages to send, separated by commas: delta, position, speed, distance (default all), or none.",
+    ),
+    realtime: bool = typer.Option(False, "--realtime", help="Play a video file at its own frame rate."),
+    every_frame: bool = typer.Option(
+        False,
+        "--every-frame",
+        help="Process every frame, none dropped, however late (tests, replays; not for a vehicle).",
+    ),
+    wait_s: float = typer.Option(30.0, "--wait-s", help="How long to wait for the video to start."),
+    heartbeat_timeout_s: float = typer.Option(
+        30.0, "--heartbeat-timeout-s", help="How long to wait for the vehicle's HEARTBEAT."
+    ),
+    video_delay_s: float = typer.Option(
+        0.0,
+        "--video-delay-s",
+        help="The camera's delay from capture to sending "
+        "(its encoder): the telemetry is taken this much before a frame's arrival.",
+    ),
+) -> None:
+    """Live on the vehicle: the camera stream and the autopilot's telemetry in, a position with covariance out
+    to the autopilot over MAVLink (like a DVL), the results folder of `rovslam run` written as the dive goes."""
+    import sys
+    import time
+
+    from rovslam.config import RunConfig, load_config
+    from rovslam.errors import InvalidArgumentError
+    from rovslam.live.mavlink import parse_mavlink_out
+    from rovslam.live.session import LiveOptions, run_live
+
+    for name, value in (
+        ("--duration-s", duration_s),
+        ("--wait-s", wait_s),
+        ("--heartbeat-timeout-s", heartbeat_timeout_s),
+    ):
+        if value is not None and not (value > 0 and value != float("inf")):
+            raise InvalidArgumentError(f"{name} must be a positive number of seconds, got {value}")
+    if not 0.0 <= video_delay_s < 10.0:
+        raise InvalidArgumentError(f"--video-delay-s must be from 0 to 10 s, got {video_delay_s}")
+    cfg = load_config(config) if config is not None else RunConfig()
+    opts = LiveOptions(
+        video=video,
+        camera_file=camera,
+        mavlink=mavlink,
+        out=out,
+        config=cfg,
+        record=record,
+        duration_s=duration_s,
+        every_frame=every_frame,
+        realtime=realtime,
+        mavlink_out=parse_mavlink_out(mavlink_out),
+        wait_s=wait_s,
+        heartbeat_timeout_s=heartbeat_timeout_s,
+        video_delay_s=video_delay_s,
+    )
+
+    def say(text: str) -> None:
+        typer.echo(f"live: {text}", err=True)
+
+    last = [0.0]
+
+    def status(line: str) -> None:
+        now = time.monotonic()
+        if now - last[0] >= 5.0:
+            last[0] = now
+            typer.echo(f"live: {line}", err=True)
+
+    viewer_obj = None
+    if viewer:
+        from rovslam.viz.viewer import RerunViewer, display_available
+
+        spawn = display_available()
+        viewer_obj = RerunViewer(spawn=spawn, save_path=None if spawn else out / "run.rrd")
+    try:
+        summary, block = run_live(opts, say, on_frame_image=viewer_obj, status=None if quiet else status)
+    finally:
+        if viewer_obj is not None:
+            viewer_obj.close()
+    lat = block.get("latency_ms", {})
+    p50 = "-" if lat.get("p50") is None else f"{lat['p50']:.0f}"
+    p99 = "-" if lat.get("p99") is None else f"{lat['p99']:.0f}"
+    line = (
+        f"{block.get('frames_received', 0)} frames received, {block.get('frames_processed', 0)} processed, "
+        f"{block.get('frames_dropped', 0)} dropped; {block.get('positions_sent', 0)} positions sent; latency p50 "
+        f"{p50} ms, p99 {p99} ms; {summary.landmarks} landmarks -> {out}"
+    )
+    for note in summary.warnings:
+        typer.echo(f"warning: {note}", err=True)
+    if summary.interrupted:
+        typer.echo(
+            f"rovslam: stopped by {summary.signal}: {line}; every file written is complete and readable", err=True
+        )
+        sys.stdout.flush()
+        raise typer.Exit(summary.exit_code)
+    typer.echo(line)
