@@ -14,7 +14,7 @@ from rovslam.averages import median0
 from rovslam.config import LaserConfig
 from rovslam.io.sequence import decode_image, to_rgb
 from rovslam.runner import keep_freed_memory
-from rovslam.vision import laser
+from rovslam.vision import spots
 from rovslam.vision.filters import bandpass, gaussian_kernel, local_variance
 
 _ONES3 = np.ones((3, 3), np.uint8)
@@ -110,7 +110,7 @@ def test_spot_candidates_match_the_whole_window_search(seed, n_blobs, n_near, ra
     rng = np.random.default_rng(seed + 1)
     near = np.column_stack([rng.uniform(0, 160, n_near), rng.uniform(0, 120, n_near)])
     cfg = LaserConfig(search_radius_px=radius, max_spot_area_px=60)
-    got_c, got_w = laser._spot_candidates(img, cfg, near)
+    got_c, got_w = spots._spot_candidates(img, cfg, near)
     ref_c, ref_w = _spot_candidates_reference(img, cfg, near)
     np.testing.assert_array_equal(got_c, ref_c)
     np.testing.assert_array_equal(got_w, ref_w)
@@ -120,7 +120,7 @@ def test_spot_candidates_find_the_blobs_of_a_known_image():
     img = np.zeros((100, 100, 3), np.uint8)
     img[20:23, 30:33, 0] = 200  # 9 px at centre (31, 21)
     img[70:74, 60:64, 0] = 250  # 16 px at centre (61.5, 71.5), the stronger
-    cents, weights = laser._spot_candidates(img, LaserConfig(), np.array([[35.0, 25.0], [60.0, 70.0]]))
+    cents, weights = spots._spot_candidates(img, LaserConfig(), np.array([[35.0, 25.0], [60.0, 70.0]]))
     np.testing.assert_allclose(cents, [[61.5, 71.5], [31.0, 21.0]])
     np.testing.assert_array_equal(weights, [16 * 250.0, 9 * 200.0])
 
@@ -136,7 +136,7 @@ def test_small_median_is_numpys(values):
 @given(st.lists(st.integers(0, 255), min_size=1, max_size=60))
 def test_uint8_median_is_numpys(values):
     a = np.array(values, np.uint8)
-    assert laser._median_u8(a) == float(np.median(a.astype(np.float64)))
+    assert spots._median_u8(a) == float(np.median(a.astype(np.float64)))
 
 
 @pytest.mark.parametrize("shape", [(272, 360), (57, 91)])
