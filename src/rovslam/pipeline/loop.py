@@ -11,9 +11,11 @@ The order of the steps keeps the speed and the landmark measurements independent
   predicted position; if none is tracked and the new-landmark test (6) allows it, choose a
   new one;
 * Step 4: inhibit pixels near the tracked / new landmark templates;
-* Step 5: track the previous frame's speed templates -> surge, sway and the turn;
+* Step 5: track the previous frame's speed templates -> surge, sway and the turn
+  (:mod:`rovslam.pipeline.speed`);
 * Step 6: EKF prediction (1), (2) with that speed and the heading, then update (3) with the
-  landmark observations, each match accepted or refused by :func:`rovslam.mapping.association.associate`;
+  landmark observations, each match accepted or refused by :func:`rovslam.mapping.association.associate`
+  (:mod:`rovslam.pipeline.prediction`, :mod:`rovslam.pipeline.update`);
 * Step 7: augment the state with the new landmark (4);
 * Step 8: extract fresh speed templates for the next frame.
 
@@ -95,9 +97,8 @@ class SlamPipeline:
         self.sunlight_watch = SunlightWatch(config.bandpass)
         self.sunlight = self.sunlight_watch.monitor
         self.prediction = Prediction(config, self.ekf, self.sunlight)  # step 6: (1), (2) and the dead reckoning
-        self.landmark_update = LandmarkUpdate(
-            config, self.ekf, self.recovery, self.focal_px
-        )  # step 6: (3) and the decisions
+        # Step 6: the landmark updates (3) and the decision on each match.
+        self.landmark_update = LandmarkUpdate(config, self.ekf, self.recovery, self.focal_px)
         self.skipped: list[tuple[int, float, str]] = []
         self._prev = PreviousFrame()  # what step 5 measures against
         self._n = 0  # frames processed (not skipped)
