@@ -56,7 +56,7 @@ STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "token tracking (match, extract)",
         (
-            "rovslam.pipeline:SlamPipeline._token_predictions",
+            "rovslam.pipeline.speed:SpeedStep.token_predictions",
             "rovslam.vision.tracking:TokenTracker.track",
             "rovslam.pipeline:SlamPipeline._extract_tokens",
         ),

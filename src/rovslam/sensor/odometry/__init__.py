@@ -202,51 +202,15 @@ def speed_from_tokens(
         attitude_noise_rad,
     )
     n_tokens = step.uv_prev_px.shape[0]
-    if n_tokens == 0:
-        return _failure(0, "no tokens", config)
-    a_all, b_all = _ground_offsets(camera, step)
-    valid = np.all(np.isfinite(a_all), axis=1) & np.all(np.isfinite(b_all), axis=1)
-    n_valid = int(valid.sum())
-    if n_valid < config.min_inliers:
-        return _failure(n_tokens, "too few tokens" if n_valid else "no tokens", config)
-    a, b = a_all[valid], b_all[valid]
-    sc = _fit_scales(camera, step, n_valid, dpsi_sigma_rad, config)
-    theta, d, inl, fit = _consensus(a, b, step.dpsi_rad, sc, config)
-    n_inl = int(inl.sum())
-    if fit is None or n_inl < config.min_inliers:
-        return _failure(n_tokens, "no consensus", config)
-    # Two groups with equal support: refuse rather than pick one.
-    rival = _rival_consensus(
-        a[~inl], b[~inl], theta, step.dpsi_rad, sc.prior_var_rad2, sc.threshold_m, sc.sigma0_m, sc.joint, sc.scale_var
-    )
-    if rival is not None and rival[1] >= n_inl:
-        return _failure(n_tokens, "ambiguous consensus", config)
-
+    found = _token_consensus(camera, step, dpsi_sigma_rad, config)
+    if isinstance(found, str):
+        return _failure(n_tokens, found, config)
     # d is in the previous frame's scale (its altitude); the fitted zoom splits the ratio's error between both
-    speed = d * (0.5 * (1.0 + fit.scale)) / step.dt_s
+    speed = found.d_m * (0.5 * (1.0 + found.fit.scale)) / step.dt_s
     if float(np.hypot(speed[0], speed[1])) > config.max_speed_mps:
         return _failure(n_tokens, "implausible speed", config)
-    cov = _speed_covariance(fit, speed, d, rival, n_inl, n_valid, step, sc, config, relief_var, altitude_samples)
-
-    mask = np.zeros(n_tokens, dtype=bool)
-    mask[np.flatnonzero(valid)[inl]] = True
-    mask.setflags(write=False)
-    theta_sigma = math.sqrt(fit.theta_var_rad2) if sc.joint else math.inf
-    return SpeedMeasurement(
-        True,
-        float(speed[0]),
-        float(speed[1]),
-        cov,
-        n_tokens,
-        n_inl,
-        mask,
-        "",
-        float(theta if sc.joint else step.dpsi_rad),
-        theta_sigma,
-        relief_sample(a[inl], b[inl], theta, d, fit.scale),
-        fit.residual_var_m2 * sc.px_per_m**2,
-        fit.residual_dof,
-    )
+    cov = _speed_covariance(found, speed, step, config, relief_var, altitude_samples)
+    return _measurement(found, speed, cov, step)
 
 
 @dataclass(frozen=True, eq=False)
@@ -388,20 +352,90 @@ def _consensus(
     return theta, d, inl, fit
 
 
+@dataclass(frozen=True, eq=False)
+class _Consensus:
+    """The tokens that agree on one motion: the fit on them and what the step's speed is built from.
+
+    ``a``, ``b``: ``(M, 2)`` seabed offsets of the usable tokens (metres); ``valid``: ``(N,)`` which
+    tokens given are usable; ``inliers``: ``(M,)`` which usable ones agree.
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    valid: np.ndarray
+    theta_rad: float
+    d_m: np.ndarray  # (2,) displacement, the previous frame's level frame
+    inliers: np.ndarray
+    fit: _RigidFit
+    scales: _FitScales
+    rival: tuple[np.ndarray, int] | None  # another group's displacement and support, if any
+
+    @property
+    def n_valid(self) -> int:
+        return self.a.shape[0]
+
+    @property
+    def n_inliers(self) -> int:
+        return int(self.inliers.sum())
+
+
+def _token_consensus(
+    camera: Camera, step: _Step, dpsi_sigma_rad: float | None, config: OdometryConfig
+) -> _Consensus | str:
+    """The tokens' consensus on the step's motion (:func:`_consensus`), or why there is none."""
+    if step.uv_prev_px.shape[0] == 0:
+        return "no tokens"
+    a_all, b_all = _ground_offsets(camera, step)
+    valid = np.all(np.isfinite(a_all), axis=1) & np.all(np.isfinite(b_all), axis=1)
+    n_valid = int(valid.sum())
+    if n_valid < config.min_inliers:
+        return "too few tokens" if n_valid else "no tokens"
+    a, b = a_all[valid], b_all[valid]
+    sc = _fit_scales(camera, step, n_valid, dpsi_sigma_rad, config)
+    theta, d, inl, fit = _consensus(a, b, step.dpsi_rad, sc, config)
+    n_inl = int(inl.sum())
+    if fit is None or n_inl < config.min_inliers:
+        return "no consensus"
+    # Two groups with equal support: refuse rather than pick one.
+    rival = _rival_consensus(
+        a[~inl], b[~inl], theta, step.dpsi_rad, sc.prior_var_rad2, sc.threshold_m, sc.sigma0_m, sc.joint, sc.scale_var
+    )
+    if rival is not None and rival[1] >= n_inl:
+        return "ambiguous consensus"
+    return _Consensus(a, b, valid, theta, d, inl, fit, sc, rival)
+
+
+def _measurement(found: _Consensus, speed: np.ndarray, cov: np.ndarray, step: _Step) -> SpeedMeasurement:
+    """The step's :class:`SpeedMeasurement` from the consensus, its ``(2,)`` speed and ``(2, 2)`` covariance."""
+    n_tokens = step.uv_prev_px.shape[0]
+    mask = np.zeros(n_tokens, dtype=bool)
+    mask[np.flatnonzero(found.valid)[found.inliers]] = True
+    mask.setflags(write=False)
+    fit, sc, theta, inl = found.fit, found.scales, found.theta_rad, found.inliers
+    theta_sigma = math.sqrt(fit.theta_var_rad2) if sc.joint else math.inf
+    return SpeedMeasurement(
+        True,
+        float(speed[0]),
+        float(speed[1]),
+        cov,
+        n_tokens,
+        found.n_inliers,
+        mask,
+        "",
+        float(theta if sc.joint else step.dpsi_rad),
+        theta_sigma,
+        relief_sample(found.a[inl], found.b[inl], theta, found.d_m, fit.scale),
+        fit.residual_var_m2 * sc.px_per_m**2,
+        fit.residual_dof,
+    )
+
+
 def _speed_covariance(
-    fit: _RigidFit,
-    speed: np.ndarray,
-    d: np.ndarray,
-    rival: tuple[np.ndarray, int] | None,
-    n_inl: int,
-    n_valid: int,
-    step: _Step,
-    sc: _FitScales,
-    config: OdometryConfig,
-    relief_var: float,
-    altitude_samples: int,
+    found: _Consensus, speed: np.ndarray, step: _Step, config: OdometryConfig, relief_var: float, altitude_samples: int
 ) -> np.ndarray:
     """The ``(2, 2)`` covariance Q of the speed (read-only): the fit's, plus the errors its tokens cannot show."""
+    fit, d, rival, sc = found.fit, found.d_m, found.rival, found.scales
+    n_inl, n_valid = found.n_inliers, found.n_valid
     z_prev, z_curr, dt = step.z_prev_m, step.z_curr_m, step.dt_s
     # The tokens' scatter shows their independent errors; an error they all share (block artefacts of
     # a compressed video, a lighting change, interpolation bias) it cannot show: a floor per step.

@@ -1,0 +1,145 @@
+"""Step 5 of the loop: the previous frame's speed tokens tracked -> surge, sway and the turn.
+
+:class:`SpeedStep` (one per :class:`~rovslam.pipeline.SlamPipeline`, sharing its token tracker,
+speed estimator and filter) predicts where the tokens should be now (the last good speed and
+the compass turn, seen through the attitudes), tracks them, and measures the speed from their
+displacements (:class:`rovslam.sensor.odometry.SpeedEstimator`); under a rolling shutter, the
+tokens and the landmark observations are moved to the frame's time (:mod:`rovslam.sensor.shutter`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from rovslam.camera import Camera
+from rovslam.config import RunConfig
+from rovslam.pipeline.geometry import landmark_mn_at_frame_time, motion_hint, token_predictions
+from rovslam.pipeline.records import TrackedLandmark
+from rovslam.sensor.heading import HeadingPrior
+from rovslam.sensor.odometry import SpeedEstimator, SpeedMeasurement
+from rovslam.sensor.shutter import tokens_at_frame_time
+from rovslam.slam import EkfSlam
+from rovslam.vision.laser import AltitudeEstimate
+from rovslam.vision.tracking import TokenTracker, TokenTracks
+
+__all__ = ["PreviousFrame", "SpeedStep"]
+
+
+@dataclasses.dataclass(frozen=True)
+class PreviousFrame:
+    """What step 5 measures against: the last frame's time, image depth Z and (roll, pitch) (None: no frame yet)."""
+
+    t_s: float | None = None
+    altitude_m: float | None = None
+    attitude_rad: tuple[float, float] = (0.0, 0.0)
+
+
+class SpeedStep:
+    """The speed tokens' predicted positions, their tracks, the speed they measure, and the rolling shutter's moves."""
+
+    def __init__(
+        self, config: RunConfig, camera: Camera, tokens: TokenTracker, speed: SpeedEstimator, ekf: EkfSlam
+    ) -> None:
+        self.config = config
+        self.camera = camera  # the processed camera
+        self.tokens = tokens
+        self.speed = speed
+        self.ekf = ekf
+
+    def measure(
+        self,
+        track_img: np.ndarray,
+        mask: np.ndarray,
+        alt: AltitudeEstimate,
+        att: tuple[float, float],
+        prior: HeadingPrior,
+        dt_s: float,
+        has_attitude: bool,
+        prev: PreviousFrame,
+        last_speed_mps: np.ndarray | None,
+    ) -> tuple[TokenTracks, SpeedMeasurement | None]:
+        """Step 5: track the previous frame's tokens (their windows follow the turn) -> surge, sway, turn.
+
+        ``track_img``: ``(H, W) float32`` tracking image; ``mask``: ``(H, W) bool`` inhibited pixels;
+        ``last_speed_mps``: ``(2,)`` last good (surge, sway), None before the first. The speed is None
+        on the first frame (nothing to measure against).
+        """
+        common, offsets = self.token_predictions(prior.step_rad, att, dt_s, prev, last_speed_mps)
+        hint = motion_hint(
+            *self.tokens.motion_prior(track_img), common, offsets, self.config.tracker.min_global_confidence
+        )
+        if self.tokens.reselect_for_motion(hint):
+            common, offsets = self.token_predictions(prior.step_rad, att, dt_s, prev, last_speed_mps)  # changed
+        tracks = self.tokens.track(track_img, common, mask, offsets)
+        if prev.t_s is None:
+            return tracks, None
+        uv_prev, uv_curr = tokens_at_frame_time(self.camera, tracks.uv_prev_px, tracks.uv_curr_px, dt_s)
+        speed = self.speed.measure(
+            self.camera,
+            uv_prev,
+            uv_curr,
+            prev.altitude_m,
+            alt.altitude_m,
+            dt_s,
+            dpsi_rad=prior.step_rad,
+            altitude_sigma_m=alt.sigma_m,
+            attitude_prev_rad=prev.attitude_rad,
+            attitude_curr_rad=att,
+            dpsi_sigma_rad=prior.step_sigma_rad,
+            altitude_samples=max(alt.n_spots, 1) if alt.source.startswith("laser") else 1,
+            attitude_noise_rad=self.config.odometry.attitude_noise_sigma_rad if has_attitude else 0.0,
+        )
+        return tracks, speed
+
+    def token_predictions(
+        self,
+        dpsi_rad: float,
+        att: tuple[float, float],
+        dt_s: float,
+        prev: PreviousFrame,
+        last_speed_mps: np.ndarray | None,
+    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Where the speed tokens should be now: ``(common (2,) or None, offsets (N, 2) or None)`` pixels
+        (:func:`rovslam.pipeline.geometry.token_predictions`; none without tokens or a previous altitude)."""
+        toks = self.tokens.tokens
+        if not toks or prev.altitude_m is None:
+            return None, None
+        return token_predictions(
+            self.camera,
+            np.array([t.centre_uv_px for t in toks]),
+            prev.altitude_m,
+            prev.attitude_rad,
+            att,
+            dpsi_rad,
+            last_speed_mps,
+            dt_s,
+        )
+
+    def landmarks_at_frame_time(
+        self,
+        tracked: list[TrackedLandmark],
+        speed: SpeedMeasurement | None,
+        prior: HeadingPrior,
+        alt: AltitudeEstimate,
+        dt_s: float,
+    ) -> list[TrackedLandmark]:
+        """Step 5, rolling shutter: each landmark's [m, n] moved to the frame's time (:mod:`rovslam.sensor.shutter`)."""
+        if self.camera.readout_s == 0.0 or speed is None:
+            return tracked
+        return [
+            dataclasses.replace(
+                t,
+                mn_px=landmark_mn_at_frame_time(
+                    self.camera,
+                    t.mn_px,
+                    t.uv_px[1],
+                    alt.altitude_m - self.ekf.landmark_height_m(t.record.id),
+                    speed,
+                    prior,
+                    dt_s,
+                ),
+            )
+            for t in tracked
+        ]
