@@ -61,7 +61,11 @@ PROFILE_CASES = ("360-sim-mem", "hd-sim-mem")
 
 def _bar_factory():
     """The progress bar of ``rovslam run`` (drawn on this process's stderr)."""
-    from rovslam.cli.display import ProgressBar, slam_callbacks
+    try:
+        from rovslam.cli.display import ProgressBar, slam_callbacks
+    except ImportError:  # an --against build from before the CLI package: one module
+        from rovslam.cli import _progress as ProgressBar  # noqa: N813
+        from rovslam.cli import _slam_callbacks as slam_callbacks
 
     return ProgressBar, slam_callbacks
 
