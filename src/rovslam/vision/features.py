@@ -160,7 +160,7 @@ def match_keypoints(
     """Keypoints of two ``(h, w) uint8`` images matched by the ratio test: ``(M, 2)``, ``(M, 2)`` px and ``M``."""
     import cv2
 
-    detector = cv2.ORB_create(nfeatures=config.max_features, fastThreshold=5, edgeThreshold=15, patchSize=31)
+    detector = cv2.ORB_create(nfeatures=config.max_features, fastThreshold=5, edgeThreshold=15, patchSize=31)  # type: ignore[attr-defined]  # cv2 5 stubs lack it
     kp_a, des_a = detector.detectAndCompute(grey_a, None)
     kp_b, des_b = detector.detectAndCompute(grey_b, None)
     empty = np.zeros((0, 2))
