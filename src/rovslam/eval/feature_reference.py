@@ -9,8 +9,8 @@ principal point was, ``p - c`` in pixels of the previous image. From the tokens:
     [a, b] = R(-gamma) [surge, sway] dt,   p - c = [b fx / Z, -a fy / Z]
 
 (``gamma`` the camera's yaw offset, ``Z`` the previous frame's altitude of ``trajectory.csv``,
-``dt`` the frames' interval, the speed of the later row; a level camera, no lever arm, as
-``eval.baselines``). From the features: the similarity of the current frame onto the previous,
+``dt`` the frames' interval, the speed of the later row, measured or, where the tokens measured
+none, the speed the run held; a level camera, no lever arm, as ``eval.baselines``). From the features: the similarity of the current frame onto the previous,
 applied to the principal point. A pair agrees when the two differ by at most 10 % of the token
 motion, or by at most 2 sigma (Mahalanobis distance of the difference under the sum of the two
 covariances: the speed's Q times dt^2 in pixels, and the features' from their inliers).
@@ -36,8 +36,10 @@ SIGMA_TOLERANCE = 2.0  # ... or within 2 sigma
 class PairComparison:
     """One processed frame pair: the two motions ``p - c`` ``(2,)`` px, their difference and whether they agree.
 
-    ``frame_prev`` / ``frame``: the input's frame numbers. ``reason``: why the pair could not be
-    compared ("" when compared): no token speed, or no reliable feature motion.
+    ``frame_prev`` / ``frame``: the input's frame numbers. ``held``: the tokens measured no speed
+    at ``frame`` and the run moved by the speed it held (compared all the same: it is the motion
+    the run integrated). ``reason``: why the pair could not be compared ("" when compared): no
+    speed at all, an unreadable frame, or no reliable feature motion.
     """
 
     frame_prev: int
@@ -48,6 +50,7 @@ class PairComparison:
     relative: float = float("nan")
     mahalanobis: float = float("nan")
     reason: str = ""
+    held: bool = False
 
     @property
     def compared(self) -> bool:
@@ -65,6 +68,11 @@ class PairComparison:
     def agrees(self) -> bool:
         return self.within_relative or self.within_sigma
 
+    @property
+    def badness(self) -> float:
+        """How far from agreeing: the smaller of the relative difference over 10 % and the sigmas over 2 (> 1: disagrees)."""
+        return min(self.relative / RELATIVE_TOLERANCE, self.mahalanobis / SIGMA_TOLERANCE) if self.compared else 0.0
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "frame_prev": self.frame_prev,
@@ -76,6 +84,7 @@ class PairComparison:
             "relative": self.relative,
             "mahalanobis": self.mahalanobis,
             "agrees": self.agrees,
+            "held": self.held,
             "reason": self.reason,
         }
 
@@ -97,8 +106,8 @@ class FeatureReference:
         return float(np.mean([getattr(p, what) for p in done])) if done else float("nan")
 
     def worst(self) -> list[PairComparison]:
-        """The compared pairs that disagree most (largest Mahalanobis distance first), at most ``worst_count``."""
-        return sorted(self.compared, key=lambda p: -p.mahalanobis)[: self.worst_count]
+        """The compared pairs farthest from agreeing (:attr:`PairComparison.badness`), at most ``worst_count``."""
+        return sorted(self.compared, key=lambda p: -p.badness)[: self.worst_count]
 
     def to_dict(self) -> dict[str, Any]:
         reasons: dict[str, int] = {}
@@ -114,7 +123,9 @@ class FeatureReference:
             "agree_share": self.share("agrees"),
             "within_relative_share": self.share("within_relative"),
             "within_sigma_share": self.share("within_sigma"),
+            "held_compared": sum(p.held for p in self.compared),
             "not_compared": reasons,
+            "not_compared_pairs": [[p.frame_prev, p.frame, p.reason] for p in self.pairs if p.reason][:50],
             "worst": [p.to_dict() for p in self.worst()],
         }
 
@@ -183,9 +194,10 @@ def _pair(traj: dict, q_all: np.ndarray | None, i_prev: int, i: int, prev: Any, 
     base = {"frame_prev": prev.index, "frame": cur.index, "t_s": float(traj["t_s"][i])}
     speed = np.array([traj["surge_mps"][i], traj["sway_mps"][i]])
     altitude_m = float(traj["altitude_m"][i_prev])
-    if not (traj["speed_ok"][i] == 1 and np.all(np.isfinite(speed)) and altitude_m > 0 and dt_s > 0):
-        return PairComparison(**base, token_px=nan2, feature_px=nan2, reason="no token speed")
-    q = q_all[i] if q_all is not None else np.zeros((2, 2))
+    base["held"] = bool(traj["speed_ok"][i] != 1)
+    if not (np.all(np.isfinite(speed)) and altitude_m > 0 and dt_s > 0):
+        return PairComparison(**base, token_px=nan2, feature_px=nan2, reason="no speed")
+    q = q_all[i] if q_all is not None and np.all(np.isfinite(q_all[i])) else np.zeros((2, 2))
     tok_px, tok_cov = token_motion_px(speed, q, dt_s, altitude_m, camera)
     if prev.image is None or cur.image is None:
         return PairComparison(**base, token_px=tok_px, feature_px=nan2, reason="unreadable frame")
