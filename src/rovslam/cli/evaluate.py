@@ -89,6 +89,7 @@ def _print_feature_reference(figures: dict) -> None:
         typer.echo(
             f"  frames {row['frame_prev']} -> {row['frame']}: tokens ({row['token_px'][0]:.1f}, {row['token_px'][1]:.1f})"
             f" px, features ({row['feature_px'][0]:.1f}, {row['feature_px'][1]:.1f}) px, "
-            f"{100 * row['relative']:.0f} %, {row['mahalanobis']:.1f} sigma" + (" (held speed)" if row["held"] else "")
+            f"{100 * row['relative']:.0f} %, {row['mahalanobis']:.1f} sigma"
+            + (" (held speed)" if row["held"] else "")
             + ("" if row["agrees"] else "  DISAGREE")
         )
