@@ -10,8 +10,8 @@ principal point was, ``p - c`` in pixels of the previous image. From the tokens:
 
 (``gamma`` the camera's yaw offset, ``Z`` the previous frame's altitude of ``trajectory.csv``,
 ``dt`` the frames' interval, the speed of the later row, measured or, where the tokens measured
-none, the speed the run held; a level camera, no lever arm, as ``eval.baselines``). From the features: the similarity of the current frame onto the previous,
-applied to the principal point. A pair agrees when the two differ by at most 10 % of the token
+none, the speed the run held; a level camera, no lever arm, as ``eval.baselines``). From the features: the similarity of the current frame onto the previous
+(keypoints freed of the lens distortion), applied to the principal point. A pair agrees when the two differ by at most 10 % of the token
 motion, or by at most 2 sigma (Mahalanobis distance of the difference under the sum of the two
 covariances: the speed's Q times dt^2 in pixels, and the features' from their inliers).
 """
@@ -201,7 +201,7 @@ def _pair(traj: dict, q_all: np.ndarray | None, i_prev: int, i: int, prev: Any, 
     tok_px, tok_cov = token_motion_px(speed, q, dt_s, altitude_m, camera)
     if prev.image is None or cur.image is None:
         return PairComparison(**base, token_px=tok_px, feature_px=nan2, reason="unreadable frame")
-    motion = feature_motion(cur.image, prev.image)  # the current frame onto the previous one
+    motion = feature_motion(cur.image, prev.image, camera=camera)  # the current frame onto the previous one
     if not motion.ok:
         return PairComparison(**base, token_px=tok_px, feature_px=nan2, reason=f"no feature motion ({motion.reason})")
     feat_px, feat_cov = point_motion_px(motion, np.array([camera.cx_px, camera.cy_px]))

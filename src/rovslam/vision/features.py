@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rovslam.camera import Camera, undistort_pixels
 from rovslam.errors import InvalidArgumentError
 
 
@@ -137,21 +138,30 @@ def point_motion_px(motion: FeatureMotion, point_uv_px: np.ndarray) -> tuple[np.
     return moved - p, jac @ motion.cov_params @ jac.T
 
 
-def feature_motion(first: np.ndarray, second: np.ndarray, config: FeatureConfig = FeatureConfig()) -> FeatureMotion:
+def feature_motion(
+    first: np.ndarray, second: np.ndarray, config: FeatureConfig = FeatureConfig(), camera: Camera | None = None
+) -> FeatureMotion:
     """The seabed's similarity motion from ``first`` to ``second`` ``(H, W, 3) uint8`` RGB or ``(H, W)`` grey.
 
     Both images must have the same shape. Returns a :class:`FeatureMotion` in full-resolution
-    pixels; ``ok=False`` with the reason when no motion is reliable.
+    pixels; ``ok=False`` with the reason when no motion is reliable. ``camera``: when given, the
+    keypoints are freed of its lens distortion before the fit (ideal pinhole pixels; a barrel
+    lens otherwise shrinks the fitted motion by several per cent).
     """
     a = _check_image(first, "first")
     b = _check_image(second, "second")
     if a.shape != b.shape:
         raise InvalidArgumentError(f"the two images differ in shape: {a.shape} and {b.shape}")
+    if camera is not None and camera.shape != a.shape[:2]:
+        raise InvalidArgumentError(f"the images are {a.shape[1]}x{a.shape[0]} px, the camera's {camera.shape[::-1]}")
     factor = max(1, -(-a.shape[1] // config.max_width_px))
     pts_a, pts_b, n_matches = match_keypoints(_prepare(a, factor), _prepare(b, factor), config)
     if n_matches < config.min_inliers:
         return FeatureMotion(False, f"too few feature matches ({n_matches} < {config.min_inliers})", matches=n_matches)
-    return fit_similarity(pts_a, pts_b, config, scale_px=float(factor))
+    full_a, full_b = (pts_a + 0.5) * factor - 0.5, (pts_b + 0.5) * factor - 0.5  # INTER_AREA's pixel centres
+    if camera is not None:
+        full_a, full_b = undistort_pixels(camera, full_a), undistort_pixels(camera, full_b)
+    return fit_similarity(full_a, full_b, config, scale_px=float(factor))
 
 
 def match_keypoints(
@@ -181,8 +191,8 @@ def fit_similarity(
 ) -> FeatureMotion:
     """RANSAC similarity from ``(M, 2)`` points to ``(M, 2)`` points, refined on its inliers, with its covariance.
 
-    ``scale_px``: the full-resolution pixels per working pixel (the result is in full-resolution
-    pixels). ``ok=False`` with the reason when the inliers are too few, too small a share, spread
+    ``scale_px``: the pixels of the points per working pixel of the keypoints (the RANSAC
+    threshold and the residual floor of ``config`` are scaled by it). ``ok=False`` with the reason when the inliers are too few, too small a share, spread
     degenerately (nearly collinear) or give an implausible scale.
     """
     import cv2
@@ -195,7 +205,12 @@ def fit_similarity(
     if m < max(3, config.min_inliers):
         return FeatureMotion(False, f"too few feature matches ({m} < {config.min_inliers})", matches=m)
     _, mask = cv2.estimateAffinePartial2D(
-        pa, pb, method=cv2.RANSAC, ransacReprojThreshold=config.ransac_threshold_px, maxIters=4000, confidence=0.999
+        pa,
+        pb,
+        method=cv2.RANSAC,
+        ransacReprojThreshold=config.ransac_threshold_px * scale_px,
+        maxIters=4000,
+        confidence=0.999,
     )
     inl = np.zeros(m, bool) if mask is None else mask.ravel().astype(bool)
     n_in = int(inl.sum())
@@ -205,8 +220,7 @@ def fit_similarity(
     if share < config.min_inlier_share:
         reason = f"inlier share {share:.2f} below {config.min_inlier_share:.2f} ({n_in} of {m} matches)"
         return FeatureMotion(False, reason, matches=m, inliers=n_in, inlier_share=share)
-    full_a, full_b = (pa[inl] + 0.5) * scale_px - 0.5, (pb[inl] + 0.5) * scale_px - 0.5  # INTER_AREA's pixel centres
-    return _refine(full_a, full_b, config, m, scale_px)
+    return _refine(pa[inl], pb[inl], config, m, scale_px)
 
 
 def _refine(pa: np.ndarray, pb: np.ndarray, config: FeatureConfig, m: int, scale_px: float) -> FeatureMotion:
