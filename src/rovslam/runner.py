@@ -187,7 +187,7 @@ def open_source(path: str | Path, camera_file: str | Path | None = None, options
             f"({', '.join(VIDEO_SUFFIXES)}, ...)."
         )
     cam = _camera_file(p, "video", opts)
-    src = VideoSource(p, cam.info)
+    src = VideoSource(p, cam.info)  # type: ignore[assignment]
     return _with_navigation(src, opts, src.span_s, "video", cam)
 
 
@@ -376,7 +376,7 @@ def run_sequence(
         if camera_file is not None and opts.camera_file is None:
             opts = dataclasses.replace(opts, camera_file=Path(camera_file))
         given = hasattr(sequence_dir, "frames")  # an opened source (rovslam live's stream) instead of a path
-        seq = sequence_dir if given else open_source(sequence_dir, options=opts)
+        seq: Any = sequence_dir if given else open_source(sequence_dir, options=opts)
         path = Path(seq.path if given else sequence_dir)
         pipe = SlamPipeline(seq.info, config)
         cam = opts.camera_file
@@ -487,7 +487,7 @@ class _Run:
                     self.status, self.reason = "unusable", f"frame {res.index} (t={res.t_s:g} s): {problem}"
                     break
                 writer.write_frame(res)
-                self.measurements.write(res.measurements)
+                self.measurements.write(res.measurements)  # type: ignore[arg-type]
                 self.sources.add(frame, res)
                 self.map_use.add(res)
                 self.time_gaps.add(frame)
@@ -525,9 +525,9 @@ class _Run:
             raise error
         summary = self._run_summary(wall)
         if self.status == "unusable":
-            exc = UnusableRunError(f"{str(self.reason).rstrip('.')}; see {self.out / 'summary.json'}")
-            exc.summary = summary  # type: ignore[attr-defined]
-            raise exc
+            unusable = UnusableRunError(f"{str(self.reason).rstrip('.')}; see {self.out / 'summary.json'}")
+            unusable.summary = summary  # type: ignore[attr-defined]
+            raise unusable
         return summary
 
     def _usable_verdict(self) -> tuple[str, str | None]:
@@ -554,7 +554,7 @@ class _Run:
             self.measurements.close,
             self.gallery.close,
             writer.release_reserve,  # the disk space held back, for what follows
-            lambda: self.status == "failed" and writer.write_summary(self._summary(wall), compact=True),
+            lambda: self.status == "failed" and writer.write_summary(self._summary(wall), compact=True),  # type: ignore[func-returns-value]
             lambda: writer.write_landmarks(self.pipe.landmark_rows()),
             lambda: writer.salvage(self._summary(wall)),
         ):  # rows a full disk kept out, if room is left

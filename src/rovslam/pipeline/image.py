@@ -109,9 +109,9 @@ class SunlightWatch:
             return None
         img, reason = retrack()
         if reason is not None:  # no texture left without the sunlight: keep the image as it was
-            self.monitor.active = not self.monitor.active
+            self.monitor.active = not self.monitor.active  # type: ignore[union-attr]
             return None
-        self.events.append(SunlightEvent(frame, t_s, self.monitor.active, self.monitor.share))
+        self.events.append(SunlightEvent(frame, t_s, self.monitor.active, self.monitor.share))  # type: ignore[union-attr]
         return img
 
     def end_frame(self, t_s: float, uv0: np.ndarray, uv1: np.ndarray) -> None:

@@ -159,10 +159,10 @@ class SlamPipeline:
 
         alt = self._measure_altitude(frame, att)  # step 1
         mask = self._inhibit_laser_spots(alt)  # step 2
-        visible, tracked = self._track_landmarks(track_img, alt, att, prior, dt_s)  # step 3
-        new_template = self._choose_new_landmark(track_img, mask, tracked)
+        visible, tracked = self._track_landmarks(track_img, alt, att, prior, dt_s)  # type: ignore[arg-type]  # step 3
+        new_template = self._choose_new_landmark(track_img, mask, tracked)  # type: ignore[arg-type]
         self._inhibit_landmarks(mask, tracked, new_template)  # step 4
-        tracks, speed = self._measure_speed(track_img, mask, alt, att, prior, dt_s, frame.has_attitude)  # step 5
+        tracks, speed = self._measure_speed(track_img, mask, alt, att, prior, dt_s, frame.has_attitude)  # type: ignore[arg-type]  # step 5
         heading = self._fuse_heading(prior, speed, dt_s)
         tracked = self.speed_step.landmarks_at_frame_time(tracked, speed, prior, alt, dt_s)  # rolling shutter, if any
         if self._n == 0 and frame.has_attitude:
@@ -176,9 +176,9 @@ class SlamPipeline:
             track_img = relit
         new_id = None
         if new_template is not None:  # step 7
-            new_id, init = self._add_landmark(track_img, new_template, alt, att, heading, frame, speed, prior, dt_s)
+            new_id, init = self._add_landmark(track_img, new_template, alt, att, heading, frame, speed, prior, dt_s)  # type: ignore[arg-type]
             observations.append(init)
-        self._extract_tokens(track_img, mask)  # step 8
+        self._extract_tokens(track_img, mask)  # type: ignore[arg-type]  # step 8
 
         self._prev = PreviousFrame(frame.t_s, alt.altitude_m, att)
         self.sunlight_watch.end_frame(frame.t_s, *consensus)
@@ -236,7 +236,7 @@ class SlamPipeline:
     # ------------------------------------------------------------------ step 1
     def _measure_altitude(self, frame: Frame, att: tuple[float, float]) -> AltitudeEstimate:
         """Step 1: laser spots -> image depth Z, fused with the sonar, filtered over time (not an assumed value)."""
-        alt = self.altimeter.measure(frame.image, frame.sonar_altitude_m, *att)
+        alt = self.altimeter.measure(frame.image, frame.sonar_altitude_m, *att)  # type: ignore[arg-type]
         return self.depth.filtered(frame.t_s, alt)
 
     def _altitude_bias_process(self, altitude_m: float, alt: AltitudeEstimate) -> tuple[float, float]:

@@ -177,8 +177,8 @@ class FrameRecords:
             heading_sigma_rad=heading.sigma_rad if heading.sigma_rad is not None else slam.heading_sigma_rad,
             compass_rad=frame.heading_rad,
             compass_sigma_rad=compass_sigma_rad,
-            heading_step_rad=speed.dpsi_rad if turn else math.nan,
-            heading_step_sigma_rad=speed.dpsi_sigma_rad if turn else math.nan,
+            heading_step_rad=speed.dpsi_rad if turn else math.nan,  # type: ignore[union-attr]
+            heading_step_sigma_rad=speed.dpsi_sigma_rad if turn else math.nan,  # type: ignore[union-attr]
             altitude_m=altitude_m,
             altitude_sigma_m=sigma_z,
             focal_px=self.scale.full.focal_px,

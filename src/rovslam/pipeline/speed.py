@@ -80,7 +80,7 @@ class SpeedStep:
             self.camera,
             uv_prev,
             uv_curr,
-            prev.altitude_m,
+            prev.altitude_m,  # type: ignore[arg-type]
             alt.altitude_m,
             dt_s,
             dpsi_rad=prior.step_rad,

@@ -79,7 +79,7 @@ class LandmarkUpdate:
         for t, why in zip(tracked, refused):
             candidate = MatchCandidate(t.record.id, t.record.confirmed, t.score, why)
             if not why:
-                res = self.ekf.update(
+                res = self.ekf.update(  # type: ignore[misc]
                     *self.update_args(t, alt, heading),
                     landmark_only=not t.record.confirmed and assoc.confirm_observations > 0,
                 )
@@ -119,7 +119,7 @@ class LandmarkUpdate:
         theta = self.ekf.map_heading_rad(heading.heading_rad)
         offsets = [
             told_offset_m(
-                candidates[k].innovation_px,
+                candidates[k].innovation_px,  # type: ignore[arg-type]
                 alt.altitude_m - self.ekf.landmark_height_m(candidates[k].landmark_id),
                 theta,
                 self.focal_px,

@@ -295,7 +295,7 @@ def _fit_scales(
     """The pixel quantities of ``config`` at this step's altitude, and whether the turn is fitted."""
     px_per_m = camera.focal_px / (0.5 * (step.z_prev_m + step.z_curr_m))
     joint = dpsi_sigma_rad is not None and n_valid >= 2
-    prior_var = float(dpsi_sigma_rad) ** 2 if joint else 0.0
+    prior_var = float(dpsi_sigma_rad) ** 2 if joint else 0.0  # type: ignore[arg-type]
     sigma0 = config.token_sigma_px / px_per_m  # one token's displacement noise, metres (the floor)
     pool_var = step.token_var_px2 / px_per_m**2
     if config.token_noise_prior_dof <= 0:
