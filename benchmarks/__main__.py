@@ -4,7 +4,7 @@ Usage: ``python -m benchmarks [NAME ...] [-- OPTIONS]`` (names without ``bench_`
 default: all; options after ``--``, or any argument starting with ``-``, go to every script
 run, e.g. ``python -m benchmarks pipeline --quick``). Each script prints medians over
 repeated runs and ratios against a baseline measured in the same run; ``pipeline`` and
-``memory`` also write ``benchmarks/results/NAME.json``.
+``memory`` also write ``benchmarks/results/NAME.json`` (``live``: ``live.json``, its latency and dropped frames).
 """
 
 import subprocess

@@ -979,7 +979,7 @@ def _print_matrix(rows: list, groups) -> None:
     Console().print(t)
 
 
-app.command(name="sitl")(_guard(__import__("runpy").run_path(str(Path(__file__).parent / "sim" / "sitl_command.py"))["sitl"]))  # by path: importing rovslam.sim takes seconds
+app.command(name="sitl")(_guard(__import__("runpy").run_path(str(Path(__import__("rovslam").__file__).parent / "sim" / "sitl_command.py"))["sitl"]))  # by path: importing rovslam.sim takes seconds
 
 
 def main() -> None:

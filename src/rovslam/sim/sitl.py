@@ -33,10 +33,14 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, TYPE_CHECKING, Any
 
 from rovslam.errors import SimulationError
 from rovslam.sim.sitl_frames import FrameSource, SitlFrame
+
+if TYPE_CHECKING:
+    from rovslam.sim.sitl_mavlink import MavlinkLink
+    from rovslam.sim.sitl_video import VideoOut
 
 __all__ = ["SitlConfig", "SitlVehicle", "write_camera_file"]
 
@@ -59,10 +63,15 @@ class SitlConfig:
     pace: float = 1.0  # wall seconds per stream second (> 1: slower than real time)
     mode: str = "ALT_HOLD"  # the ArduSub mode the heartbeat reports
     crf: int = 20  # H.264 quality of the stream
+    wait_for_peer_s: float = 0.0  # > 0: hold the first frame until another component's HEARTBEAT (at most this long)
 
     def __post_init__(self) -> None:
         if not (isinstance(self.pace, (int, float)) and math.isfinite(self.pace) and self.pace > 0):
             raise SimulationError(f"--pace must be a positive factor (1 real time, 2 half speed), got {self.pace}")
+        if isinstance(self.crf, bool) or not isinstance(self.crf, int) or not 0 <= self.crf <= 51:
+            raise SimulationError(f"--crf must be a whole number from 0 (lossless) to 51, got {self.crf}")
+        if not (isinstance(self.wait_for_peer_s, (int, float)) and 0 <= self.wait_for_peer_s < math.inf):
+            raise SimulationError(f"--wait-for-peer-s must be a number of seconds >= 0, got {self.wait_for_peer_s}")
         if self.scenario is None and self.from_seq is None:
             raise SimulationError("give --scenario NAME (a preset, rovslam simulate --list) or --from SEQUENCE")
 
@@ -116,9 +125,12 @@ class SitlVehicle:
         self._queue: queue.Queue = queue.Queue(maxsize=_QUEUE_FRAMES)
         self._threads: list[threading.Thread] = []
         self.frames_sent = 0
+        self.sent_monotonic_s: list[float] = []  # when each frame went out (time.monotonic)
+        self.peer_seen = False  # a HEARTBEAT of another component had arrived when the dive began
         self.late_frames = 0  # sent more than half a frame period after their time (a renderer too slow)
-        self.link = self.video = None
-        self._gt_fh = None
+        self.link: MavlinkLink | None = None
+        self.video: VideoOut | None = None
+        self._gt_fh: IO[str] | None = None
         self.started_unix_s: float | None = None
 
     # ------------------------------------------------------------------ clock
@@ -143,19 +155,19 @@ class SitlVehicle:
         self.out.mkdir(parents=True, exist_ok=True)
         write_camera_file(self.out / "camera.toml", src.info)
         cam = src.info.camera
-        self.video = VideoOut(c.video, cam.width_px, cam.height_px, src.frame_rate_hz, rtp=c.rtp,
-                              sdp_path=self.out / "stream.sdp", crf=c.crf)
+        video = self.video = VideoOut(c.video, cam.width_px, cam.height_px, src.frame_rate_hz, rtp=c.rtp,
+                                      sdp_path=self.out / "stream.sdp", crf=c.crf)
         try:
-            self.link = MavlinkLink(c.mavlink, self.out / "received.csv", self.stream_time_s, mode=c.mode)
+            link = self.link = MavlinkLink(c.mavlink, self.out / "received.csv", self.stream_time_s, mode=c.mode)
         except BaseException:
-            self.video.close()
+            video.close()
             raise
-        self._gt_fh = (self.out / "groundtruth.csv").open("w", newline="", encoding="utf-8")
-        self._gt = csv.writer(self._gt_fh, lineterminator="\n")
+        fh = self._gt_fh = (self.out / "groundtruth.csv").open("w", newline="", encoding="utf-8")
+        self._gt = csv.writer(fh, lineterminator="\n")
         self._gt.writerow(GROUNDTRUTH_COLUMNS + ((RELIEF_COLUMN,) if src.with_relief else ()))
-        self._gt_fh.flush()
+        fh.flush()
         self.started_unix_s = time.time()
-        self.link.start()
+        link.start()
         for target, name in ((self._produce, "render"), (self._fly, "fly")):
             th = threading.Thread(target=self._guarded(target), name=f"rovslam-sitl-{name}", daemon=True)
             self._threads.append(th)
@@ -203,12 +215,15 @@ class SitlVehicle:
 
     def _fly(self) -> None:
         """Send each frame and its telemetry at its time; ATTITUDE between frames, interpolated."""
+        link = self.link
+        assert link is not None
         try:
             rate = self.source.frame_rate_hz
             sub = max(1, math.ceil(MIN_ATTITUDE_RATE_HZ / rate - 1e-9))
             prev: SitlFrame | None = None
             while (frame := self._next()) is not None:
                 if prev is None:
+                    self._wait_for_peer(link)
                     self._t0 = time.monotonic() - frame.t_s * self.config.pace
                 else:
                     gap = frame.t_s - prev.t_s
@@ -217,7 +232,7 @@ class SitlVehicle:
                         if not self._sleep_until(t):
                             return
                         roll, pitch, yaw = _interpolate(prev, frame, j / sub)
-                        self.link.send_attitude(t, roll, pitch, yaw, self._rates(prev, frame))
+                        link.send_attitude(t, roll, pitch, yaw, self._rates(prev, frame))
                 if not self._sleep_until(frame.t_s):
                     return
                 self._send_frame(frame, prev)
@@ -226,6 +241,13 @@ class SitlVehicle:
         finally:
             self._done.set()
             self._stop.set()
+
+    def _wait_for_peer(self, link: MavlinkLink) -> None:
+        """Hold the dive until another component's HEARTBEAT arrives, or ``wait_for_peer_s`` has passed."""
+        end = time.monotonic() + self.config.wait_for_peer_s
+        while not link.counts_in["HEARTBEAT"] and time.monotonic() < end and not self._stop.wait(0.02):
+            pass
+        self.peer_seen = bool(link.counts_in["HEARTBEAT"])
 
     @staticmethod
     def _rates(a: SitlFrame | None, b: SitlFrame) -> tuple[float, float, float]:
@@ -236,16 +258,19 @@ class SitlVehicle:
         return ((b.roll_rad - a.roll_rad) / dt, (b.pitch_rad - a.pitch_rad) / dt, dh / dt)
 
     def _send_frame(self, frame: SitlFrame, prev: SitlFrame | None) -> None:
+        link, video, fh = self.link, self.video, self._gt_fh
+        assert link is not None and video is not None and fh is not None
         late_s = (self.stream_time_s() or 0.0) - frame.t_s
         if late_s > 0.5 / self.source.frame_rate_hz:
             self.late_frames += 1
-        self.link.send_attitude(frame.t_s, frame.roll_rad, frame.pitch_rad, frame.heading_rad, self._rates(prev, frame))
+        link.send_attitude(frame.t_s, frame.roll_rad, frame.pitch_rad, frame.heading_rad, self._rates(prev, frame))
         if frame.sonar_altitude_m is not None:
-            self.link.send_sonar(frame.t_s, frame.sonar_altitude_m, self.source.sonar_sigma_m)
-        self.video.send(frame.image, frame.t_s)
+            link.send_sonar(frame.t_s, frame.sonar_altitude_m, self.source.sonar_sigma_m)
+        self.sent_monotonic_s.append(time.monotonic())
+        video.send(frame.image, frame.t_s)
         if frame.truth is not None:
             self._gt.writerow([repr(float(frame.t_s))] + [repr(float(v)) for v in frame.truth])
-            self._gt_fh.flush()
+            fh.flush()
         self.frames_sent += 1
 
     def wait(self, timeout_s: float | None = None) -> bool:
@@ -295,7 +320,8 @@ class SitlVehicle:
             "scenario": c.scenario if c.from_seq is None else self.source.info.metadata.get("scenario"),
             "from": None if c.from_seq is None else str(c.from_seq), "seed": c.seed, "pace": c.pace,
             "video": c.video, "rtp": c.rtp, "frame_rate_hz": self.source.frame_rate_hz,
-            "frames_planned": self.source.n_frames, "frames_sent": self.frames_sent, "late_frames": self.late_frames,
+            "peer_heartbeat_before_first_frame": self.peer_seen, "frames_planned": self.source.n_frames,
+            "frames_sent": self.frames_sent, "late_frames": self.late_frames,
             "complete": self.frames_sent == self.source.n_frames,
             "video_bytes": 0 if self.video is None else self.video.bytes,
             "mavlink": None if self.link is None else self.link.stats(),

@@ -33,6 +33,12 @@ def sitl(
                                "stream's presentation times stay the capture times)."),
     mode: str = typer.Option("ALT_HOLD", "--mode", help="ArduSub mode the heartbeat reports (MANUAL, STABILIZE, "
                              "ALT_HOLD, POSHOLD, GUIDED, ...)."),
+    linger_s: float = typer.Option(2.0, "--linger-s", help="After the last frame, keep receiving this long (the "
+                                   "answers to the last frames) before closing."),
+    crf: int = typer.Option(20, "--crf", help="H.264 quality of the stream (x264 CRF: lower is better; MPEG-TS "
+                            "frames are kept under 60 kB whatever it is)."),
+    wait_for_peer_s: float = typer.Option(0.0, "--wait-for-peer-s", help="Hold the first frame until a companion's "
+                                          "HEARTBEAT arrives (at most this long; 0: start at once)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress lines."),
 ) -> None:
     """Fly a preset as an ArduSub vehicle: camera stream, MAVLink telemetry, truth on disk, for `rovslam live`.
@@ -42,8 +48,6 @@ def sitl(
     records the VISION_* / DISTANCE_SENSOR / STATUSTEXT messages it receives. Ctrl-C ends the
     dive with every file complete.
     """
-    import time
-
     from rovslam.errors import SimulationError
     from rovslam.runner import StopRequest
     from rovslam.sim.sitl import SitlConfig, SitlVehicle
@@ -61,28 +65,25 @@ def sitl(
             typer.echo(text)
 
     config = SitlConfig(scenario, out, video=video, mavlink=mavlink, seed=seed, duration_s=duration_s,
-                        from_seq=from_seq, rtp=rtp, pace=pace, mode=mode.upper())
+                        from_seq=from_seq, rtp=rtp, pace=pace, mode=mode.upper(), wait_for_peer_s=wait_for_peer_s,
+                        crf=crf)
     vehicle = SitlVehicle(config)
     src = vehicle.source
     cam = src.info.camera
     with StopRequest() as stop:
         vehicle.start()
-        stream = f"{video} as RTP, SDP {out / 'stream.sdp'}" if vehicle.video.form == "rtp" else f"{video} (MPEG-TS)"
+        stream = f"{video} as RTP, SDP {out / 'stream.sdp'}" if rtp or video.startswith("rtp:") else f"{video} (MPEG-TS)"
         say(f"sitl: {src.info.name}: {src.n_frames} frames {cam.width_px}x{cam.height_px} at "
             f"{src.frame_rate_hz:g} Hz, pace {pace:g}")
         say(f"sitl: video {stream}; MAVLink {mavlink} as system 1 (ArduSub, {mode.upper()}); truth in {out}")
         say("sitl: rendering the first frame..." if from_seq is None else "sitl: reading the first frame...")
-        announced, last_note = False, time.monotonic()
-        while stop.signum is None and not vehicle.wait(0.2):
-            if not announced and vehicle.frames_sent > 0:
-                announced = True
-                say("sitl: streaming (Ctrl-C ends the dive, the files complete)")
-            if time.monotonic() - last_note >= 10.0:
-                last_note = time.monotonic()
-                say(f"sitl: t = {vehicle.stream_time_s() or 0.0:.1f} s, {vehicle.frames_sent}/{src.n_frames} frames, "
-                    f"{sum(vehicle.link.counts_in.values())} messages in")
-        stop.ignore_after = stop.signum is not None
-        summary = vehicle.stop()
+        if wait_for_peer_s > 0:
+            say(f"sitl: the dive starts when a companion's HEARTBEAT arrives (at most {wait_for_peer_s:g} s)")
+        try:
+            _watch(vehicle, stop, say, linger_s)
+        finally:
+            stop.ignore_after = stop.signum is not None
+            summary = vehicle.stop()
     link = summary["mavlink"] or {}
     ins = ", ".join(f"{k} {v}" for k, v in link.get("messages_in", {}).items()) or "none"
     line = (f"{summary['frames_sent']}/{summary['frames_planned']} frames sent ({summary['late_frames']} late); "
@@ -91,3 +92,22 @@ def sitl(
         typer.echo(f"sitl: stopped by {stop.name}: {line}; every file written is complete", err=True)
         raise typer.Exit(128 + stop.signum)
     say(f"sitl: done: {line}")
+
+
+def _watch(vehicle, stop, say, linger_s: float) -> None:
+    """Follow the dive (a line every 10 s) until it ends or a signal comes, then keep receiving ``linger_s``."""
+    import time
+
+    announced, last_note = False, time.monotonic()
+    n = vehicle.source.n_frames
+    while stop.signum is None and not vehicle.wait(0.2):
+        if not announced and vehicle.frames_sent > 0:
+            announced = True
+            say("sitl: streaming (Ctrl-C ends the dive, the files complete)")
+        if time.monotonic() - last_note >= 10.0:
+            last_note = time.monotonic()
+            say(f"sitl: t = {vehicle.stream_time_s() or 0.0:.1f} s, {vehicle.frames_sent}/{n} frames, "
+                f"{sum(vehicle.link.counts_in.values()) if vehicle.link else 0} messages in")
+    end = time.monotonic() + max(0.0, linger_s)
+    while stop.signum is None and time.monotonic() < end:
+        time.sleep(0.05)

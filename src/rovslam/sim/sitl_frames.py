@@ -14,6 +14,7 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -107,7 +108,7 @@ def sequence_frames(folder: Path, duration_s: float | None = None) -> FrameSourc
     from rovslam.io.sequence import open_sequence
     from rovslam.sim.scenarios import SCENARIOS
 
-    seq = open_sequence(folder)
+    seq: Any = open_sequence(folder)  # (mypy reads io.sequence.Sequence as typing.Sequence)
     if len(seq) == 0:
         raise SimulationError(f"--from {folder}: the sequence has no frames")
     t = np.array([r.t_s for r in seq.rows])
@@ -125,7 +126,7 @@ def sequence_frames(folder: Path, duration_s: float | None = None) -> FrameSourc
         for f in seq.frames(0, n):
             if f.image is None:
                 raise SimulationError(f"--from {folder}: frame {f.index}: {f.error}")
-            truth = None
+            truth: tuple[float, ...] | None = None
             if gt is not None:
                 k = f.index
                 truth = (float(gt.x_m[k]), float(gt.y_m[k]), float(gt.altitude_m[k]), float(gt.heading_rad[k]))

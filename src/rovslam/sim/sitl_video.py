@@ -5,6 +5,15 @@ SDP file that describes it (PyAV / FFmpeg: ``av.open("stream.sdp", options={"pro
 "file,udp,rtp"})``). MPEG-TS over UDP is the other common form (``udp://HOST:PORT``). Either way
 each frame's presentation time is its capture time on the stream's axis: seconds from the
 first frame, in the 90 kHz time base of both formats.
+
+Each frame leaves at once, whole: no B-frames or lookahead in the encoder, packets flushed as
+they are written, and (MPEG-TS) each frame one PES packet with its length written, so a demuxer
+can hand it on when its last byte arrives. A receiver that wants every frame as soon as it is
+complete opens the MPEG-TS stream with the options ``probesize=4096``, ``analyzeduration=0``
+(FFmpeg's default probe waits for seconds of stream) and ``fflags=+noparse+nofillin`` (FFmpeg's
+H.264 parser holds each frame until the next one starts: one frame period of latency, and the
+last frame until the stream ends); ``fflags=nobuffer`` drops the frames read while probing.
+Over RTP the first frame's presentation time is unknown (None); the others count from it.
 """
 
 from __future__ import annotations
@@ -13,6 +22,7 @@ import ipaddress
 import socket
 from fractions import Fraction
 from pathlib import Path
+from typing import Any
 from urllib.parse import urlsplit
 
 import numpy as np
@@ -24,6 +34,12 @@ __all__ = ["VideoOut", "parse_video_url", "sdp_text"]
 TIME_BASE = Fraction(1, 90000)  # MPEG-TS and RTP video clocks
 MPEGTS_PACKET_BYTES = 1316  # 7 transport packets: one UDP datagram under a 1500-byte MTU
 RTP_PACKET_BYTES = 1200
+# Each frame out at once: packets flushed as written, and the PES length written (a demuxer then
+# hands a frame on when its last byte arrives, not when the next frame's first one does).
+_MPEGTS_OPTIONS = {"flush_packets": "1", "omit_video_pes_length": "0"}
+# A PES length has 16 bits: a frame of more than 64 KiB goes out with none, and waits in the demuxer
+# for the next frame. The encoder's buffer (VBV) keeps every MPEG-TS frame below this many bytes.
+MAX_FRAME_BYTES = 60_000
 
 
 def parse_video_url(url: str, rtp: bool = False) -> tuple[str, str, int]:
@@ -78,11 +94,14 @@ class VideoOut:
         self.form, self.host, self.port = form, host, port
         self.shape = (int(height_px), int(width_px), 3)
         target = f"[{host}]" if ":" in host else host
+        self._out: Any = None
         try:
             if form == "rtp":
-                self._out = av.open(f"rtp://{target}:{port}?pkt_size={RTP_PACKET_BYTES}", "w", format="rtp")
+                self._out = av.open(f"rtp://{target}:{port}?pkt_size={RTP_PACKET_BYTES}", "w", format="rtp",
+                                    options={"flush_packets": "1"})
             else:
-                self._out = av.open(f"udp://{target}:{port}?pkt_size={MPEGTS_PACKET_BYTES}", "w", format="mpegts")
+                self._out = av.open(f"udp://{target}:{port}?pkt_size={MPEGTS_PACKET_BYTES}", "w", format="mpegts",
+                                    options=_MPEGTS_OPTIONS)
         except av.error.FFmpegError as exc:
             raise SimulationError(f"--video {url}: cannot open the stream ({exc}); check the host and port") from None
         rate = Fraction(frame_rate_hz).limit_denominator(1000)
@@ -93,6 +112,10 @@ class VideoOut:
             "preset": "ultrafast", "tune": "zerolatency", "crf": str(int(crf)), "bf": "0", "threads": "1",
             "g": str(max(1, int(round(keyframe_s * frame_rate_hz)))),
         }
+        if form == "mpegts":  # at most MAX_FRAME_BYTES a frame (quality drops only where a frame would be larger)
+            bits = 8 * MAX_FRAME_BYTES
+            st.codec_context.options = dict(st.codec_context.options, bufsize=str(bits),
+                                            maxrate=str(int(bits * frame_rate_hz)))
         self.sdp_path = None
         if form == "rtp" and sdp_path is not None:
             self.sdp_path = Path(sdp_path)
