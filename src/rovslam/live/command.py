@@ -31,6 +31,15 @@ def live(
                                               "HEARTBEAT."),
     video_delay_s: float = typer.Option(0.0, "--video-delay-s", help="The camera's delay from capture to sending "
                                         "(its encoder): the telemetry is taken this much before a frame's arrival."),
+    poi: Path | None = typer.Option(None, "--poi", help="Points of interest to go to (CSV of rovslam navigate: "
+                                    "name,x_m,y_m[,hold_s] or name,landmark_id[,hold_s]); without --guide a dry run."),
+    guide: bool = typer.Option(False, "--guide", help="Send the velocity setpoints to the autopilot (only while it "
+                               "is armed and in GUIDED)."),
+    survey_s: float = typer.Option(0.0, "--survey-s", help="With --poi: a lawnmower survey this long first (s)."),
+    hold_s: float = typer.Option(10.0, "--hold-s", help="With --poi: station keeping at each point (s)."),
+    estimator: str = typer.Option("slam", "--estimator", help="With --poi: what to steer by, slam or dead-reckoning."),
+    guide_pace: float = typer.Option(1.0, "--guide-pace", help="With --poi: the vehicle's clock runs this many times "
+                                     "slower than the wall (rovslam sitl --pace): the stop delays are stretched."),
 ) -> None:
     """Live on the vehicle: the camera stream and the autopilot's telemetry in, a position with covariance out
     to the autopilot over MAVLink (like a DVL), the results folder of `rovslam run` written as the dive goes."""
@@ -51,7 +60,8 @@ def live(
     opts = LiveOptions(video=video, camera_file=camera, mavlink=mavlink, out=out, config=cfg, record=record,
                        duration_s=duration_s, every_frame=every_frame, realtime=realtime,
                        mavlink_out=parse_mavlink_out(mavlink_out), wait_s=wait_s,
-                       heartbeat_timeout_s=heartbeat_timeout_s, video_delay_s=video_delay_s)
+                       heartbeat_timeout_s=heartbeat_timeout_s, video_delay_s=video_delay_s,
+                       guide=_guide_options(poi, guide, survey_s, hold_s, estimator, guide_pace))
 
     def say(text: str) -> None:
         typer.echo(f"live: {text}", err=True)
@@ -89,3 +99,18 @@ def live(
         sys.stdout.flush()
         raise typer.Exit(summary.exit_code)
     typer.echo(line)
+
+
+def _guide_options(poi: Path | None, guide: bool, survey_s: float, hold_s: float, estimator: str, pace: float):
+    """The :class:`rovslam.live.guide.GuideOptions` of ``--poi`` (None without it)."""
+    from rovslam.errors import InvalidArgumentError
+
+    if poi is None:
+        if guide:
+            raise InvalidArgumentError("--guide needs --poi POI.csv (the points to go to)")
+        return None
+    from rovslam.io.poi import read_poi_csv
+    from rovslam.live.guide import GuideOptions
+
+    return GuideOptions(tuple(read_poi_csv(poi)), guide=guide, survey_s=survey_s, hold_s=hold_s, estimator=estimator,
+                        pace=pace)

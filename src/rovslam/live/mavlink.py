@@ -86,6 +86,7 @@ class MavlinkLink:
         self.bad_packets = 0
         self.vehicle: dict[str, int] | None = None
         self.requests = 0
+        self.listeners: list[Callable[[str, Any, float], None]] = []  # called with every message (rovslam.live.guide)
         self._found = threading.Event()
         self._stop = threading.Event()
         self._send_lock = threading.Lock()
@@ -137,6 +138,8 @@ class MavlinkLink:
             self.counts_in[kind] += 1
             try:
                 self._handle(kind, msg, time.monotonic())
+                for listener in self.listeners:
+                    listener(kind, msg, time.monotonic())
             except (AttributeError, TypeError, ValueError):
                 self.bad_packets += 1
 

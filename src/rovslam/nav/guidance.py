@@ -72,6 +72,7 @@ class GuidanceConfig:
     integral_radius_m: float = 0.01  # ... within this distance of the point
     integral_limit_mps: float = 0.005
     max_ellipse_m: float = 0.015  # 2-sigma semi-major axis of the position estimate
+    stop_ellipse_m: float = 0.10  # a vehicle steered through its autopilot stops while the 2-sigma ellipse is wider
     ellipse_wait_s: float = 15.0
     hold_s: float = 10.0
     waypoint_radius_m: float = 0.03  # survey way-points are passed within this
@@ -81,7 +82,7 @@ class GuidanceConfig:
 
     def __post_init__(self) -> None:
         for name in ("cruise_speed_mps", "approach_gain_per_s", "max_speed_mps", "max_yaw_rate_radps", "yaw_gain_per_s",
-                     "arrival_radius_m", "max_ellipse_m", "waypoint_radius_m", "goal_timeout_s", "current_tau_s"):
+                     "arrival_radius_m", "max_ellipse_m", "stop_ellipse_m", "waypoint_radius_m", "goal_timeout_s", "current_tau_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InvalidArgumentError(f"GuidanceConfig.{name} must be a finite number > 0, got {v!r}")

@@ -40,6 +40,11 @@ def sitl(
     wait_for_peer_s: float = typer.Option(0.0, "--wait-for-peer-s", help="Hold the first frame until a companion's "
                                           "HEARTBEAT arrives (at most this long; 0: start at once)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress lines."),
+    follow_guided: bool = typer.Option(False, "--follow-guided", help="Obey SET_MODE, arm/disarm and velocity "
+                                       "setpoints (GUIDED) and fly them; STATUSTEXT with the true position in "
+                                       "OUT/events.csv. Starts disarmed."),
+    pilot_guided_s: Optional[float] = typer.Option(None, "--pilot-guided-s", help="With --follow-guided: the pilot "
+                                                   "arms and switches to GUIDED this many seconds into the dive."),
 ) -> None:
     """Fly a preset as an ArduSub vehicle: camera stream, MAVLink telemetry, truth on disk, for `rovslam live`.
 
@@ -66,7 +71,7 @@ def sitl(
 
     config = SitlConfig(scenario, out, video=video, mavlink=mavlink, seed=seed, duration_s=duration_s,
                         from_seq=from_seq, rtp=rtp, pace=pace, mode=mode.upper(), wait_for_peer_s=wait_for_peer_s,
-                        crf=crf)
+                        crf=crf, follow_guided=follow_guided, pilot_guided_s=pilot_guided_s)
     vehicle = SitlVehicle(config)
     src = vehicle.source
     cam = src.info.camera
