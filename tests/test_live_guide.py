@@ -18,7 +18,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from rovslam.live.guide import GUIDED_MODE, LOST_S, VELOCITY_ONLY_MASK, Guide, GuideOptions
+from rovslam.live.guide import (
+    GUIDED_MODE,
+    LOST_S,
+    VELOCITY_ONLY_MASK,
+    Guide,
+    GuideOptions,
+)
 from rovslam.nav.guidance import Goal, GuidanceConfig
 
 MANUAL = 19
@@ -150,7 +156,7 @@ def test_setpoints_carry_velocity_and_yaw_rate_only_within_the_limits(tmp_path):
 
 
 def test_never_a_setpoint_while_disarmed(tmp_path):
-    g, link, said = make(tmp_path)
+    g, link, _ = make(tmp_path)
     with Feeder(g, link) as feed:
         feed.armed = False
         time.sleep(1.5)
@@ -197,7 +203,7 @@ def _zero_then_silence(link: FakeLink, t_break: float, quiet_s: float) -> None:
 
 
 def test_video_stall_sends_zero_then_nothing_and_resumes(tmp_path):
-    g, link, said = make(tmp_path)
+    g, link, _ = make(tmp_path)
     with Feeder(g, link) as feed:
         assert wait_until(lambda: len(link.setpoints()) >= 5)
         feed.running.clear()  # no frame: the video stalled
@@ -242,7 +248,7 @@ def test_telemetry_loss_sends_zero_then_nothing(tmp_path):
 
 def test_arrival_is_announced_with_the_name_and_written(tmp_path):
     cfg = GuidanceConfig(settle_s=0.3, hold_s=0.5)
-    g, link, said = make(tmp_path, cfg=cfg, pois=(Goal("red rock", np.array([0.0, 0.001])),))
+    g, link, _ = make(tmp_path, cfg=cfg, pois=(Goal("red rock", np.array([0.0, 0.001])),))
     with Feeder(g, link):
         assert wait_until(lambda: any("mission done" in t for t in link.texts()), 5.0)
     arrived = [t for t in link.texts() if "arrived" in t]

@@ -13,8 +13,8 @@ import csv
 import time
 
 import numpy as np
-
 from _sitl_peers import free_udp_port, mavutil
+
 from rovslam.sim.sitl import SitlConfig, SitlVehicle
 from rovslam.sim.sitl_guided import read_events
 

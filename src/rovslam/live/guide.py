@@ -200,10 +200,8 @@ class Guide:
             return
         if self._engaged:
             self._engaged = False
-            if self.vehicle.armed and self.vehicle.custom_mode == GUIDED_MODE and not reason.startswith("telemetry"):
+            if self.vehicle.armed and self.vehicle.custom_mode == GUIDED_MODE:  # (as last heard, if telemetry is lost)
                 self._send_setpoint(Command(), None, zero=True)
-            elif reason.startswith("telemetry"):
-                self._send_setpoint(Command(), None, zero=True)  # the link may still carry it
             self.counts.stops.append({"wall_s": now - self._t0, "reason": reason})
             self._announce(f"guiding stopped: {reason}")
         elif was is not None and reason not in ("dry run",) and not was.startswith("no estimate yet"):
@@ -255,8 +253,9 @@ class Guide:
             self._ellipse_m = ellipse_semi_major_m(est.cov_m2)
             self._check(now)
             active = self.reason is None or not self.opts.guide
+            events: list = []
             if self.opts.guide and self.reason is not None:
-                cmd, events = Command(), []
+                cmd = Command()
             else:
                 cmd, events = self._update(est, res.dt_s)
             if self.opts.guide and self.reason is None:
@@ -296,7 +295,8 @@ class Guide:
                 self._announce(f"abandoned {ev.name[:16]}: {ev.reason}")
         if events:
             step = SimpleNamespace(truth=SimpleNamespace(x_m=math.nan, y_m=math.nan), nav=SimpleNamespace(events=events))
-            if self.book.feed(step) or any(isinstance(e, Arrival) for e in events):
+            done = self.book.feed(step)  # type: ignore[arg-type]  # a loop step without truth (unknown live)
+            if done or any(isinstance(e, Arrival) for e in events):
                 self._write_arrivals()
             if self.mission is not None and self.mission.done:
                 self._announce("mission done")

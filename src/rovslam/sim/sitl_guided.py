@@ -234,6 +234,7 @@ class GuidedFollower:
                 with self._lock:
                     self.truth_xy_m = (truth.x_m, truth.y_m)
                 f = self.sim.capture(k, truth)
+                assert f.image is not None  # (a rendered frame always has its image)
                 gt: tuple[float, ...] = (truth.x_m, truth.y_m, truth.altitude_m, truth.heading_rad)
                 if self.sim.world.relief is not None:
                     gt += (self.sim.relief_height_m(truth.x_m, truth.y_m),)
