@@ -37,6 +37,7 @@ NEVER = {
     "viz": ["rovslam.slam.ekf", "rovslam.slam.gating", "rovslam.cli"],
     "nav": ["rovslam.vision", "rovslam.io", "rovslam.viz", "rovslam.cli"],
     "navigate": ["rovslam.cli", "rovslam.batch"],
+    "live": ["rovslam.cli", "rovslam.batch", "rovslam.sim", "rovslam.slam", "rovslam.vision", "rovslam.eval"],
 }
 
 

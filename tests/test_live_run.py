@@ -120,7 +120,7 @@ def test_telemetry_is_interpolated_to_the_frames_and_recorded(run):
     assert len(frames) == 40
     t = np.array([float(f["t_s"]) for f in frames])
     h = np.array([float(f["heading_rad"]) for f in frames])
-    assert np.all(np.isfinite(h)) and np.all(np.diff(h) > 0)  # the vehicle's yaw turns steadily
+    assert np.all(np.isfinite(h)) and np.all(np.diff(h) > 0), (h, (run["tmp"] / "live.err").read_text())
     assert (h[-1] - h[0]) / (t[-1] - t[0]) == pytest.approx(YAW_RATE, rel=0.15)
     assert all(float(f["roll_rad"]) == pytest.approx(0.01) and float(f["pitch_rad"]) == pytest.approx(-0.02)
                for f in frames)

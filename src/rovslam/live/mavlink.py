@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from typing import Any
 
@@ -32,6 +32,7 @@ SHORT_NAMES = {"delta": "VISION_POSITION_DELTA", "position": "VISION_POSITION_ES
                "speed": "VISION_SPEED_ESTIMATE", "distance": "DISTANCE_SENSOR"}
 REQUESTED = ((30, 20.0), (132, 10.0), (173, 10.0))  # ATTITUDE, DISTANCE_SENSOR, RANGEFINDER (message id, Hz)
 REQUEST_AFTER_S = 2.0
+EARLY_KEPT = 200  # telemetry messages kept per system until its HEARTBEAT (ATTITUDE comes 10-50 times a second)
 CONNECTION_FORMS = "udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT or /dev/ttyACM0,115200"
 
 
@@ -88,6 +89,7 @@ class MavlinkLink:
         self.requests = 0
         self.listeners: list[Callable[[str, Any, float], None]] = []  # called with every message (rovslam.live.guide)
         self._found = threading.Event()
+        self._early: dict[int, deque] = {}  # system -> its latest telemetry received before its HEARTBEAT
         self._stop = threading.Event()
         self._send_lock = threading.Lock()
         self._t0 = time.monotonic()
@@ -150,10 +152,18 @@ class MavlinkLink:
                     and msg.type not in (MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER)):
                 self.vehicle = {"system": int(sysid), "component": int(msg.get_srcComponent()), "type": int(msg.type),
                                 "autopilot": int(msg.autopilot)}
+                for kind_, msg_, now_ in self._early.pop(int(sysid), ()):  # its telemetry before its heartbeat
+                    self._telemetry(kind_, msg_, now_)
+                self._early.clear()
                 self._found.set()
             return
-        if self.vehicle is None or sysid != self.vehicle["system"]:
+        if self.vehicle is None:
+            self._early.setdefault(int(sysid), deque(maxlen=EARLY_KEPT)).append((kind, msg, now))
             return
+        if sysid == self.vehicle["system"]:
+            self._telemetry(kind, msg, now)
+
+    def _telemetry(self, kind: str, msg: Any, now: float) -> None:
         if kind == "ATTITUDE":
             self.telemetry.add_attitude(msg.time_boot_ms / 1000.0, float(msg.roll), float(msg.pitch), float(msg.yaw), now)
         elif kind == "DISTANCE_SENSOR" and msg.orientation == ORIENTATION_DOWN:

@@ -30,6 +30,7 @@ BLIND_S = 0.5  # no new frame for this long: the video is blind (no position is 
 # two frames later over MPEG-TS, one over RTP; measured on loopback with a sender that delivers each frame
 # at once (seen on the socket), frames told apart by their images.
 HELD_FRAMES = {"mpegts": 2, "rtp": 1}
+SETTLE_FRAMES = 3  # a file's or a device's clock is taken once this many frames were decoded
 PACKETS_AHEAD = 256  # compressed packets read ahead of the decoder (a few MB)
 
 
@@ -409,7 +410,8 @@ class VideoStream:
             return
         if arrival_s is None and pts_s is not None:  # a file or a device: when decoded (after --realtime's wait)
             self._floor(arrival, pts_s)
-            self.settled.set()
+            if self.received >= SETTLE_FRAMES - 1:
+                self.settled.set()
         image = vf.to_ndarray(format="rgb24")
         if self._last_arrival_s is not None and arrival - self._last_arrival_s > BLIND_S:
             self.gaps.append({"t_s": t_s, "wall_gap_s": arrival - self._last_arrival_s,
@@ -420,11 +422,13 @@ class VideoStream:
         self.received += 1
 
     def _fail(self, message: str) -> None:
+        self.settled.set()
         with self._cond:
             self.error = message
             self._cond.notify_all()
 
     def _end(self) -> None:
+        self.settled.set()
         with self._cond:
             self.ended = True
             self._cond.notify_all()

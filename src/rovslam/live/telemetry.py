@@ -17,8 +17,7 @@ from typing import Any
 ATTITUDE_HOLD_S = 0.3  # a frame this far past the newest attitude sample still gets it (held)
 ALTITUDE_HOLD_S = 1.0  # the sonar reports slower than the AHRS
 TELEMETRY_GAP_S = 1.0  # no attitude for this long: a telemetry gap
-COVER_WAIT_S = 0.06  # a frame waits this long for the attitude sample after it (then the last one is held)
-LATE_WAIT_S = 0.5  # ... and this long when the last one is too old to hold (a receiver that fell behind)
+LATE_WAIT_S = 0.5  # a frame waits at most this long for the attitude sample after it (then the last one is held)
 SNAP_S = 0.01  # a sample this close to a frame's time is the frame's
 KEEP_S = 300.0  # samples kept: a loop that lags (every frame processed) still finds its frames'
 
@@ -154,25 +153,22 @@ class Telemetry:
             v = None if r is None else self.attitude.at(r)
         return None if v is None else (v[0], v[1], v[2])
 
-    def wait_attitude(self, t_s: float, cover_s: float = COVER_WAIT_S, late_s: float = LATE_WAIT_S,
-                      now=time.monotonic) -> tuple[float, float, float] | None:
-        """:meth:`attitude_at` once a sample at or after ``t_s`` is in: waits up to ``cover_s`` for one (to
-        interpolate rather than hold), up to ``late_s`` when even the held value would be too old (a receiver
-        that fell behind); never while the attitude is silent (a telemetry gap costs no latency)."""
+    def wait_attitude(self, t_s: float, late_s: float = LATE_WAIT_S, now=time.monotonic) -> tuple[float, float, float] | None:
+        """:meth:`attitude_at` once a sample at (within :data:`SNAP_S`) or after ``t_s`` is in, to interpolate
+        rather than hold: waits up to ``late_s`` for it (at most a telemetry period when the link keeps up;
+        longer when the receiving thread fell behind), never while the attitude is silent."""
         start = now()
         with self._lock:
             while True:
                 r = self._remote(t_s)
                 ts = self.attitude.t_s
-                if r is None or (ts and ts[-1] >= r):
+                if r is None or (ts and ts[-1] >= r - SNAP_S):
                     break
-                silent = self._last_attitude_arrival_s is None or now() - self._last_attitude_arrival_s > TELEMETRY_GAP_S
+                last = self._last_attitude_arrival_s
                 waited = now() - start
-                held = bool(ts) and r - ts[-1] <= self.attitude.hold_s
-                limit = cover_s if held else late_s
-                if silent or waited >= limit:
+                if last is None or now() - last > TELEMETRY_GAP_S or waited >= late_s:
                     break
-                self._lock.wait(limit - waited)
+                self._lock.wait(late_s - waited)
         return self.attitude_at(t_s)
 
     def altitude_at(self, t_s: float) -> float | None:
