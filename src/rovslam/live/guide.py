@@ -45,8 +45,7 @@ from rovslam.errors import InvalidArgumentError
 from rovslam.nav.closed_loop import (
     ARRIVAL_COLUMNS,
     ArrivalBook,
-    survey_goals,
-    survey_grid,
+    survey_around,
 )
 from rovslam.nav.dynamics import Command
 from rovslam.nav.estimate import DeadReckoningCovariance, check_estimator, nav_estimate
@@ -269,9 +268,7 @@ class Guide:
     def _update(self, est: Any, dt_s: float) -> tuple[Command, list]:
         if self.mission is None:
             pts = np.array([g.xy_m for g in self.opts.pois if g.xy_m is not None]).reshape(-1, 2)
-            from rovslam.sim.vehicle import GridPattern
-
-            survey = survey_goals(survey_grid(GridPattern(), pts), self.opts.survey_s, self.cfg.cruise_speed_mps)
+            survey = survey_around(pts, self.opts.survey_s, self.cfg.cruise_speed_mps)
             self.mission = Mission(survey + list(self.opts.pois), self.cfg, None, est.t_s + self.opts.survey_s)
             self._surveying = bool(survey)
             self._announce(f"mission: {'survey, then ' if survey else ''}{len(self.opts.pois)} points"
