@@ -116,7 +116,7 @@ class SitlVehicle:
         out = Path(c.out)
         if out.exists() and (not out.is_dir() or any(out.iterdir())):
             raise SimulationError(f"--out {out}: exists and is not an empty folder; give a new folder")
-        self.follower = None
+        self.follower: Any = None  # rovslam.sim.sitl_guided.GuidedFollower with --follow-guided
         if c.follow_guided:
             from rovslam.sim.sitl_guided import GuidedFollower
 
@@ -340,6 +340,7 @@ class SitlVehicle:
             "video_bytes": 0 if self.video is None else self.video.bytes,
             "mavlink": None if self.link is None else self.link.stats(),
             "error": None if self._error is None else f"{type(self._error).__name__}: {self._error}",
+            "guided": None if self.follower is None else self.follower.stats(),
         }
 
     def __enter__(self) -> SitlVehicle:

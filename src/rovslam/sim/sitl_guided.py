@@ -108,6 +108,11 @@ class GuidedFollower:
         self._events.writerow(EVENT_COLUMNS)
         self._events_fh.flush()
 
+    def stats(self) -> dict[str, Any]:
+        """What ``sitl.json`` says of the guided flight."""
+        return {"armed": self.armed, "custom_mode": None if self.link is None else self.link.custom_mode,
+                "setpoints_received": self.setpoints, "frames_flown_on_a_setpoint": self.setpoints_flown}
+
     def close(self) -> None:
         if self._events_fh is not None and not self._events_fh.closed:
             self._events_fh.close()
