@@ -256,3 +256,21 @@ def test_arrival_is_announced_with_the_name_and_written(tmp_path):
     assert any("holding red rock" in t for t in link.texts())
     rows = list(csv.DictReader((tmp_path / "arrivals.csv").open()))
     assert rows[0]["name"] == "red rock" and float(rows[0]["est_err_m"]) == pytest.approx(0.001)
+
+
+def _live_cli(tmp_path, *extra):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "rovslam", "live", "--video", "udp://127.0.0.1:9", "--camera",
+                           str(tmp_path / "cam.toml"), "--mavlink", "udpin:127.0.0.1:9", "--out", str(tmp_path / "o"),
+                           *extra], capture_output=True, text=True, timeout=120)
+
+
+def test_cli_guide_without_poi_and_a_bad_poi_file_are_one_line_errors(tmp_path):
+    p = _live_cli(tmp_path, "--guide")
+    assert p.returncode == 2 and "--guide needs --poi" in p.stderr and "Traceback" not in p.stderr
+    bad = tmp_path / "poi.csv"
+    bad.write_text("name,x_m,y_m\nrock,0.1,\n", encoding="utf-8")
+    p = _live_cli(tmp_path, "--poi", str(bad), "--guide")
+    assert p.returncode == 2 and "poi.csv, line 2" in p.stderr and "Traceback" not in p.stderr
