@@ -271,7 +271,8 @@ class Guide:
             survey = survey_around(pts, self.opts.survey_s, self.cfg.cruise_speed_mps)
             self.mission = Mission(survey + list(self.opts.pois), self.cfg, None, est.t_s + self.opts.survey_s)
             self._surveying = bool(survey)
-            self._announce(f"mission: {'survey, then ' if survey else ''}{len(self.opts.pois)} points"
+            n = len(self.opts.pois)
+            self._announce(f"mission: {'survey, then ' if survey else ''}{n} point{'s' if n > 1 else ''}"
                            + ("" if self.opts.guide else " (dry run)"))
         if self.mission.done:
             return Command(), []
