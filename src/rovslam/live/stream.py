@@ -30,6 +30,7 @@ BLIND_S = 0.5  # no new frame for this long: the video is blind (no position is 
 # two frames later over MPEG-TS, one over RTP; measured on loopback with a sender that delivers each frame
 # at once (seen on the socket), frames told apart by their images.
 HELD_FRAMES = {"mpegts": 2, "rtp": 1}
+READ_TIMEOUT_S = 3.0  # a stream silent this long is opened again (its frames up to the next key frame are lost)
 SETTLE_FRAMES = 3  # a file's or a device's clock is taken once this many frames were decoded
 PACKETS_AHEAD = 256  # compressed packets read ahead of the decoder (a few MB)
 
@@ -146,7 +147,7 @@ class VideoStream:
     """
 
     def __init__(self, source: VideoInput, width_px: int, height_px: int, *, every_frame: bool = False,
-                 realtime: bool = False, wait_s: float = 30.0, read_timeout_s: float = 1.0) -> None:
+                 realtime: bool = False, wait_s: float = 30.0, read_timeout_s: float = READ_TIMEOUT_S) -> None:
         self.source = source
         self.size_px = (int(width_px), int(height_px))
         self.every_frame = every_frame
