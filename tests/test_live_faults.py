@@ -73,7 +73,7 @@ def test_sigterm_leaves_complete_files(faulty):
 
 def test_a_video_stall_sends_no_position_and_resets_the_estimate(faulty):
     live = faulty["live"]
-    gaps = [g for g in live["video_gaps"] if g["wall_gap_s"] > 2.0]
+    gaps = live["video_gaps"]  # gaps in the camera's frames (stream time)
     assert len(gaps) == 1 and gaps[0]["stream_gap_s"] > PAUSE_S and not gaps[0]["bridged"]
     assert "without a frame" in faulty["err"]
     assert live["blind"] and max(b["blind_s"] for b in live["blind"]) > 2.0

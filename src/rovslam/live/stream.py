@@ -142,7 +142,7 @@ class VideoStream:
     """The decoder thread and its one-frame slot (or, with ``every_frame``, a short blocking queue).
 
     ``received``: frames decoded; ``dropped``: frames replaced by a newer one before the loop took
-    them; ``gaps``: times the stream was blind for more than :data:`BLIND_S`. Without
+    them; ``gaps``: gaps in the camera's frames (stream time) longer than :data:`BLIND_S`. Without
     ``every_frame`` nothing ever queues: the loop always gets the newest frame.
     """
 
@@ -414,9 +414,9 @@ class VideoStream:
             if self.received >= SETTLE_FRAMES - 1:
                 self.settled.set()
         image = vf.to_ndarray(format="rgb24")
-        if self._last_arrival_s is not None and arrival - self._last_arrival_s > BLIND_S:
-            self.gaps.append({"t_s": t_s, "wall_gap_s": arrival - self._last_arrival_s,
-                              "stream_gap_s": t_s - self._prev_t_s})
+        if self._last_arrival_s is not None and t_s - self._prev_t_s > BLIND_S:  # a gap in the camera's frames
+            self.gaps.append({"t_s": t_s, "stream_gap_s": t_s - self._prev_t_s,
+                              "wall_gap_s": arrival - self._last_arrival_s})
         self._prev_t_s = t_s
         self._last_arrival_s = arrival
         self._publish(StreamFrame(self.received, t_s, image, arrival, time.monotonic(), pts_s))
