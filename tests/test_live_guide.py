@@ -186,7 +186,7 @@ def test_leaving_guided_mid_transit_stops_the_setpoints_until_guided_again(tmp_p
         assert wait_until(lambda: len(link.setpoints(t_on)) >= 3)
     assert during == []  # no setpoint at all outside GUIDED (not even a zero one: the pilot has the vehicle)
     assert any("not in GUIDED" in t for t in link.texts()) and any("resumed" in t for t in link.texts())
-    assert np.hypot(link.setpoints(t_on)[-1][1]["vx"], link.setpoints(t_on)[-1][1]["vy"]) > 0.05
+    assert np.hypot(link.setpoints(t_on)[0][1]["vx"], link.setpoints(t_on)[0][1]["vy"]) > 0.05  # (the last: the end's stop)
 
 
 def _zero_then_silence(link: FakeLink, t_break: float, quiet_s: float) -> None:
@@ -274,3 +274,12 @@ def test_cli_guide_without_poi_and_a_bad_poi_file_are_one_line_errors(tmp_path):
     bad.write_text("name,x_m,y_m\nrock,0.1,\n", encoding="utf-8")
     p = _live_cli(tmp_path, "--poi", str(bad), "--guide")
     assert p.returncode == 2 and "poi.csv, line 2" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_the_end_of_the_run_while_steering_sends_a_last_zero_setpoint(tmp_path):
+    g, link, _ = make(tmp_path)
+    with Feeder(g, link):
+        assert wait_until(lambda: len(link.setpoints()) >= 3)
+    last = link.setpoints()[-1][1]
+    assert last["vx"] == 0 and last["vy"] == 0 and last["yaw_rate"] == 0
+    assert "guiding ended: stopped" in link.texts()

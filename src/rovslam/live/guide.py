@@ -19,6 +19,7 @@ When one of these fails the guide stops: one zero-velocity setpoint at once (fro
 thread checking every 50 ms, so within 0.2 s) if the vehicle is still armed in GUIDED, none
 if the pilot left GUIDED or disarmed, then nothing until every condition holds again. Limits
 are stretched by ``pace`` for a simulator run slower than real time (``rovslam sitl --pace``).
+When the run ends while steering, a last zero-velocity setpoint is sent.
 
 Files in OUT: ``navigation.csv`` and ``arrivals.csv`` (the columns of ``rovslam navigate``; the
 true columns empty: ``rovslam sitl`` records the truth), ``setpoints.csv`` (every command,
@@ -352,6 +353,10 @@ class Guide:
         if self._watch.is_alive():
             self._watch.join(2.0)
         with self._lock:
+            if self._engaged:  # the run ends while steering: the vehicle is told to stop
+                self._engaged = False
+                self._send_setpoint(Command(), None, zero=True)
+                self._announce("guiding ended: stopped")
             for fh in self._files.values():
                 if not fh.closed:
                     fh.close()
