@@ -14,62 +14,89 @@ from rovslam.cli.errors import guard
 __all__ = ["sitl"]
 
 
+# The command's options (kept here so that its signature reads as a list of names).
+_SCENARIO_OPT = typer.Option(None, "--scenario", help="Simulator preset to fly (rovslam simulate --list).")
+_OUT_OPT = typer.Option(
+    ..., "--out", "-o", help="Folder for the truth: groundtruth.csv, camera.toml, received.csv (new or empty)."
+)
+_SEED_OPT = typer.Option(0, help="Random seed of the seabed, the path and the sensors (as rovslam simulate).")
+_VIDEO_OPT = typer.Option(
+    "udp://127.0.0.1:5600",
+    "--video",
+    help="Where to stream the camera: udp://HOST:PORT "
+    "(H.264 in MPEG-TS; with --rtp: H.264 over RTP and OUT/stream.sdp, as BlueOS).",
+)
+_MAVLINK_OPT = typer.Option(
+    "udpout:127.0.0.1:14550",
+    "--mavlink",
+    help="pymavlink connection string of the "
+    "autopilot link (udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, /dev/ttyX,BAUD).",
+)
+_DURATION_S_OPT = typer.Option(
+    None, "--duration-s", help="Dive time to stream (s); default: the preset's dive, or the whole --from sequence."
+)
+_FROM_SEQ_OPT = typer.Option(
+    None,
+    "--from",
+    help="Stream this sequence folder (rovslam simulate writes one) at its own frame times instead of rendering live.",
+)
+_RTP_OPT = typer.Option(False, "--rtp", help="H.264 over RTP (BlueOS's default on UDP 5600) with its SDP file.")
+_PACE_OPT = typer.Option(
+    1.0,
+    "--pace",
+    help="Wall seconds per dive second: 1 real time, 2 half speed (the "
+    "stream's presentation times stay the capture times).",
+)
+_MODE_OPT = typer.Option(
+    "ALT_HOLD", "--mode", help="ArduSub mode the heartbeat reports (MANUAL, STABILIZE, ALT_HOLD, POSHOLD, GUIDED, ...)."
+)
+_LINGER_S_OPT = typer.Option(
+    2.0,
+    "--linger-s",
+    help="After the last frame, keep receiving this long (the answers to the last frames) before closing.",
+)
+_CRF_OPT = typer.Option(
+    20,
+    "--crf",
+    help="H.264 quality of the stream (x264 CRF: lower is better; MPEG-TS frames are kept under 60 kB whatever it is).",
+)
+_WAIT_FOR_PEER_S_OPT = typer.Option(
+    0.0,
+    "--wait-for-peer-s",
+    help="Hold the first frame until a companion's HEARTBEAT arrives (at most this long; 0: start at once).",
+)
+_QUIET_OPT = typer.Option(False, "--quiet", "-q", help="No progress lines.")
+_FOLLOW_GUIDED_OPT = typer.Option(
+    False,
+    "--follow-guided",
+    help="Obey SET_MODE, arm/disarm and velocity "
+    "setpoints (GUIDED) and fly them; STATUSTEXT with the true position in "
+    "OUT/events.csv. Starts disarmed.",
+)
+_PILOT_GUIDED_S_OPT = typer.Option(
+    None,
+    "--pilot-guided-s",
+    help="With --follow-guided: the pilot arms and switches to GUIDED this many seconds into the dive.",
+)
+
+
 def sitl(
-    scenario: str | None = typer.Option(None, "--scenario", help="Simulator preset to fly (rovslam simulate --list)."),
-    out: Path = typer.Option(
-        ..., "--out", "-o", help="Folder for the truth: groundtruth.csv, camera.toml, received.csv (new or empty)."
-    ),
-    seed: int = typer.Option(0, help="Random seed of the seabed, the path and the sensors (as rovslam simulate)."),
-    video: str = typer.Option(
-        "udp://127.0.0.1:5600",
-        "--video",
-        help="Where to stream the camera: udp://HOST:PORT "
-        "(H.264 in MPEG-TS; with --rtp: H.264 over RTP and OUT/stream.sdp, as BlueOS).",
-    ),
-    mavlink: str = typer.Option(
-        "udpout:127.0.0.1:14550",
-        "--mavlink",
-        help="pymavlink connection string of the "
-        "autopilot link (udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, /dev/ttyX,BAUD).",
-    ),
-    duration_s: float | None = typer.Option(
-        None, "--duration-s", help="Dive time to stream (s); default: the preset's dive, or the whole --from sequence."
-    ),
-    from_seq: Path | None = typer.Option(
-        None,
-        "--from",
-        help="Stream this sequence folder (rovslam simulate "
-        "writes one) at its own frame times instead of rendering live.",
-    ),
-    rtp: bool = typer.Option(False, "--rtp", help="H.264 over RTP (BlueOS's default on UDP 5600) with its SDP file."),
-    pace: float = typer.Option(
-        1.0,
-        "--pace",
-        help="Wall seconds per dive second: 1 real time, 2 half speed (the "
-        "stream's presentation times stay the capture times).",
-    ),
-    mode: str = typer.Option(
-        "ALT_HOLD",
-        "--mode",
-        help="ArduSub mode the heartbeat reports (MANUAL, STABILIZE, ALT_HOLD, POSHOLD, GUIDED, ...).",
-    ),
-    linger_s: float = typer.Option(
-        2.0,
-        "--linger-s",
-        help="After the last frame, keep receiving this long (the answers to the last frames) before closing.",
-    ),
-    crf: int = typer.Option(
-        20,
-        "--crf",
-        help="H.264 quality of the stream (x264 CRF: lower is better; MPEG-TS "
-        "frames are kept under 60 kB whatever it is).",
-    ),
-    wait_for_peer_s: float = typer.Option(
-        0.0,
-        "--wait-for-peer-s",
-        help="Hold the first frame until a companion's HEARTBEAT arrives (at most this long; 0: start at once).",
-    ),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress lines."),
+    scenario: str | None = _SCENARIO_OPT,
+    out: Path = _OUT_OPT,
+    seed: int = _SEED_OPT,
+    video: str = _VIDEO_OPT,
+    mavlink: str = _MAVLINK_OPT,
+    duration_s: float | None = _DURATION_S_OPT,
+    from_seq: Path | None = _FROM_SEQ_OPT,
+    rtp: bool = _RTP_OPT,
+    pace: float = _PACE_OPT,
+    mode: str = _MODE_OPT,
+    linger_s: float = _LINGER_S_OPT,
+    crf: int = _CRF_OPT,
+    wait_for_peer_s: float = _WAIT_FOR_PEER_S_OPT,
+    quiet: bool = _QUIET_OPT,
+    follow_guided: bool = _FOLLOW_GUIDED_OPT,
+    pilot_guided_s: float | None = _PILOT_GUIDED_S_OPT,
 ) -> None:
     """Fly a preset as an ArduSub vehicle: camera stream, MAVLink telemetry, truth on disk, for `rovslam live`.
 
@@ -107,6 +134,8 @@ def sitl(
         mode=mode.upper(),
         wait_for_peer_s=wait_for_peer_s,
         crf=crf,
+        follow_guided=follow_guided,
+        pilot_guided_s=pilot_guided_s,
     )
     vehicle = SitlVehicle(config)
     src = vehicle.source

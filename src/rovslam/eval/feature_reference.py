@@ -172,7 +172,7 @@ def feature_reference(results_dir: str | Path, worst_count: int = 5) -> FeatureR
     ``camera_file``, ``inputs``). Raises :class:`ResultsFormatError` when the run names no
     readable input, or its frames no longer match the run's times.
     """
-    from rovslam.io.results import read_results  # type: ignore[attr-defined]
+    from rovslam.io.run_results import read_results
 
     run = read_results(results_dir)
     source = _open_input(Path(results_dir), run.summary)

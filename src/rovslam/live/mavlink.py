@@ -97,6 +97,7 @@ class MavlinkLink:
         self.bad_packets = 0
         self.vehicle: dict[str, int] | None = None
         self.requests = 0
+        self.listeners: list[Callable[[str, Any, float], None]] = []  # called with every message (rovslam.live.guide)
         self._found = threading.Event()
         self._early: dict[int, deque] = {}  # system -> its latest telemetry received before its HEARTBEAT
         self._stop = threading.Event()
@@ -149,6 +150,8 @@ class MavlinkLink:
             self.counts_in[kind] += 1
             try:
                 self._handle(kind, msg, time.monotonic())
+                for listener in self.listeners:
+                    listener(kind, msg, time.monotonic())
             except (AttributeError, TypeError, ValueError):
                 self.bad_packets += 1
 

@@ -50,6 +50,7 @@ class LiveOptions:
     heartbeat_timeout_s: float = 30.0
     overwrite: bool = False
     video_delay_s: float = 0.0  # capture to arrival beyond what is measured (a camera's encoder, a sender's buffer)
+    guide: Any = None  # a rovslam.live.guide.GuideOptions: the mission to the points of interest (--poi)
 
 
 def stop_requested() -> bool:
@@ -394,15 +395,20 @@ def run_live(
         source = LiveSource(stream, telemetry, cam_info, opts.video, deadline, say, opts.video_delay_s)
         output = LiveOutput(source, link, sends, opts.config, opts.out / "sequence" if opts.record else None)
         out_ = output
+        guide = _guide(opts, link, say)
 
         def finish() -> None:
             out_.close()
+            if guide is not None:
+                guide.close()
             source.block.update(live_block(source, out_, link, opts))
 
         source.finish = finish
 
         def on_frame(res: Any) -> None:
             out_.on_frame(res)
+            if guide is not None:
+                guide.on_frame(res)
             if status is not None:
                 status(_status_line(source, out_))
 
@@ -422,6 +428,14 @@ def run_live(
         if stream is not None:
             stream.close()
         link.close()
+
+
+def _guide(opts: LiveOptions, link: Any, say: Callable[[str], None]) -> Any:
+    if opts.guide is None:
+        return None
+    from rovslam.live.guide import Guide
+
+    return Guide(opts.guide, link, opts.out, say)
 
 
 def _status_line(source: LiveSource, output: LiveOutput) -> str:

@@ -30,7 +30,16 @@ from rovslam.sim.live import LiveSimulator, TrueState
 from rovslam.sim.scenarios import SCENARIOS, Scenario
 from rovslam.sim.vehicle import GridPattern
 
-__all__ = ["ARRIVAL_COLUMNS", "ArrivalBook", "ClosedLoop", "LoopStep", "mission_area_m", "survey_goals", "survey_grid"]
+__all__ = [
+    "ARRIVAL_COLUMNS",
+    "ArrivalBook",
+    "ClosedLoop",
+    "LoopStep",
+    "mission_area_m",
+    "survey_around",
+    "survey_goals",
+    "survey_grid",
+]
 
 ARRIVAL_COLUMNS = (
     "name",
@@ -82,6 +91,11 @@ def survey_goals(grid: GridPattern, duration_s: float, speed_mps: float) -> list
             goals.append(Goal(f"survey {len(goals)}", p.copy(), kind="survey"))
         r += 1
     return goals
+
+
+def survey_around(points_xy_m: np.ndarray, duration_s: float, speed_mps: float) -> list[Goal]:
+    """The default grid's survey (:class:`GridPattern`), widened to cover ``points_xy_m`` (K, 2): way-points for ``duration_s``."""
+    return survey_goals(survey_grid(GridPattern(), points_xy_m), duration_s, speed_mps)
 
 
 def mission_area_m(sc: Scenario, goals: list[Goal], margin_m: float = 0.15) -> tuple[float, float, float, float]:

@@ -75,6 +75,7 @@ class GuidanceConfig:
     integral_radius_m: float = 0.01  # ... within this distance of the point
     integral_limit_mps: float = 0.005
     max_ellipse_m: float = 0.015  # 2-sigma semi-major axis of the position estimate
+    stop_ellipse_m: float = 0.10  # a vehicle steered through its autopilot stops while the 2-sigma ellipse is wider
     ellipse_wait_s: float = 15.0
     hold_s: float = 10.0
     waypoint_radius_m: float = 0.03  # survey way-points are passed within this
@@ -91,6 +92,7 @@ class GuidanceConfig:
             "yaw_gain_per_s",
             "arrival_radius_m",
             "max_ellipse_m",
+            "stop_ellipse_m",
             "waypoint_radius_m",
             "goal_timeout_s",
             "current_tau_s",

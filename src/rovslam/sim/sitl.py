@@ -64,6 +64,8 @@ class SitlConfig:
     mode: str = "ALT_HOLD"  # the ArduSub mode the heartbeat reports
     crf: int = 20  # H.264 quality of the stream
     wait_for_peer_s: float = 0.0  # > 0: hold the first frame until another component's HEARTBEAT (at most this long)
+    follow_guided: bool = False  # fly the setpoints of a GUIDED mission (rovslam.sim.sitl_guided)
+    pilot_guided_s: float | None = None  # with follow_guided: arm and switch to GUIDED at this stream time
 
     def __post_init__(self) -> None:
         if not (isinstance(self.pace, (int, float)) and math.isfinite(self.pace) and self.pace > 0):
@@ -117,8 +119,17 @@ class SitlVehicle:
         out = Path(c.out)
         if out.exists() and (not out.is_dir() or any(out.iterdir())):
             raise SimulationError(f"--out {out}: exists and is not an empty folder; give a new folder")
+        self.follower: Any = None  # rovslam.sim.sitl_guided.GuidedFollower with --follow-guided
+        if c.follow_guided:
+            from rovslam.sim.sitl_guided import GuidedFollower
+
+            if c.from_seq is not None:
+                raise SimulationError("--follow-guided renders from the vehicle's state: give --scenario, not --from")
+            self.follower = GuidedFollower(str(c.scenario), c.seed, c.duration_s, Path(c.out), c.pilot_guided_s)
         self.source: FrameSource = (
-            sequence_frames(Path(c.from_seq), c.duration_s)
+            self.follower.source()
+            if self.follower is not None
+            else sequence_frames(Path(c.from_seq), c.duration_s)
             if c.from_seq is not None
             else preset_frames(str(c.scenario), c.seed, c.duration_s)
         )
@@ -128,7 +139,7 @@ class SitlVehicle:
         self._done = threading.Event()
         self._streaming = threading.Event()  # set when the first frame is sent
         self._error: BaseException | None = None
-        self._queue: queue.Queue = queue.Queue(maxsize=_QUEUE_FRAMES)
+        self._queue: queue.Queue = queue.Queue(maxsize=1 if c.follow_guided else _QUEUE_FRAMES)
         self._threads: list[threading.Thread] = []
         self.frames_sent = 0
         self.sent_monotonic_s: list[float] = []  # when each frame went out (time.monotonic)
@@ -175,6 +186,8 @@ class SitlVehicle:
         except BaseException:
             video.close()
             raise
+        if self.follower is not None:
+            self.follower.attach(link, self.stream_time_s, self._stop.is_set)
         fh = self._gt_fh = (self.out / "groundtruth.csv").open("w", newline="", encoding="utf-8")
         self._gt = csv.writer(fh, lineterminator="\n")
         self._gt.writerow(GROUNDTRUTH_COLUMNS + ((RELIEF_COLUMN,) if src.with_relief else ()))
@@ -321,6 +334,8 @@ class SitlVehicle:
             self.video.close()
         if self.link is not None:
             self.link.close()
+        if self.follower is not None:
+            self.follower.close()
         if self._gt_fh is not None and not self._gt_fh.closed:
             self._gt_fh.close()
         summary = self.summary()
@@ -346,6 +361,7 @@ class SitlVehicle:
             "video_bytes": 0 if self.video is None else self.video.bytes,
             "mavlink": None if self.link is None else self.link.stats(),
             "error": None if self._error is None else f"{type(self._error).__name__}: {self._error}",
+            "guided": None if self.follower is None else self.follower.stats(),
         }
 
     def __enter__(self) -> SitlVehicle:

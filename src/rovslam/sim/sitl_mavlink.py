@@ -180,6 +180,8 @@ class MavlinkLink:
         self._m = mavutil.mavlink
         self.connection = connection
         self.custom_mode = ARDUSUB_MODES[mode]
+        self.armed = True
+        self.handler: Callable[[Any, str], bool] | None = None  # answers first when set (rovslam.sim.sitl_guided)
         self.sonar_max_m = float(sonar_max_m)
         self._clock = stream_time_s
         self._lock = threading.Lock()
@@ -209,7 +211,7 @@ class MavlinkLink:
         m = self._m
         base = (
             m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-            | m.MAV_MODE_FLAG_SAFETY_ARMED
+            | (m.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
             | m.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
             | m.MAV_MODE_FLAG_STABILIZE_ENABLED
         )
@@ -300,7 +302,8 @@ class MavlinkLink:
                 self.counts_in[name] += 1
                 if name in RECORDED_TYPES:
                     self._record(msg, name)
-                self._answer(msg, name)
+                if self.handler is None or not self.handler(msg, name):
+                    self._answer(msg, name)
             try:
                 msg = self._conn.recv_match(blocking=False)
             except (OSError, ValueError, TypeError, IndexError, KeyError, UnicodeDecodeError):
