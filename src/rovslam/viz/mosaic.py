@@ -439,14 +439,14 @@ def decorate(
 
 
 SCALE_FONT = 0  # cv2.FONT_HERSHEY_SIMPLEX
-SCALE_TEXT_MIN_PX = 13  # height of the scale bar's digits on a mosaic up to LEGEND_REF_WIDTH_PX wide
+SCALE_TEXT_MIN_PX = 17  # cv2 text height of the scale digits (ink about 14 px) up to LEGEND_REF_WIDTH_PX wide
 LEGEND_REF_WIDTH_PX = 800  # wider mosaics get their legend band and text scaled up with the width
 
 
 def legend_layout(width_px: int) -> tuple[float, int, float]:
     """(font scale, stroke thickness px, size factor) of the legend under a mosaic ``width_px`` wide.
 
-    The scale bar's digits are at least :data:`SCALE_TEXT_MIN_PX` tall and grow in proportion
+    The scale bar's digits are about :data:`SCALE_TEXT_MIN_PX` tall (cv2's text height) and grow in proportion
     with a mosaic wider than :data:`LEGEND_REF_WIDTH_PX`, so they stay readable when it is shrunk.
     """
     import cv2
@@ -454,7 +454,7 @@ def legend_layout(width_px: int) -> tuple[float, int, float]:
     k = max(1.0, width_px / LEGEND_REF_WIDTH_PX)
     thickness = max(1, int(round(k)))
     (_, h_1), _ = cv2.getTextSize("0123456789", SCALE_FONT, 1.0, thickness)
-    return SCALE_TEXT_MIN_PX * k / h_1 * 1.05, thickness, k
+    return SCALE_TEXT_MIN_PX * k / h_1, thickness, k
 
 
 def _legend_band(w_px: int, g: MosaicGrid) -> np.ndarray:

@@ -79,7 +79,8 @@ def altitude_words(res: RunResults, altitude: SourceShare) -> tuple[str, bool]:
     assumed = altitude.assumed or bool(tokens & {"assumed", "fixed", "none", "unknown", "constant"})
     words = [w for key, w in _ALTITUDE_WORDS if key in tokens]
     if assumed:
-        return ("ASSUMED, not measured" + (f"; partly {' and '.join(words)}" if words else "")), True
+        measured = [w for key, w in _ALTITUDE_WORDS if any(key in n for n in altitude.fractions)]
+        return ("ASSUMED, not measured" + (f"; partly {' and '.join(measured)}" if measured else "")), True
     return (" and ".join(words) if words else ", ".join(names)), False
 
 
