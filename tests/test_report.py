@@ -290,7 +290,7 @@ def test_fig2_title_and_caption_follow_the_altitude_source(run, tmp_path):
     assert "ASSUMED, not measured" in title and "laser" not in title.lower()
     text = write_report(out, mosaic=False).read_text(encoding="utf-8")
     caption = re.search(r"alt='Figure 2'><figcaption>([^<]*)", text).group(1)
-    assert "ASSUMED, not measured" in caption and "laser" not in caption.lower()
+    assert "ASSUMED, not measured" in caption and "laser triangulation" not in caption
 
 
 def _report_copy(run, tmp_path) -> tuple[Path, str]:

@@ -480,7 +480,14 @@ def _legend_band(w_px: int, g: MosaicGrid) -> np.ndarray:
     cv2.putText(band, label, (x0, baseline), SCALE_FONT, font_scale, (0, 0, 0), thick, aa)
     small = 0.85 * font_scale
     cv2.putText(
-        band, f"{g.mm_per_px:g} mm/px", (x0 + bar_px + int(12 * k), baseline), SCALE_FONT, small, (60, 60, 60), thick, aa
+        band,
+        f"{g.mm_per_px:g} mm/px",
+        (x0 + bar_px + int(12 * k), baseline),
+        SCALE_FONT,
+        small,
+        (60, 60, 60),
+        thick,
+        aa,
     )
     (mm_w, _), _ = cv2.getTextSize(f"{g.mm_per_px:g} mm/px", SCALE_FONT, small, thick)
     ax = w_px - int(22 * k)

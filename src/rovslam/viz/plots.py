@@ -213,7 +213,9 @@ def _landmark_track_panel(ax, res: RunResults) -> None:
 BAND_THIN_FRACTION = 0.01  # a +-2 sigma band narrower than this share of the y-range is not seen
 
 
-def band_too_thin(low: np.ndarray, high: np.ndarray, curves: list[np.ndarray], frac: float = BAND_THIN_FRACTION) -> bool:
+def band_too_thin(
+    low: np.ndarray, high: np.ndarray, curves: list[np.ndarray], frac: float = BAND_THIN_FRACTION
+) -> bool:
     """True when a band (N,) ``low`` .. ``high`` is too thin to see on axes that also show ``curves``
     (each (N,)): its median width is below ``frac`` of the y-range the band and curves span."""
     values = np.concatenate([np.ravel(v) for v in (low, high, *curves)])
