@@ -349,7 +349,8 @@ def _toml_lines(items: list[tuple[str, object]]) -> str:
     """``(table.key, value)`` pairs as TOML text, one ``[table]`` header per table."""
     import json
 
-    lines, table = [], None
+    lines: list[str] = []
+    table: str | None = None
     for name, value in items:
         tab, _, key = name.rpartition(".")
         if tab != table:
