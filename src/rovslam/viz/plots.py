@@ -6,10 +6,9 @@
                           and the identifiers of the tracked landmarks along the time axis.
 * ``map.png``             Fig. 4: path and landmark map, 2-sigma ellipses magnified by a stated
                           factor, labels that never overlap, the true and dead-reckoning paths.
-* ``errors.png``          position error against the truth with the filter's +-2 sigma bounds.
 
-Every function takes the :class:`~rovslam.io.run_results.RunResults` of a run (and the truth,
-aligned with its rows, when known), writes one PNG and returns its path.
+Every ``plot_*`` function takes the :class:`~rovslam.io.run_results.RunResults` of a run (and the truth,
+aligned with its rows, when known), writes one PNG and returns its path; a ``*_figure`` one returns the figure.
 """
 
 from __future__ import annotations
