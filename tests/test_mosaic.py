@@ -201,3 +201,26 @@ def test_landmarks_a_centimetre_apart_get_their_ids_on_separate_rows():
     rows = np.flatnonzero(red[:, 106:125].any(axis=1))  # the labels' columns, right of the 9 px markers
     bands = np.split(rows, np.flatnonzero(np.diff(rows) > 1) + 1)
     assert len(bands) == 2, bands  # two separate rows of text, not one id printed over the other
+
+
+def _blank(width_px: int, height_px: int = 120) -> Mosaic:
+    grid = MosaicGrid(x_top_m=0.5, y_left_m=-0.5, mm_per_px=1.3, width_px=width_px, height_px=height_px)
+    rgb = np.full((height_px, width_px, 3), 255, np.uint8)
+    return Mosaic(rgb=rgb, covered=np.ones((height_px, width_px), bool), grid=grid, frames_used=1, tiles=1)
+
+
+def _scale_label_height_px(width_px: int) -> int:
+    """Rows of ink of the scale bar's length ("20 cm"...), measured in the band under a blank mosaic."""
+    img = decorate(_blank(width_px), None, None)
+    band = img[120:].min(axis=2) < 128
+    bar_rows = np.flatnonzero(band[:, : width_px // 8].sum(axis=1) > width_px // 16)  # the solid first bar segment
+    below = band[bar_rows.max() + 2 :, : width_px // 8]
+    rows = np.flatnonzero(below.any(axis=1))
+    return int(rows.max() - rows.min() + 1)
+
+
+def test_scale_text_is_readable_and_grows_with_the_mosaic():
+    small = _scale_label_height_px(630)  # the size of a short dive's mosaic
+    assert small >= 12, small  # was 8 px of ink (font scale 0.4)
+    big = _scale_label_height_px(3200)
+    assert 3.0 * small <= big <= 5.0 * small, (small, big)  # 4 times the width, about 4 times the text

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import base64
 import csv
+import dataclasses
+import json
 import re
 import shutil
 import subprocess
 from html.parser import HTMLParser
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -19,8 +22,8 @@ from rovslam.io.run_results import read_results
 from rovslam.io.sequence import open_sequence, read_groundtruth
 from rovslam.runner import run_sequence
 from rovslam.sim import simulate
-from rovslam.viz import gallery, runinfo
-from rovslam.viz.report import table1, write_report
+from rovslam.viz import gallery, plots, runinfo
+from rovslam.viz.report import config_differences, nees_note, table1, write_report
 
 FRAMES = 280  # landmark 0 is first revisited at 39.8 s (frame 199) in portofino seed 0
 
@@ -65,14 +68,14 @@ def test_report_is_one_self_contained_file_with_every_figure(run):
     assert p.links == []  # nothing linked: no stylesheet, script or file
     assert "../landmarks" not in text
     imgs = [_decode(s) for s in p.srcs]
-    # Figures 2, 3, 4, the error plot, Figures 5 and 6, and the two mosaics.
-    assert len(imgs) == 8
+    # Figures 2, 3, 4, Figures 5 and 6, and the two mosaics; no unnumbered figure repeating Fig. 3's error panels.
+    assert len(imgs) == 7
+    assert not (out / "report" / "errors.png").exists() and "Position error" not in text
     assert all(min(i.shape[:2]) > 200 for i in imgs)
     for name in (
         "altitude_speed.png",
         "position.png",
         "map.png",
-        "errors.png",
         "fig5_landmark_0.png",
         "fig6_landmarks.png",
         "mosaic.png",
@@ -201,3 +204,129 @@ def test_report_displays_every_figure_in_headless_chromium(run, tmp_path):
     img = cv2.imread(str(shot))
     assert img is not None and img.shape[:2] == (2400, 1200)
     assert float(img.std()) > 20  # figures drawn, not a blank page
+
+
+def _position_res_truth(run):
+    res = read_results(run / "out")
+    gt = read_groundtruth(run / "seq" / "groundtruth.csv")
+    return res, runinfo.truth_at(res, gt.t_s, gt.xy_m)
+
+
+def test_fig3_legends_cover_no_plotted_line(run):
+    res, gt_xy = _position_res_truth(run)
+    for truth in (gt_xy, None):
+        fig = plots.position_figure(res, truth)
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        legends = [a.get_legend() for a in fig.axes if a.get_legend() is not None]
+        assert len(legends) >= 2
+        for leg in legends:
+            box = leg.get_window_extent(renderer)
+            for a in fig.axes:
+                for line in a.get_lines():
+                    xy = line.get_xydata()
+                    pts = a.transData.transform(xy[np.all(np.isfinite(xy), axis=1)])
+                    inside = (
+                        (pts[:, 0] >= box.x0) & (pts[:, 0] <= box.x1) & (pts[:, 1] >= box.y0) & (pts[:, 1] <= box.y1)
+                    )
+                    assert not inside.any(), (line.get_label(), int(inside.sum()))
+        plots.pyplot().close(fig)
+
+
+def _band_label(fig) -> str:
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    return next(lb for lb in labels if lb.startswith("+-2 sigma"))
+
+
+def test_thin_band_note_only_when_the_band_is_too_thin_to_see(run):
+    # Numbers: a band 0.5 % of the range is too thin, 2 % is not.
+    t = np.linspace(0, 1, 101)
+    curve = 10 * t
+    assert plots.band_too_thin(curve - 0.025, curve + 0.025, [curve])
+    assert not plots.band_too_thin(curve - 0.1, curve + 0.1, [curve])
+    res, gt_xy = _position_res_truth(run)
+    sd = plots.sigma_m(res)
+    width = 4 * np.median(sd, axis=0)
+    span = np.ptp(res.xy_m, axis=0)
+    assert np.all(width > 0.01 * span)  # this dive's band is plain to see on the position panels
+    fig = plots.position_figure(res, gt_xy)
+    assert _band_label(fig) == "+-2 sigma"
+    plots.pyplot().close(fig)
+    traj = dict(res.trajectory)
+    traj["var_x_m2"] = traj["var_x_m2"] * 1e-4  # sigma / 100: a band far below 1 % of the range
+    traj["var_y_m2"] = traj["var_y_m2"] * 1e-4
+    thin = dataclasses.replace(res, trajectory=traj)
+    fig = plots.position_figure(thin, gt_xy)
+    assert _band_label(fig) == "+-2 sigma (see below, too thin here)"
+    plots.pyplot().close(fig)
+
+
+def test_fig2_title_and_caption_follow_the_altitude_source(run, tmp_path):
+    res = read_results(run / "out")
+    title = plots.altitude_speed_title(res, runinfo.altitude_sources(res))
+    assert "laser triangulation" in title and "ASSUMED" not in title
+    out = tmp_path / "out"
+    shutil.copytree(run / "out", out)
+    summary = json.loads((out / "summary.json").read_text())
+    n = len(res.t_s)
+    summary["sources"]["altitude"] = {
+        "source": "assumed constant",
+        "frames": {"assumed constant": n},
+        "detail": "assumed constant: 1.8 m",
+    }
+    (out / "summary.json").write_text(json.dumps(summary))
+    traj = out / "trajectory.csv"
+    with traj.open(newline="") as fh:
+        rows = list(csv.reader(fh))
+    col = rows[0].index("altitude_source")
+    for r in rows[1:]:
+        r[col] = "fixed"
+    with traj.open("w", newline="") as fh:
+        csv.writer(fh, lineterminator="\n").writerows(rows)
+    res2 = read_results(out)
+    fig = plots.altitude_speed_figure(res2, runinfo.altitude_sources(res2))
+    title = fig._suptitle.get_text()
+    plots.pyplot().close(fig)
+    assert "ASSUMED, not measured" in title and "laser" not in title.lower()
+    text = write_report(out, mosaic=False).read_text(encoding="utf-8")
+    caption = re.search(r"alt='Figure 2'><figcaption>([^<]*)", text).group(1)
+    assert "ASSUMED, not measured" in caption and "laser triangulation" not in caption
+
+
+def _report_copy(run, tmp_path) -> tuple[Path, str]:
+    """A copy of the run's results and the text of its report (with the truth, no mosaic)."""
+    out = tmp_path / "out"
+    shutil.copytree(run / "out", out, ignore=shutil.ignore_patterns("report"))
+    return out, write_report(out, run / "seq" / "groundtruth.csv", mosaic=False).read_text(encoding="utf-8")
+
+
+def test_config_shows_only_the_settings_that_differ_collapsed(run, tmp_path):
+    out, text = _report_copy(run, tmp_path)
+    section = text[text.index("<h2>Configuration of the run</h2>") :]
+    assert "<details><summary>every setting at its default</summary>" in section
+    assert "the full file: <code>config.toml</code>" in section and "[bandpass]" not in section
+    cfg = (out / "config.toml").read_text()
+    assert "max_side_px = 480" in cfg
+    (out / "config.toml").write_text(cfg.replace("max_side_px = 480", "max_side_px = 640"))
+    assert config_differences((out / "config.toml").read_text()) == [("processing.max_side_px", 640)]
+    text = write_report(out, mosaic=False).read_text(encoding="utf-8")
+    section = text[text.index("<h2>Configuration of the run</h2>") :]
+    assert "<details><summary>1 setting differs from the defaults</summary>" in section
+    assert "<pre>[processing]\nmax_side_px = 640</pre>" in section
+    assert "All other settings at their defaults; the full file: <code>config.toml</code>" in section
+    assert section.count("\n") < 12  # not the 150-line file
+
+
+def test_a_mean_nees_far_from_two_is_explained_in_one_sentence(run, tmp_path):
+    assert nees_note(None) == "" and nees_note({"nees_mean": 2.0}) == "" and nees_note({"nees_mean": 0.5}) == ""
+    low = nees_note({"nees_mean": 0.02})
+    assert "10 times wider" in low and "did not have" in low and low.count(". ") == 0
+    high = nees_note({"nees_mean": 18.0})
+    assert "3.0 times narrower" in high
+    res, gt_xy = _position_res_truth(run)
+    nees = runinfo.accuracy(res, gt_xy)["nees_mean"]
+    _, text = _report_copy(run, tmp_path)
+    if nees < 0.1:
+        assert f"Mean NEES {nees:.3f}" in text and "wider than this dive" in text
+    else:
+        assert "Mean NEES" not in text

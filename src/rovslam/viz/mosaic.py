@@ -434,27 +434,68 @@ def decorate(
             if leader is not None:
                 cv2.line(img, *leader, LANDMARK_RGB, 1, aa)
             cv2.putText(img, text, (u, v), LABEL_FONT, LABEL_SCALE, LANDMARK_RGB, 1, aa)
-    band = np.full((LEGEND_BAND_PX, img.shape[1], 3), 255, np.uint8)
-    w_px = img.shape[1]
+    band = _legend_band(img.shape[1], g)
+    return np.vstack([img, band])
+
+
+SCALE_FONT = 0  # cv2.FONT_HERSHEY_SIMPLEX
+SCALE_TEXT_MIN_PX = 17  # cv2 text height of the scale digits (ink about 14 px) up to LEGEND_REF_WIDTH_PX wide
+LEGEND_REF_WIDTH_PX = 800  # wider mosaics get their legend band and text scaled up with the width
+
+
+def legend_layout(width_px: int) -> tuple[float, int, float]:
+    """(font scale, stroke thickness px, size factor) of the legend under a mosaic ``width_px`` wide.
+
+    The scale bar's digits are about :data:`SCALE_TEXT_MIN_PX` tall (cv2's text height) and grow in proportion
+    with a mosaic wider than :data:`LEGEND_REF_WIDTH_PX`, so they stay readable when it is shrunk.
+    """
+    import cv2
+
+    k = max(1.0, width_px / LEGEND_REF_WIDTH_PX)
+    thickness = max(1, int(round(k)))
+    (_, h_1), _ = cv2.getTextSize("0123456789", SCALE_FONT, 1.0, thickness)
+    return SCALE_TEXT_MIN_PX * k / h_1, thickness, k
+
+
+def _legend_band(w_px: int, g: MosaicGrid) -> np.ndarray:
+    """The white (H, w_px, 3) band under a mosaic: scale bar, its length and mm/px, north arrow."""
+    import cv2
+
+    aa = cv2.LINE_AA
+    font_scale, thick, k = legend_layout(w_px)
+    (_, text_h), base = cv2.getTextSize("0 cm", SCALE_FONT, font_scale, thick)
+    x0, y0, bar_h = int(10 * k), int(10 * k), max(6, int(round(7 * k)))
+    band_px = max(LEGEND_BAND_PX, y0 + bar_h + int(6 * k) + text_h + base + int(6 * k))
+    band = np.full((band_px, w_px, 3), 255, np.uint8)
     bar_m = nice_length_m(max(0.25 * w_px * g.m_per_px, 1e-4))
     bar_px = max(1, int(round(bar_m / g.m_per_px)))
-    x0, y0 = 10, 14
     n_seg = 4
     for s in range(n_seg):
         xa = x0 + s * bar_px // n_seg
         xb = x0 + (s + 1) * bar_px // n_seg
-        cv2.rectangle(band, (xa, y0), (xb, y0 + 6), (0, 0, 0) if s % 2 == 0 else (255, 255, 255), -1)
-    cv2.rectangle(band, (x0, y0), (x0 + bar_px, y0 + 6), (0, 0, 0), 1)
+        cv2.rectangle(band, (xa, y0), (xb, y0 + bar_h), (0, 0, 0) if s % 2 == 0 else (255, 255, 255), -1)
+    cv2.rectangle(band, (x0, y0), (x0 + bar_px, y0 + bar_h), (0, 0, 0), 1)
     label = f"{bar_m * 100:g} cm" if bar_m < 1 else f"{bar_m:g} m"
-    cv2.putText(band, label, (x0, y0 + 22), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, aa)
+    baseline = y0 + bar_h + int(6 * k) + text_h
+    cv2.putText(band, label, (x0, baseline), SCALE_FONT, font_scale, (0, 0, 0), thick, aa)
+    small = 0.85 * font_scale
     cv2.putText(
-        band, f"{g.mm_per_px:g} mm/px", (x0 + bar_px + 12, y0 + 8), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (60, 60, 60), 1, aa
+        band,
+        f"{g.mm_per_px:g} mm/px",
+        (x0 + bar_px + int(12 * k), baseline),
+        SCALE_FONT,
+        small,
+        (60, 60, 60),
+        thick,
+        aa,
     )
-    ax = w_px - 22
-    if ax > x0 + bar_px + 90:
-        cv2.arrowedLine(band, (ax, LEGEND_BAND_PX - 6), (ax, 6), (0, 0, 0), 2, aa, tipLength=0.35)
-        cv2.putText(band, "N", (ax - 18, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, aa)
-    return np.vstack([img, band])
+    (mm_w, _), _ = cv2.getTextSize(f"{g.mm_per_px:g} mm/px", SCALE_FONT, small, thick)
+    ax = w_px - int(22 * k)
+    if ax > x0 + bar_px + int(12 * k) + mm_w + int(30 * k):
+        cv2.arrowedLine(band, (ax, band_px - int(6 * k)), (ax, int(6 * k)), (0, 0, 0), max(2, thick), aa, tipLength=0.3)
+        (n_w, n_h), _ = cv2.getTextSize("N", SCALE_FONT, font_scale, thick)
+        cv2.putText(band, "N", (ax - n_w - int(6 * k), int(6 * k) + n_h), SCALE_FONT, font_scale, (0, 0, 0), thick, aa)
+    return band
 
 
 def write_mosaic(path: str | Path, rgb: np.ndarray, grid: MosaicGrid) -> tuple[Path, Path]:

@@ -6,10 +6,9 @@
                           and the identifiers of the tracked landmarks along the time axis.
 * ``map.png``             Fig. 4: path and landmark map, 2-sigma ellipses magnified by a stated
                           factor, labels that never overlap, the true and dead-reckoning paths.
-* ``errors.png``          position error against the truth with the filter's +-2 sigma bounds.
 
-Every function takes the :class:`~rovslam.io.run_results.RunResults` of a run (and the truth,
-aligned with its rows, when known), writes one PNG and returns its path.
+Every ``plot_*`` function takes the :class:`~rovslam.io.run_results.RunResults` of a run (and the truth,
+aligned with its rows, when known), writes one PNG and returns its path; a ``*_figure`` one returns the figure.
 """
 
 from __future__ import annotations
@@ -65,7 +64,45 @@ def sigma_m(res: RunResults) -> np.ndarray:
     return np.sqrt(np.maximum(np.stack([t["var_x_m2"], t["var_y_m2"]], axis=1), 0.0))
 
 
+def altitude_words(res: RunResults, altitude: SourceShare) -> tuple[str, bool]:
+    """(how the altitude was obtained, in words for Fig. 2's title and caption; True when assumed).
+
+    Follows ``summary.json`` ``sources.altitude.source`` (what the run wrote), else the share of
+    frames per source of trajectory.csv.
+    """
+    sources = res.summary.get("sources")
+    part = sources.get("altitude") if isinstance(sources, dict) else None
+    src = part.get("source") if isinstance(part, dict) else None
+    names = [str(src)] if isinstance(src, str) and src.strip() else list(altitude.fractions)
+    tokens = {t for n in names for t in n.lower().replace(",", "+").replace(" ", "+").split("+") if t}
+    assumed = altitude.assumed or bool(tokens & {"assumed", "fixed", "none", "unknown", "constant"})
+    words = [w for key, w in _ALTITUDE_WORDS if key in tokens]
+    if assumed:
+        measured = [w for key, w in _ALTITUDE_WORDS if any(key in n for n in altitude.fractions)]
+        return ("ASSUMED, not measured" + (f"; partly {' and '.join(measured)}" if measured else "")), True
+    return (" and ".join(words) if words else ", ".join(names)), False
+
+
+_ALTITUDE_WORDS = (
+    ("laser", "laser triangulation"),
+    ("sonar", "sonar altimeter"),
+    ("navigation", "navigation log"),
+    ("held", "held between readings"),
+)
+
+
+def altitude_speed_title(res: RunResults, altitude: SourceShare) -> str:
+    """Fig. 2's title, naming where the altitude came from (never "laser" on a run without one)."""
+    words, _ = altitude_words(res, altitude)
+    return f"Fig. 2  Altitude ({words}), horizontal speed (optical correlation) and heading"
+
+
 def plot_altitude_speed(res: RunResults, path: Path, altitude: SourceShare | None = None) -> Path:
+    """Fig. 2 written as a PNG (:func:`altitude_speed_figure`)."""
+    return save_figure(altitude_speed_figure(res, altitude), path)
+
+
+def altitude_speed_figure(res: RunResults, altitude: SourceShare | None = None):
     """Fig. 2: altitude with its source, surge and sway speed, heading; all against time."""
     plt = pyplot()
     tr = res.trajectory
@@ -108,9 +145,9 @@ def plot_altitude_speed(res: RunResults, path: Path, altitude: SourceShare | Non
     ax[3].set_xlabel("time [s]")
     for a in ax:
         a.grid(alpha=0.3)
-    fig.suptitle("Fig. 2  Altitude, horizontal speed (laser-triangulation optical-correlation sensor) and heading")
+    fig.suptitle(altitude_speed_title(res, altitude))
     fig.tight_layout()
-    return save_figure(fig, path)
+    return fig
 
 
 # Colours of the refused matches, by the reason observations.csv records (others: REFUSED_OTHER).
@@ -161,7 +198,7 @@ def _landmark_track_panel(ax, res: RunResults) -> None:
                 c=REFUSED_COLOURS.get(reason, REFUSED_OTHER),
                 label=f"refused: {reason or 'refused'}",
             )
-        ax.legend(loc="upper left", fontsize=7, ncol=3)
+        ax.legend(loc="best", fontsize=7, ncol=3)
         top = int(np.nanmax(obs["landmark_id"])) if len(obs["landmark_id"]) else 0
         ax.set_ylim(-0.8, top + 1.2)
         from matplotlib.ticker import MaxNLocator
@@ -172,12 +209,51 @@ def _landmark_track_panel(ax, res: RunResults) -> None:
     ax.set_ylabel("landmark id")
 
 
-def plot_position(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None) -> Path:
-    """Fig. 3: x and y against time with visible bounds, and the tracked landmark identifiers.
+BAND_THIN_FRACTION = 0.01  # a +-2 sigma band narrower than this share of the y-range is not seen
 
-    The +-2 sigma band is millimetres wide on a plot metres high, so it gets panels of its
-    own in centimetres: the error against the truth inside +-2 sigma when the truth is known,
-    the 2-sigma half-width of x and y otherwise.
+
+def band_too_thin(
+    low: np.ndarray, high: np.ndarray, curves: list[np.ndarray], frac: float = BAND_THIN_FRACTION
+) -> bool:
+    """True when a band (N,) ``low`` .. ``high`` is too thin to see on axes that also show ``curves``
+    (each (N,)): its median width is below ``frac`` of the y-range the band and curves span."""
+    values = np.concatenate([np.ravel(v) for v in (low, high, *curves)])
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return False
+    span = float(values.max() - values.min())
+    width = np.asarray(high, float) - np.asarray(low, float)
+    width = width[np.isfinite(width)]
+    median = float(np.median(width)) if width.size else 0.0
+    return span > 0 and median < frac * span
+
+
+def plot_position(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None) -> Path:
+    """Fig. 3 written as a PNG (:func:`position_figure`)."""
+    return save_figure(position_figure(res, gt_xy_m), path)
+
+
+def _error_panels(ax, res: RunResults, gt_xy_m: np.ndarray, sd: np.ndarray) -> None:
+    """The x and y error against the truth (cm) inside the +-2 sigma band, one panel each."""
+    t = res.t_s
+    err = res.xy_m - gt_xy_m
+    for k, name in enumerate(("x", "y")):
+        a = ax[k]
+        a.fill_between(t, -200 * sd[:, k], 200 * sd[:, k], color="tab:blue", alpha=0.25, lw=0, label="+-2 sigma")
+        a.plot(t, 100 * err[:, k], lw=0.8, color="tab:red", label="estimate - truth")
+        a.axhline(0, color="k", lw=0.4)
+        a.set_ylabel(f"{name} error [cm]")
+        inside = float(np.mean(np.abs(err[:, k]) <= 2 * sd[:, k] + 1e-12)) * 100
+        a.set_title(f"{name} error inside +-2 sigma in {inside:.1f} % of frames", fontsize=9, loc="left")
+    ax[0].legend(loc="best", fontsize=7, ncol=2)
+
+
+def position_figure(res: RunResults, gt_xy_m: np.ndarray | None = None):
+    """Fig. 3: x and y against time with their bounds, and the tracked landmark identifiers.
+
+    The +-2 sigma band is often millimetres wide on a plot metres high; the panels below show it
+    in centimetres: the error against the truth inside +-2 sigma when the truth is known, the
+    2-sigma half-width of x and y otherwise. The legend of the top panel sits above it, over no curve.
     """
     plt = pyplot()
     t = res.t_s
@@ -186,34 +262,21 @@ def plot_position(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None
     n_rows = 5 if gt_xy_m is not None else 4
     ratios = [1.2, 1.2, 1, 1, 1.1] if gt_xy_m is not None else [1.2, 1.2, 1, 1.1]
     fig, ax = plt.subplots(
-        n_rows, 1, figsize=(9, 2.0 * n_rows + 0.6), sharex=True, gridspec_kw={"height_ratios": ratios}
+        n_rows, 1, figsize=(9, 2.0 * n_rows + 0.8), sharex=True, gridspec_kw={"height_ratios": ratios}
     )
     for k, name in enumerate(("x (north)", "y (east)")):
-        ax[k].fill_between(
-            t,
-            xy[:, k] - 2 * sd[:, k],
-            xy[:, k] + 2 * sd[:, k],
-            color="tab:blue",
-            alpha=0.3,
-            lw=0,
-            label="+-2 sigma (see below, too thin here)",
-        )
+        low, high = xy[:, k] - 2 * sd[:, k], xy[:, k] + 2 * sd[:, k]
+        curves = [xy[:, k]] + ([gt_xy_m[:, k]] if gt_xy_m is not None else [])
+        thin = band_too_thin(low, high, curves)
+        label = "+-2 sigma (see below, too thin here)" if thin else "+-2 sigma"
+        ax[k].fill_between(t, low, high, color="tab:blue", alpha=0.3, lw=0, label=label)
         ax[k].plot(t, xy[:, k], lw=0.8, color="tab:blue", label="estimate")
         if gt_xy_m is not None:
             ax[k].plot(t, gt_xy_m[:, k], lw=0.7, color="k", ls="--", label="truth")
         ax[k].set_ylabel(f"{name} [m]")
-    ax[0].legend(loc="upper right", fontsize=7, ncol=3)
+    ax[0].legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), fontsize=7, ncol=3, frameon=False, borderaxespad=0.2)
     if gt_xy_m is not None:
-        err = res.xy_m - gt_xy_m
-        for k, name in enumerate(("x", "y")):
-            a = ax[2 + k]
-            a.fill_between(t, -200 * sd[:, k], 200 * sd[:, k], color="tab:blue", alpha=0.25, lw=0, label="+-2 sigma")
-            a.plot(t, 100 * err[:, k], lw=0.8, color="tab:red", label="estimate - truth")
-            a.axhline(0, color="k", lw=0.4)
-            a.set_ylabel(f"{name} error [cm]")
-            inside = float(np.mean(np.abs(err[:, k]) <= 2 * sd[:, k] + 1e-12)) * 100
-            a.set_title(f"{name} error inside +-2 sigma in {inside:.1f} % of frames", fontsize=9, loc="left")
-        ax[2].legend(loc="upper right", fontsize=7, ncol=2)
+        _error_panels(ax[2:4], res, gt_xy_m, sd)
     else:
         a = ax[2]
         a.plot(t, 200 * sd[:, 0], lw=0.9, label="2 sigma x")
@@ -221,14 +284,14 @@ def plot_position(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None
         a.set_ylabel("2 sigma [cm]")
         a.set_ylim(bottom=0)
         a.set_title("bound half-width (no ground truth given: the error itself is unknown)", fontsize=9, loc="left")
-        a.legend(loc="upper left", fontsize=7)
+        a.legend(loc="best", fontsize=7)
     _landmark_track_panel(ax[-1], res)
     ax[-1].set_xlabel("time [s]")
     for a in ax:
         a.grid(alpha=0.3)
     fig.suptitle("Fig. 3  Estimated position with its +-2 sigma bounds and the tracked SLAM landmarks")
     fig.tight_layout()
-    return save_figure(fig, path)
+    return fig
 
 
 def ellipse_points(
@@ -330,25 +393,4 @@ def plot_map(res: RunResults, path: Path, gt_xy_m: np.ndarray | None = None) -> 
             zorder=5,
             bbox={"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.75},
         )
-    return save_figure(fig, path)
-
-
-def plot_errors(res: RunResults, path: Path, gt_xy_m: np.ndarray) -> Path:
-    """Position error of SLAM and dead reckoning against the truth, with the +-2 sigma bounds."""
-    plt = pyplot()
-    t = res.t_s
-    err = res.xy_m - gt_xy_m
-    dr_err = res.dr_xy_m - gt_xy_m
-    sd = sigma_m(res)
-    fig, ax = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
-    for k, name in enumerate(("x", "y")):
-        ax[k].fill_between(t, -200 * sd[:, k], 200 * sd[:, k], alpha=0.25, lw=0, label="+-2 sigma")
-        ax[k].plot(t, 100 * err[:, k], lw=0.7, label="SLAM error")
-        ax[k].plot(t, 100 * dr_err[:, k], lw=0.6, color="tab:gray", alpha=0.7, label="dead reckoning error")
-        ax[k].set_ylabel(f"{name} error [cm]")
-        ax[k].grid(alpha=0.3)
-    ax[0].legend(loc="upper left", fontsize=8)
-    ax[1].set_xlabel("time [s]")
-    fig.suptitle("Position error against the ground truth")
-    fig.tight_layout()
     return save_figure(fig, path)

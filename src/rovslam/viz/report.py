@@ -1,7 +1,7 @@
 """One self-contained HTML report of a run, with the PNG figures beside it.
 
 ``write_report(OUT)`` writes ``OUT/report/index.html`` and the figures (``altitude_speed.png``,
-``position.png``, ``map.png``, ``errors.png`` with a truth, ``fig5_landmark_<id>.png``,
+``position.png``, ``map.png``, ``fig5_landmark_<id>.png``,
 ``fig6_landmarks.png``, ``mosaic.png`` / ``mosaic_truth.png``). Every image is embedded in
 the HTML as a data URI, so the file opens offline, can be copied alone or mailed.
 
@@ -284,20 +284,119 @@ def _jpeg(png: Path, quality: int = 88) -> Path:
     return jpg
 
 
+def fig2_caption(res: RunResults, alt: runinfo.SourceShare) -> str:
+    """Fig. 2's caption: where the altitude, hence the speeds' scale, came from."""
+    words, assumed = plots.altitude_words(res, alt)
+    if assumed:
+        text = (
+            f"Altitude {words} ({alt.label}): the speeds and positions scale with it; "
+            "no laser or altimeter measured it on this run."
+        )
+    else:
+        text = f"Altitude from {words} ({alt.label}); the speeds are the optical correlation scaled by it."
+    return html.escape(text)
+
+
+NEES_LOW = 0.1  # mean NEES (2 dof) below this: bounds far wider than the error
+NEES_HIGH = 6.0  # above this (3 per degree of freedom): bounds narrower than the error
+
+
+def nees_note(acc: dict | None) -> str:
+    """One sentence on what a mean NEES far from 2 (2 dof) means; "" without a truth or when near 2."""
+    if not acc or not math.isfinite(acc.get("nees_mean", math.nan)):
+        return ""
+    nees = acc["nees_mean"]
+    ratio = math.sqrt(2.0 / nees) if nees > 0 else math.inf
+    if nees < NEES_LOW:
+        return (
+            f"Mean NEES {nees:.3f} (2 for bounds that match the error): the filter's bounds are about "
+            f"{ratio:.0f} times wider than this dive's error, because they allow for lasting errors "
+            "(compass drift, an altitude offset, a speed bias) that this dive did not have."
+        )
+    if nees > NEES_HIGH:
+        return (
+            f"Mean NEES {nees:.1f} (2 for bounds that match the error): the filter's bounds are about "
+            f"{1 / ratio:.1f} times narrower than this dive's error, so it is more confident than it should be."
+        )
+    return ""
+
+
+def config_differences(text: str) -> list[tuple[str, object]]:
+    """``(table.key, value)`` of the settings of a config.toml text that differ from the defaults
+    (a key the defaults do not know counts as differing); raises ValueError for text that is not TOML."""
+    import tomllib
+
+    from rovslam.config import RunConfig, to_dict
+
+    def flat(d: dict, prefix: str = "") -> dict[str, object]:
+        out: dict[str, object] = {}
+        for k, v in d.items():
+            if isinstance(v, dict):
+                out.update(flat(v, f"{prefix}{k}."))
+            else:
+                out[f"{prefix}{k}"] = list(v) if isinstance(v, tuple) else v
+        return out
+
+    try:
+        given = flat(tomllib.loads(text))
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(str(exc)) from None
+    defaults = flat(to_dict(RunConfig()))
+    return [(k, v) for k, v in given.items() if k not in defaults or defaults[k] != v]
+
+
+def _toml_lines(items: list[tuple[str, object]]) -> str:
+    """``(table.key, value)`` pairs as TOML text, one ``[table]`` header per table."""
+    import json
+
+    lines: list[str] = []
+    table: str | None = None
+    for name, value in items:
+        tab, _, key = name.rpartition(".")
+        if tab != table:
+            lines += ([""] if lines else []) + ([f"[{tab}]"] if tab else [])
+            table = tab
+        lines.append(f"{key} = {json.dumps(value)}")
+    return "\n".join(lines)
+
+
+def _config_body(text: str) -> str:
+    """The settings that differ from the defaults, collapsed in a <details> element."""
+    if not text:
+        return "<p>Configuration not recorded.</p>"
+    try:
+        diff = config_differences(text)
+    except ValueError:
+        diff = None
+    others = "All other settings at their defaults"
+    if diff is None:
+        shown, summary, others = text, "the configuration file (not readable as settings)", "Not compared"
+    elif not diff:
+        shown, summary, others = "", "every setting at its default", "All settings at their defaults"
+    else:
+        shown = _toml_lines(diff)
+        summary = f"{len(diff)} setting{'s differ' if len(diff) != 1 else ' differs'} from the defaults"
+    pre = f"<pre>{html.escape(shown)}</pre>" if shown else ""
+    return (
+        f"<details><summary>{html.escape(summary)}</summary>{pre}"
+        f"<p>{others}; the full file: <code>config.toml</code>.</p></details>"
+    )
+
+
 def _config_html(folder: Path, res: RunResults) -> str:
     cfg = folder / "config.toml"
     text = cfg.read_text(encoding="utf-8") if cfg.is_file() else ""
     if not text and isinstance(res.summary.get("config"), dict):
-        import json
+        import tomli_w
 
-        text = json.dumps(res.summary["config"], indent=2)
+        text = tomli_w.dumps(res.summary["config"])
     sw = res.summary.get("software")
     sw = sw if isinstance(sw, dict) else {}  # a summary.json edited by hand or from another tool
     meta = (
         f"<p>rovslam {html.escape(str(sw.get('version', '?')))}; sequence "
         f"<code>{html.escape(str(res.summary.get('sequence', '?')))}</code>.</p>"
     )
-    return "<h2>Configuration of the run</h2>" + meta + f"<pre>{html.escape(text or 'not recorded')}</pre>"
+    return "<h2>Configuration of the run</h2>" + meta + _config_body(text)
 
 
 def write_report(
@@ -332,13 +431,11 @@ def write_report(
     rep.keys = _key_figures(res, acc, alt, head, gt_xy)
     rep.warnings = _warnings(res, alt, head) + notes
     figs = [
-        ("Figure 2", plots.plot_altitude_speed(res, out / "altitude_speed.png", alt)),
-        ("Figure 3", plots.plot_position(res, out / "position.png", gt_xy)),
-        ("Figure 4", plots.plot_map(res, out / "map.png", gt_xy)),
+        ("Figure 2", plots.plot_altitude_speed(res, out / "altitude_speed.png", alt), fig2_caption(res, alt)),
+        ("Figure 3", plots.plot_position(res, out / "position.png", gt_xy), nees_note(acc)),
+        ("Figure 4", plots.plot_map(res, out / "map.png", gt_xy), ""),
     ]
-    if gt_xy is not None:
-        figs.append(("Position error", plots.plot_errors(res, out / "errors.png", gt_xy)))
-    rep.sections.append("<h2>Figures 2 to 4</h2>" + "".join(_img(p, name) for name, p in figs))
+    rep.sections.append("<h2>Figures 2 to 4</h2>" + "".join(_img(p, name, cap) for name, p, cap in figs))
     rep.sections.append(_gallery_section(res, out, folder, chosen, seq_path, cam_path))
     t1_id = chosen[0] if chosen else 0
     rep.sections.append(

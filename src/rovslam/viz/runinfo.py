@@ -163,7 +163,8 @@ def truth_at(res: RunResults, gt_t_s: np.ndarray, gt_xy_m: np.ndarray, tol_s: fl
 
 
 def accuracy(res: RunResults, truth_xy_m: np.ndarray) -> dict[str, float]:
-    """ATE RMSE of SLAM and dead reckoning (m) and the 2-sigma coverage (fraction of frames)."""
+    """ATE RMSE of SLAM and dead reckoning (m), the 2-sigma coverage (fraction of frames) and the
+    mean NEES (e^T P^-1 e over the frames, 2 degrees of freedom: 2 for a consistent filter)."""
     err = res.xy_m - truth_xy_m
     dr = res.dr_xy_m - truth_xy_m
     cov = res.cov_m2 + 1e-12 * np.eye(2)
@@ -172,6 +173,7 @@ def accuracy(res: RunResults, truth_xy_m: np.ndarray) -> dict[str, float]:
         "ate_rmse_m": float(np.sqrt(np.mean(np.sum(err**2, axis=1)))),
         "dr_ate_rmse_m": float(np.sqrt(np.mean(np.sum(dr**2, axis=1)))),
         "coverage_2sigma": float(np.mean(d2 <= 4.0)),
+        "nees_mean": float(np.mean(d2)),
     }
 
 
