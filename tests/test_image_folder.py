@@ -80,7 +80,7 @@ def test_bad_image_folders(folder, tmp_path):
     assert "no sequence.toml, frames.csv or image files" in _error(["run", empty, *out])
     line = _error(["run", d, *out])
     assert "a folder of images without sequence.toml and frames.csv runs with --camera CAMERA.toml ([camera]" in line
-    assert "(README, 'Real dives in')" in line
+    assert "(README, 'Your own dive')" in line
     assert "missing: --camera CAMERA.toml and --fps F or --times FILE." in line
     assert "missing: --fps F or --times FILE." in _error(["run", d, "--camera", cam, *out])
     assert "missing: --camera CAMERA.toml." in _error(["run", d, "--fps", "5", *out])
@@ -121,11 +121,15 @@ def test_an_image_linking_outside_the_folder_is_refused(folder, tmp_path):
 
 
 def test_every_readme_section_an_error_names_exists():
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
-    headings = {re.sub(r"[`*]", "", h).strip() for h in re.findall(r"^#+ (.+)$", readme, flags=re.M)}
+    """An error that sends the user to a section (``README, 'X'`` or ``docs/PAGE.md, 'X'``) names one that exists."""
     named = set()
     for path in (ROOT / "src" / "rovslam").rglob("*.py"):
-        named |= set(re.findall(r"README, '([^']+)'", path.read_text(encoding="utf-8")))
+        named |= set(re.findall(r"(README|docs/[\w-]+\.md), '([^']+)'", path.read_text(encoding="utf-8")))
     assert named, "no error names a README section"
-    missing = {n for n in named if not any(h.startswith(n) for h in headings)}
-    assert not missing, f"errors point at README sections that do not exist: {missing}"
+    missing = set()
+    for doc, section in named:
+        text = (ROOT / ("README.md" if doc == "README" else doc)).read_text(encoding="utf-8")
+        headings = {re.sub(r"[`*]", "", h).strip() for h in re.findall(r"^#+ (.+)$", text, flags=re.M)}
+        if not any(h.startswith(section) for h in headings):
+            missing.add((doc, section))
+    assert not missing, f"errors point at sections that do not exist: {missing}"

@@ -255,7 +255,7 @@ def test_sparus_mapping_of_the_example_camera_file():
     assert h0 == pytest.approx(90 - 65.59, abs=0.05)
     assert h1 - h0 == pytest.approx(-23.1, abs=0.3)
     assert len(nav.heading.t_s) == 13  # 12 navigation updates and the last row; the repeats dropped
-    assert nav.roll is None  # attitude = false: its tilt is not the camera's (README, 'Real dives in')
+    assert nav.roll is None  # attitude = false: its tilt is not the camera's (README, 'Your own dive')
 
 
 @needs_sparus

@@ -389,7 +389,7 @@ class SlamConfig(_Checked):
     altitude_scale_sigma: float = _num(0.0076, ge=0, le=0.1)
     # true: the relief under the tokens adds to b (sigma from the tokens' parallax, [odometry] relief_scale_gain), with
     # this correlation time. Off by default: through b it also widens the landmarks' depths, and on one HD dive a
-    # revisit then pulled the estimate 8 mm off (README); false: b is the altimeter's offset, widened only by the
+    # revisit then pulled the estimate 8 mm off (docs/method.md); false: b is the altimeter's offset, widened only by the
     # relief under the laser spots
     altitude_bias_relief: bool = False
     altitude_bias_relief_tau_s: float = _num(5.0, gt=0)  # correlation time of that relief term

@@ -173,8 +173,8 @@ def open_source(path: str | Path, camera_file: str | Path | None = None, options
         if missing:
             raise SequenceFormatError(
                 f"{p}: a folder of images without sequence.toml and frames.csv runs with --camera CAMERA.toml "
-                f"({CAMERA_TABLES}) and --fps F or --times FILE (README, 'Real dives in'); missing: "
-                f"{' and '.join(missing)}. Or make it a sequence folder (README, 'Sequence folder (format v1)')."
+                f"({CAMERA_TABLES}) and --fps F or --times FILE (README, 'Your own dive'); missing: "
+                f"{' and '.join(missing)}. Or make it a sequence folder (docs/formats.md, 'Sequence folder (format v1)')."
             )
         src = ImageFolderSource(p, _camera_file(p, "image folder", opts), opts.fps, opts.times_file)
         return _with_navigation(src, opts, src.span_s, "image folder")

@@ -12,7 +12,7 @@ import typer
 
 from rovslam.cli.display import plain_help
 
-_IN = "Inputs: video, image folder, navigation log (README, 'Real dives in')"
+_IN = "Inputs: video, image folder, navigation log (README, 'Your own dive')"
 _BAG = "Inputs: ROS bags (ROS 1 .bag, ROS 2 sqlite3 or MCAP folder)"
 _CAMERA_OPT = typer.Option(
     None,

@@ -70,7 +70,7 @@ class ImageFolderSource:
         if fps is None and times_file is None:
             raise SequenceFormatError(
                 f"{self.folder}: an image folder needs its frame times: give --fps F (frames per second) or --times "
-                "FILE (a CSV with columns image,t_s), one of the two (README, 'Real dives in')."
+                "FILE (a CSV with columns image,t_s), one of the two (README, 'Your own dive')."
             )
         if fps is not None:
             if not (isinstance(fps, (int, float)) and math.isfinite(fps) and 0 < fps <= MAX_FPS):

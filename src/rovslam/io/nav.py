@@ -257,7 +257,7 @@ def quaternions_to_heading(
         raise NavigationError(
             f"{where[i]}: with quaternion_world = {world!r}, quaternion_body = {body!r} and quaternion_rotates = "
             f"{rotates!r} the camera would look {tilt:.0f} degrees away from straight down (up or sideways): "
-            "check the convention (README, 'Real dives in')."
+            "check the convention (README, 'Your own dive')."
         )
     return heading_roll_pitch(r)
 

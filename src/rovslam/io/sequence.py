@@ -110,8 +110,8 @@ def parse_sequence_toml(path: Path, root: Path | None = None) -> SequenceInfo:
     """Read and validate ``sequence.toml`` (``root``: the folder it must resolve inside, if any)."""
     if not path.is_file():
         raise SequenceFormatError(
-            f"{path}: {not_a_file(path)}. A sequence folder needs sequence.toml (README, 'Sequence folder (format v1)'); "
-            "a folder of plain images runs with --camera CAMERA.toml and --fps or --times (README, 'Real dives in')."
+            f"{path}: {not_a_file(path)}. A sequence folder needs sequence.toml (docs/formats.md, 'Sequence folder (format v1)'); "
+            "a folder of plain images runs with --camera CAMERA.toml and --fps or --times (README, 'Your own dive')."
         )
     if root is not None:
         inside_folder(root, path.name, f"{path}")

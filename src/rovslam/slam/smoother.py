@@ -4,7 +4,7 @@ Built like GTSAM's Python examples (``Pose2ISAM2Example``, ``PlanarSLAMExample``
 plain per-frame records of :mod:`rovslam.slam.measurements`, the same ones the EKF consumes.
 Every factor is one of GTSAM's compiled factors (no Python callback: a ``gtsam.CustomFactor``
 is handed a copy of all the variables at every evaluation inside iSAM2, which makes each
-frame cost O(poses); see the README, "Smoothing back end").
+frame cost O(poses); see docs/method.md, "Smoothing back end").
 
 Variables:
 
