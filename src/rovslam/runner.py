@@ -344,7 +344,7 @@ def keep_freed_memory(pad_bytes: int = FREED_MEMORY_KEPT_BYTES) -> bool:
 
 
 def run_sequence(
-    sequence_dir: str | Path,
+    sequence_dir: str | Path | Any,  # or an opened source (rovslam live)
     out_dir: str | Path,
     config: RunConfig = RunConfig(),
     max_frames: int | None = None,

@@ -215,7 +215,7 @@ class MavlinkLink:
         for msg_id, hz in REQUESTED:
             self._send(
                 "COMMAND_LONG",
-                lambda mav, m=msg_id, h=hz: mav.command_long_send(
+                lambda mav, m=msg_id, h=hz: mav.command_long_send(  # type: ignore[misc]
                     target, 1, MAV_CMD_SET_MESSAGE_INTERVAL, 0, m, 1e6 / h, 0, 0, 0, 0, 0
                 ),
             )

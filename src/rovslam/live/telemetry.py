@@ -130,7 +130,7 @@ class Telemetry:
             self.attitude.add(remote_s, (roll_rad, pitch_rad, unwrap_to(yaw_rad, prev[2] if prev else None)))
             last = self._last_attitude_arrival_s
             if last is not None and arrival_s - last > TELEMETRY_GAP_S:
-                self.gaps.append({"what": "ATTITUDE", "gap_s": arrival_s - last, "ended_at_s": arrival_s})
+                self.gaps.append({"what": "ATTITUDE", "gap_s": arrival_s - last, "ended_at_s": arrival_s})  # type: ignore[dict-item]
             if self.first_attitude_s is None:
                 self.first_attitude_s = arrival_s
             self._last_attitude_arrival_s = arrival_s
@@ -194,5 +194,5 @@ class Telemetry:
             gaps = list(self.gaps)
             last = self._last_attitude_arrival_s
         if last is not None and now_s - last > TELEMETRY_GAP_S:  # still silent at the end
-            gaps.append({"what": "ATTITUDE", "gap_s": now_s - last, "ended_at_s": None})
+            gaps.append({"what": "ATTITUDE", "gap_s": now_s - last, "ended_at_s": None})  # type: ignore[dict-item]
         return {"telemetry_gaps": gaps}

@@ -108,7 +108,7 @@ def check_connection(connection: str) -> tuple[str, int | None]:
 def _mavutil():
     """pymavlink's mavutil with the ardupilotmega dialect in MAVLink 2 (its extension fields: covariance, reset_counter)."""
     os.environ.setdefault("MAVLINK20", "1")
-    from pymavlink import mavutil  # type: ignore[import-untyped]
+    from pymavlink import mavutil
 
     if getattr(mavutil.mavlink, "WIRE_PROTOCOL_VERSION", "1.0") != "2.0" or mavutil.current_dialect != "ardupilotmega":
         os.environ["MAVLINK20"] = "1"
