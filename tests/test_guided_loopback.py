@@ -121,6 +121,7 @@ def fly_guided(
     return errors, events, err
 
 
+@pytest.mark.slow  # 1.5 to 3 minutes of a real-time mission on 2 cores
 def test_guided_mission_short_reaches_the_point(tmp_path):
     """The fast version: clear water (portofino), no survey, one point 6 cm away, 1 s hold (about 2 min)."""
     errors, events, err = fly_guided(
