@@ -8,7 +8,7 @@ noise like every simulated frame:
 * ``sample_turbid.png`` - the turbid water with marine snow of the ``rough-turns`` preset;
 * ``sample_lasers.png`` - clear water with the four red laser spots of the paper's rig;
 
-and one frame of each of the harder presets of issue 9 (its world for seed 7, a pose of
+and one frame of each of the harder presets (its world for seed 7, a pose of
 its survey), exactly as ``rovslam simulate`` renders it:
 
 * ``sample_relief.png`` (``portofino-relief``), ``sample_hd.png`` (``hd-survey``, scaled to

@@ -10,22 +10,12 @@ import shutil
 from pathlib import Path
 
 import pytest
+from cli_output import one_error_line
 from typer.testing import CliRunner
 
 from rovslam.cli import app
 
 runner = CliRunner()
-
-
-def _one_error_line(res, *needles: str) -> str:
-    """The single `rovslam: error:` line of a refused command (exit 2, no traceback), holding every needle."""
-    assert res.exit_code == 2, res.output
-    assert "Traceback" not in res.output
-    lines = [line for line in res.output.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("rovslam: error:"), res.output
-    for needle in needles:
-        assert needle in lines[0], (needle, lines[0])
-    return lines[0]
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +78,7 @@ def test_a_full_disk_while_writing_tokens_names_the_file_and_finishes_the_others
     monkeypatch.setattr(results.GalleryWriter, "__init__", full_after_a_while)
     out = tmp_path / "o"
     res = runner.invoke(app, ["run", str(dive[0]), "--out", str(out), "-q"])
-    _one_error_line(res, str(out / "tokens.csv"), "the disk is full")
+    one_error_line(res, str(out / "tokens.csv"), "the disk is full")
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "failed" and "tokens.csv" in summary["reason"]
     n = summary["frames_processed"]
@@ -113,7 +103,7 @@ def test_a_revisit_crop_opencv_cannot_write_names_the_file(dive, tmp_path, monke
     monkeypatch.setattr(output, "_write_all", full_for_crops)
     out = tmp_path / "o"
     res = runner.invoke(app, ["run", str(dive[0]), "--out", str(out), "-q"])
-    line = _one_error_line(res, str(out / "revisits"), ".png: cannot write the revisit crop", "free space")
+    line = one_error_line(res, str(out / "revisits"), ".png: cannot write the revisit crop", "free space")
     assert "choose another --out" in line
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "failed" and "revisit crop" in summary["reason"]
@@ -183,7 +173,7 @@ def test_unknown_frames_columns_are_refused_with_the_known_ones_listed(tmp_path,
     _add_columns(seq, names, value)
     res = runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"])
     unknown = [n for n in names.split(",") if n not in ("roll_rad", "pitch_rad")]
-    _one_error_line(
+    one_error_line(
         res, str(seq / "frames.csv"), *(f"'{n}'" for n in unknown), "optional roll_rad,pitch_rad", "rename or remove"
     )
     assert not (tmp_path / "o").exists()
@@ -229,7 +219,7 @@ def test_a_cut_trajectory_of_a_complete_run_is_refused(dive, tmp_path):
     r = _copy_run(dive[1], tmp_path / "r")
     (r / "trajectory.csv").write_bytes((dive[1] / "trajectory.csv").read_bytes()[:3000])
     res = runner.invoke(app, ["eval", str(r), "-g", str(dive[0] / "groundtruth.csv")])
-    _one_error_line(
+    one_error_line(
         res,
         str(r / "trajectory.csv"),
         "rows, but summary.json says the run (complete) processed 60 frames",
@@ -243,7 +233,7 @@ def test_a_missing_landmarks_file_is_refused_when_the_run_mapped_some(dive, tmp_
     (r / "landmarks.csv").unlink()
     for args in (["eval", str(r), "-g", str(dive[0] / "groundtruth.csv")], ["report", str(r), "-q"]):
         res = runner.invoke(app, args)
-        _one_error_line(
+        one_error_line(
             res,
             str(r / "landmarks.csv"),
             "missing, but summary.json says the run mapped 6 landmarks",
@@ -320,7 +310,7 @@ def test_another_dives_sequence_is_refused_naming_both(dive, other_dive, tmp_pat
             str(tmp_path / "e.json"),
         ],
     }[command]
-    _one_error_line(
+    one_error_line(
         runner.invoke(app, args),
         f"{option} {other_dive}: not the sequence of the run in {out}",
         "named 'rovslam simulate rough-turns-short (seed 1)'",
@@ -330,7 +320,7 @@ def test_another_dives_sequence_is_refused_naming_both(dive, other_dive, tmp_pat
     )
     assert not (tmp_path / "m.png").exists() and not (tmp_path / "e.json").exists()
     short = _fewer_frames(seq, tmp_path / "short", 40)  # the same dive's name, 40 of its 60 frames
-    line = _one_error_line(
+    line = one_error_line(
         runner.invoke(app, [a if a != str(other_dive) else str(short) for a in args]),
         "it has 40 frames, the run's sequence 60",
     )
@@ -431,7 +421,7 @@ def _run_folder(folder, cam, out, *extra):
 def test_d9a_a_times_file_with_only_a_header_is_named(image_folder, tmp_path):
     times = tmp_path / "t.csv"
     times.write_text("image,t_s\n")
-    _one_error_line(
+    one_error_line(
         _run_folder(*image_folder, tmp_path / "o", "--times", str(times)),
         f"{times}: lists no images (only a header)",
         "add one row image,t_s per image",
@@ -440,22 +430,22 @@ def test_d9a_a_times_file_with_only_a_header_is_named(image_folder, tmp_path):
 
 @pytest.mark.parametrize("fps", ["0", "-5"])
 def test_d9i_fps_must_be_above_zero(image_folder, tmp_path, fps):
-    _one_error_line(_run_folder(*image_folder, tmp_path / "o", "--fps", fps), "above 0 and at most 10000")
+    one_error_line(_run_folder(*image_folder, tmp_path / "o", "--fps", fps), "above 0 and at most 10000")
 
 
 def test_d9j_fps_and_times_together_are_told_apart_from_neither(image_folder, tmp_path):
     times = tmp_path / "t.csv"
     times.write_text("image,t_s\nframe1.png,0\n")
-    _one_error_line(
+    one_error_line(
         _run_folder(*image_folder, tmp_path / "o", "--fps", "5", "--times", str(times)),
         "give --fps or --times, one of the two, not both",
     )
-    line = _one_error_line(_run_folder(*image_folder, tmp_path / "o"), "--fps F or --times FILE")
+    line = one_error_line(_run_folder(*image_folder, tmp_path / "o"), "--fps F or --times FILE")
     assert "not both" not in line
 
 
 def test_d9b_the_coarser_scale_suggested_is_one_the_mosaic_accepts(dive, tmp_path):
-    line = _one_error_line(
+    line = one_error_line(
         runner.invoke(app, ["mosaic", str(dive[1]), "--mm-per-px", "0.0001", "--out", str(tmp_path / "m.png"), "-q"]),
         "give a coarser --mm-per-px",
     )
@@ -467,7 +457,7 @@ def test_d9b_the_coarser_scale_suggested_is_one_the_mosaic_accepts(dive, tmp_pat
 def test_d9c_a_file_where_the_report_folder_goes_is_named(dive, tmp_path):
     r = _copy_run(dive[1], tmp_path / "r")
     (r / "report").write_text("notes")
-    _one_error_line(runner.invoke(app, ["report", str(r), "-q"]), f"{r / 'report'}: is a file", "move or delete it")
+    one_error_line(runner.invoke(app, ["report", str(r), "-q"]), f"{r / 'report'}: is a file", "move or delete it")
 
 
 @pytest.mark.parametrize(
@@ -485,7 +475,7 @@ def test_d9d_a_header_of_another_dialect_is_quoted_with_a_hint(tmp_path, header,
     lines = (seq / "frames.csv").read_text().splitlines()
     sep = ";" if ";" in header else "\t" if "\t" in header else ","
     (seq / "frames.csv").write_text("\n".join([header] + [x.replace(",", sep) for x in lines[1:]]) + "\n")
-    _one_error_line(
+    one_error_line(
         runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]),
         f"{seq / 'frames.csv'}: header is missing column(s)",
         "it reads 'T_S" if "T_S" in header else "it reads 't_s",
@@ -496,7 +486,7 @@ def test_d9d_a_header_of_another_dialect_is_quoted_with_a_hint(tmp_path, header,
 def test_d9e_a_ground_truth_that_does_not_cover_the_run_is_named(dive, tmp_path):
     gt = tmp_path / "gt.csv"
     gt.write_text("\n".join((dive[0] / "groundtruth.csv").read_text().splitlines()[:30]) + "\n")
-    _one_error_line(
+    one_error_line(
         runner.invoke(app, ["eval", str(dive[1]), "-g", str(gt), "--json", str(tmp_path / "e.json")]),
         f"{gt}: ground truth has no row at t_s=",
         "give the groundtruth.csv of the sequence that was run",
@@ -508,33 +498,33 @@ def test_d9f_an_image_cell_naming_a_folder_says_so(tmp_path):
 
     seq = fc.write_sequence(tmp_path / "seq")
     fc.set_cell(seq / "frames.csv", 3, "image", "images")
-    _one_error_line(
+    one_error_line(
         runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]),
         "line 4: image file 'images' is a folder, not an image file",
     )
 
 
 def test_d9g_smooth_tells_a_sequence_folder_and_a_cut_file_from_an_old_run(dive, tmp_path):
-    _one_error_line(
+    one_error_line(
         runner.invoke(app, ["smooth", str(dive[0]), "-q"]),
         f"{dive[0]}: not the --out folder of a `rovslam run` (no trajectory.csv, no summary.json)",
     )
     r = _copy_run(dive[1], tmp_path / "r")
     (r / "measurements.csv").write_bytes(b"")
-    _one_error_line(
+    one_error_line(
         runner.invoke(app, ["smooth", str(r), "-q"]),
         f"{r / 'measurements.csv'}: empty file",
         "cut short",
         "--overwrite",
     )
     (r / "measurements.csv").unlink()  # a run folder without the file: made by an older rovslam
-    _one_error_line(runner.invoke(app, ["smooth", str(r), "-q"]), "does not write measurements")
+    one_error_line(runner.invoke(app, ["smooth", str(r), "-q"]), "does not write measurements")
 
 
 def test_d9h_a_missing_summary_is_not_called_a_summary_naming_no_sequence(dive, tmp_path):
     r = _copy_run(dive[1], tmp_path / "r")
     (r / "summary.json").unlink()
-    _one_error_line(
+    one_error_line(
         runner.invoke(app, ["mosaic", str(r), "-q"]),
         f"{r / 'summary.json'} is missing (or empty), so the run's sequence is unknown",
         "--seq",
@@ -542,7 +532,7 @@ def test_d9h_a_missing_summary_is_not_called_a_summary_naming_no_sequence(dive, 
 
 
 def test_d9k_a_folder_given_as_configuration_is_called_a_folder(dive, tmp_path):
-    _one_error_line(
+    one_error_line(
         runner.invoke(app, ["run", str(dive[0]), "-c", str(tmp_path), "--out", str(tmp_path / "o"), "-q"]),
         f"{tmp_path}: is a folder; -c needs a TOML file",
     )
@@ -615,7 +605,7 @@ def test_a_toml_file_nested_thousands_deep_is_a_bad_file_not_an_internal_error(d
         target = tmp_path / "matrix.toml"
         target.write_text(_DEEP)
         res = runner.invoke(app, ["batch", str(target), "--out", str(tmp_path / "out")])
-    _one_error_line(res, str(target), "not valid TOML", "nested too deeply")
+    one_error_line(res, str(target), "not valid TOML", "nested too deeply")
 
 
 def test_a_laser_skirt_no_memory_holds_is_refused_at_load(dive, tmp_path):
@@ -624,19 +614,19 @@ def test_a_laser_skirt_no_memory_holds_is_refused_at_load(dive, tmp_path):
     cfg = tmp_path / "skirt.toml"
     cfg.write_text("[laser]\nspot_skirt_px = 1e6\n")
     res = runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "out"), "--config", str(cfg), "-q"])
-    _one_error_line(res, str(cfg), "[laser] spot_skirt_px", "<= 100")
+    one_error_line(res, str(cfg), "[laser] spot_skirt_px", "<= 100")
 
 
 def test_a_frame_rate_or_time_no_clock_gives_is_named_not_an_overflow(image_folder, tmp_path):
     # --fps 1e-300 and a times file with t_s = 1e308 overflowed the altitude filter's step (an internal error)
     folder, cam = image_folder
-    _one_error_line(_run_folder(folder, cam, tmp_path / "a", "--fps", "1e-300"), "--fps 1e-300", "frames per second")
+    one_error_line(_run_folder(folder, cam, tmp_path / "a", "--fps", "1e-300"), "--fps 1e-300", "frames per second")
     names = sorted(p.name for p in folder.iterdir())
     times = tmp_path / "times.csv"
     times.write_text(
         "image,t_s\n" + "".join(f"{n},{0 if k == 0 else 1e308 * k / len(names)}\n" for k, n in enumerate(names))
     )
-    _one_error_line(
+    one_error_line(
         _run_folder(folder, cam, tmp_path / "b", "--times", str(times)), str(times), "line 3", "no clock's time"
     )
 
@@ -645,7 +635,7 @@ def test_simulate_refuses_more_frames_than_a_dive_holds(tmp_path):
     res = runner.invoke(
         app, ["simulate", "--scenario", "portofino-short", "--frames", "10000000000", "--out", str(tmp_path / "s")]
     )
-    _one_error_line(res, "at most 1,000,000")
+    one_error_line(res, "at most 1,000,000")
     assert not (tmp_path / "s").exists()
 
 
@@ -683,7 +673,7 @@ def test_a_landmark_id_given_many_times_is_one_figure():
 def test_a_config_that_is_a_device_is_not_called_missing(dive, tmp_path, path, needle):
     seq, _ = dive
     res = runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "out"), "--config", path, "-q"])
-    _one_error_line(res, path, needle)
+    one_error_line(res, path, needle)
 
 
 @pytest.mark.parametrize("z", [1e308, 1e-320])

@@ -19,23 +19,13 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from cli_output import one_error_line
 from typer.testing import CliRunner
 
 from rovslam.cli import app
 from rovslam.errors import NavigationError, OutputError
 
 runner = CliRunner()
-
-
-def _one_error_line(res, *needles: str) -> str:
-    """The single `rovslam: error:` line of a refused command (exit 2, no traceback), holding every needle."""
-    assert res.exit_code == 2, res.output
-    assert "Traceback" not in res.output
-    lines = [line for line in res.output.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("rovslam: error:"), res.output
-    for needle in needles:
-        assert needle in lines[0], (needle, lines[0])
-    return lines[0]
 
 
 @pytest.fixture(scope="module")
@@ -106,7 +96,7 @@ def test_eval_json_that_is_a_special_file_is_refused_and_left_alone(dive, tmp_pa
     _make(kind, target)
     before = _snapshot(target)
     res = runner.invoke(app, ["eval", str(out), "-g", str(seq / "groundtruth.csv"), "--json", str(target)])
-    _one_error_line(res, str(target), NEEDLE[kind])
+    one_error_line(res, str(target), NEEDLE[kind])
     assert "wrote" not in res.output
     _assert_untouched(target, before)
 
@@ -130,7 +120,7 @@ def test_config_overwrite_onto_a_special_file_is_refused(tmp_path, kind):
     target = tmp_path / "c.toml"
     _make(kind, target)
     before = _snapshot(target)
-    _one_error_line(runner.invoke(app, ["config", str(target), "--overwrite"]), str(target), NEEDLE[kind])
+    one_error_line(runner.invoke(app, ["config", str(target), "--overwrite"]), str(target), NEEDLE[kind])
     _assert_untouched(target, before)
 
 
@@ -140,7 +130,7 @@ def test_mosaic_out_that_is_a_special_file_is_refused_before_the_work(dive, tmp_
     target = tmp_path / "m.png"
     _make(kind, target)
     before = _snapshot(target)
-    _one_error_line(runner.invoke(app, ["mosaic", str(out), "--out", str(target), "-q"]), str(target), NEEDLE[kind])
+    one_error_line(runner.invoke(app, ["mosaic", str(out), "--out", str(target), "-q"]), str(target), NEEDLE[kind])
     _assert_untouched(target, before)
 
 
@@ -148,7 +138,7 @@ def test_mosaic_world_file_that_is_a_fifo_is_refused(dive, tmp_path):
     _, out = dive
     _make("fifo", tmp_path / "m.pgw")
     before = _snapshot(tmp_path / "m.pgw")
-    _one_error_line(
+    one_error_line(
         runner.invoke(app, ["mosaic", str(out), "--out", str(tmp_path / "m.png"), "-q"]), "m.pgw", NEEDLE["fifo"]
     )
     _assert_untouched(tmp_path / "m.pgw", before)
@@ -166,7 +156,7 @@ def test_report_files_that_are_special_files_are_refused(dive, tmp_path, where):
     _make("fifo", res_dir / where)
     before = _snapshot(res_dir / where)
     res = runner.invoke(app, ["report", str(res_dir), "--no-mosaic", "-q"])
-    _one_error_line(res, str(res_dir / where), "FIFO (named pipe)")
+    one_error_line(res, str(res_dir / where), "FIFO (named pipe)")
     _assert_untouched(res_dir / where, before)
 
 
@@ -178,7 +168,7 @@ def test_smooth_output_that_is_a_fifo_is_refused(dive, tmp_path):
     target.unlink(missing_ok=True)
     _make("fifo", target)
     before = _snapshot(target)
-    _one_error_line(runner.invoke(app, ["smooth", str(res_dir), "-q"]), str(target), NEEDLE["fifo"])
+    one_error_line(runner.invoke(app, ["smooth", str(res_dir), "-q"]), str(target), NEEDLE["fifo"])
     _assert_untouched(target, before)
 
 
@@ -201,7 +191,7 @@ def test_out_folder_that_is_a_special_file_is_refused(dive, tmp_path, kind, comm
         "navigate": ["navigate", "--scenario", "portofino-short", "--poi", str(poi), "--out", str(target), "-q"],
     }[command]
     needle = "is a symbolic link to" if kind == "dangling-link" else "not a folder"
-    _one_error_line(runner.invoke(app, args), str(target), needle)
+    one_error_line(runner.invoke(app, args), str(target), needle)
     _assert_untouched(target, before)
 
 
@@ -212,7 +202,7 @@ def test_save_rrd_that_is_a_special_file_is_refused(dive, tmp_path, kind):
     _make(kind, target)
     before = _snapshot(target)
     res = runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "--save-rrd", str(target), "-q"])
-    _one_error_line(res, str(target), NEEDLE[kind])
+    one_error_line(res, str(target), NEEDLE[kind])
     _assert_untouched(target, before)
     assert not (tmp_path / "o").exists()  # refused before the run
 
@@ -243,7 +233,7 @@ def test_a_symlink_to_a_folder_as_out_is_used_as_that_folder(dive, tmp_path):
 def test_a_regular_file_as_simulate_out_is_not_a_folder(tmp_path):
     target = tmp_path / "f"
     target.write_text("mine")
-    line = _one_error_line(
+    line = one_error_line(
         runner.invoke(app, ["simulate", "--frames", "5", "--out", str(target), "-q"]),
         str(target),
         "is a file, not a folder",
@@ -308,7 +298,7 @@ def _check_eval_tells_the_reason(seq: Path, out: Path, summary: dict) -> None:
     text = " ".join(res.output.split())
     assert "killed or a power loss" not in text
     if summary["frames_written"] == 0:
-        _one_error_line(res, "the run wrote no frame; it failed:", "No space left on device")
+        one_error_line(res, "the run wrote no frame; it failed:", "No space left on device")
     else:
         assert res.exit_code == 0, res.output
         assert "the run was stopped by an error (" in text and "No space left on device" in text
@@ -351,7 +341,7 @@ def test_a_run_on_a_small_disk_leaves_a_consistent_folder(dive, small_disk, size
     seq, _ = dive
     out = small_disk(size) / "out"
     res = runner.invoke(app, ["run", str(seq), "--out", str(out), "-q"])
-    _one_error_line(res, "No space left on device", "the disk is full")
+    one_error_line(res, "No space left on device", "the disk is full")
     summary = _check_consistent(out)
     if summary["frames_written"]:
         assert (out / "landmarks.csv").read_text().startswith("id,x_m,y_m")
@@ -413,7 +403,7 @@ def test_a_run_on_a_fake_full_disk_leaves_a_consistent_folder(dive, tmp_path, mo
     res = runner.invoke(app, ["run", str(seq), "--out", str(out), "-q"])
     monkeypatch.undo()
     assert disk.full_writes > 0
-    _one_error_line(res, "No space left on device", "the disk is full")
+    one_error_line(res, "No space left on device", "the disk is full")
     summary = _check_consistent(out)
     _check_eval_tells_the_reason(seq, out, summary)
 
@@ -544,7 +534,7 @@ def test_a_fifo_in_images_is_not_a_regular_file_not_missing(dive, tmp_path):
     first = min((seq / "images").iterdir())
     first.unlink()
     os.mkfifo(first)
-    line = _one_error_line(
+    line = one_error_line(
         runner.invoke(app, ["run", str(seq), "--out", str(tmp_path / "o"), "-q"]), first.name, "is not a regular file"
     )
     assert "not found" not in line
@@ -560,7 +550,7 @@ def test_a_fifo_listed_in_a_times_file_is_not_a_regular_file(dive, tmp_path):
     times = tmp_path / "times.csv"
     times.write_text("image,t_s\n" + "".join(f"{p.name},{0.1 * k}\n" for k, p in enumerate(images)))
     camera = Path(__file__).resolve().parents[1] / "examples" / "sparus-camera.toml"
-    line = _one_error_line(
+    line = one_error_line(
         runner.invoke(
             app,
             ["run", str(folder), "--camera", str(camera), "--times", str(times), "--out", str(tmp_path / "o"), "-q"],
