@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from scipy.special import ndtri
@@ -371,7 +371,7 @@ class ProceduralSeabed(ChunkedGrid):
             g = lattice_noise_points(self.seed, _L_GRAVEL, (ii + 0.5) * cell, (jj + 0.5) * cell, 0.22)
             patch = 0.1 + 1.9 * smoothstep(-0.4, 1.0, g)
             lam *= (1.0 - self.params.gravel_patchiness) + self.params.gravel_patchiness * patch
-        cols: list[list[np.ndarray]] = [[] for _ in range(8)]
+        cols: list[list[Any]] = [[] for _ in range(8)]  # per column: arrays of the cells (x, y, ..., harmonics)
         for ci, cj, lam_k in zip(ii.tolist(), jj.tolist(), lam.tolist()):
             rng = np.random.default_rng([self.seed, kind, ci & 0xFFFFFFFF, cj & 0xFFFFFFFF])  # type: ignore[operator]
             k = int(rng.poisson(lam_k))
