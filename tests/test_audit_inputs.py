@@ -357,8 +357,8 @@ def test_a_ground_truth_in_other_coordinates_is_shifted_to_the_runs_origin_with_
     res = runner.invoke(app, ["eval", str(out), "-g", str(moved), "--json", str(tmp_path / "b.json")])
     assert res.exit_code == 0, res.output
     assert (
-        "note: the ground truth's first row is at x = 4900000.000 m, y = 500000.500 m, not at the origin where the "
-        "run starts: it was shifted by (-4900000.000, -500000.500) m to start there"
+        "note: the ground truth at the run's first frame is at x = 4900000.000 m, y = 500000.500 m, not at the "
+        "origin where the run starts: it was shifted by (-4900000.000, -500000.500) m to start there"
     ) in " ".join(res.output.split())
     a, b = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
     assert b["groundtruth_shift_m"] == [-4_900_000.0, -500_000.5] and a["groundtruth_shift_m"] == [0.0, 0.0]

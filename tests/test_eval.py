@@ -243,6 +243,26 @@ def test_eval_of_a_one_frame_run_says_what_it_cannot_compute(short_run, tmp_path
     assert d["slam"]["final_error_pct"] is None and len(d["notes"]) == 3
 
 
+def test_a_run_that_begins_after_its_truth_is_compared_from_where_it_began(short_run, tmp_path):
+    """A live run joins a stream already running: its origin is the truth at its first frame, not at the truth's."""
+    import shutil
+
+    from rovslam.eval import evaluate_run
+    from rovslam.runner import run_sequence
+
+    seq = tmp_path / "late"
+    shutil.copytree(short_run / "seq", seq)
+    rows = (seq / "frames.csv").read_text(encoding="utf-8").splitlines()
+    (seq / "frames.csv").write_text("\n".join([rows[0], *rows[1 + 60 :]]) + "\n", encoding="utf-8")
+    run_sequence(seq, tmp_path / "out")
+    full = evaluate_run(short_run / "out", short_run / "seq" / "groundtruth.csv")
+    late = evaluate_run(tmp_path / "out", seq / "groundtruth.csv")
+    gt = np.loadtxt(seq / "groundtruth.csv", delimiter=",", skiprows=1, usecols=(1, 2))
+    assert np.linalg.norm(gt[60]) > 0.02  # the vehicle moved before the run began: a shift that matters
+    assert late.groundtruth_shift_m == pytest.approx((-gt[60][0], -gt[60][1]))
+    assert late.frames == 240 and late.slam.ate_rmse_m < 2 * full.slam.ate_rmse_m
+
+
 # --------------------------------------------------------------------------- the speed's own consistency
 
 

@@ -214,8 +214,8 @@ def print_eval(f) -> None:
     if f.groundtruth_shift_m != (0.0, 0.0):
         dx, dy = f.groundtruth_shift_m
         console.print(
-            f"note: the ground truth's first row is at x = {-dx:.3f} m, y = {-dy:.3f} m, not at the origin where "
-            f"the run starts: it was shifted by ({dx:+.3f}, {dy:+.3f}) m to start there",
+            f"note: the ground truth at the run's first frame is at x = {-dx:.3f} m, y = {-dy:.3f} m, not at the "
+            f"origin where the run starts: it was shifted by ({dx:+.3f}, {dy:+.3f}) m to start there",
             markup=False,
             highlight=False,
         )

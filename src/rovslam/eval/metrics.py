@@ -378,13 +378,15 @@ def _notes(frames: int, slam: TrajectoryErrors) -> tuple[str, ...]:
     return tuple(notes)
 
 
-def groundtruth_start_m(gt: GroundTruth, tol_m: float = 1e-6) -> np.ndarray:
-    """(2,) the ground truth's first position when it is not the origin (UTM, another survey frame), else zeros.
+def groundtruth_start_m(gt: GroundTruth, first_row: int = 0, tol_m: float = 1e-6) -> np.ndarray:
+    """(2,) the ground truth's position at the run's first frame (row ``first_row``) when it is not the origin, else zeros.
 
-    A run starts at x = y = 0; its truth is compared from the same point, as a run without compass
-    is compared in its own turned frame (:func:`run_frame_turn_rad`).
+    A run starts at x = y = 0 at its first frame; its truth is compared from the same point, as a run
+    without compass is compared in its own turned frame (:func:`run_frame_turn_rad`). The truth may be
+    in another frame (UTM, a survey's), or the run may begin after the truth does (a live run joins a
+    stream already running; ``run --start``).
     """
-    first = gt.xy_m[0]
+    first = gt.xy_m[first_row]
     return first if float(np.max(np.abs(first))) > tol_m else np.zeros(2)
 
 
@@ -442,7 +444,7 @@ def evaluate(
         raise ResultsFormatError(f"{results.folder}: trajectory.csv has no rows; the run processed no frame.")
     idx = align_by_time(results.t_s, gt.t_s)
     turn = run_frame_turn_rad(results, float(gt.heading_rad[idx[0]]))
-    start = groundtruth_start_m(gt)
+    start = groundtruth_start_m(gt, int(idx[0]))
     gt_xy = to_run_frame(gt.xy_m[idx] - start, turn)
     slam = trajectory_errors(est, gt_xy, segment_m)
     pc = None

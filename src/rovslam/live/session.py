@@ -362,7 +362,12 @@ def run_live(
     deadline = None if opts.duration_s is None else t_start + opts.duration_s
     cam = read_camera_file(opts.camera_file, name="live")
     sends = parse_mavlink_out(None) if opts.mavlink_out is None else opts.mavlink_out
-    video = resolve_video(opts.video, Path(tempfile.mkdtemp(prefix="rovslam-sdp-")))
+    sdp_folder = tempfile.TemporaryDirectory(prefix="rovslam-sdp-")  # an rtp:// stream's SDP file, removed at the end
+    try:
+        video = resolve_video(opts.video, Path(sdp_folder.name))
+    except BaseException:
+        sdp_folder.cleanup()
+        raise
     telemetry = Telemetry()
     link = MavlinkLink(opts.mavlink, telemetry, say)
     stream: VideoStream | None = None
@@ -428,6 +433,7 @@ def run_live(
         if stream is not None:
             stream.close()
         link.close()
+        sdp_folder.cleanup()
 
 
 def _guide(opts: LiveOptions, link: Any, say: Callable[[str], None]) -> Any:

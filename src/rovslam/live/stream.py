@@ -183,20 +183,33 @@ class VideoStream:
         self.settled = threading.Event()  # set once frames arrive at the stream's pace (past the probe's burst)
         self._thread = threading.Thread(target=self._run, name="rovslam-video", daemon=True)
         self._started_s = 0.0
+        self.relay: Any = None  # a UdpRelay: arrival times taken at the socket (MPEG-TS over unicast UDP)
+        self._url = source.url
 
     def start(self) -> VideoStream:
+        """Start listening (and decoding).
+
+        Raises:
+            SequenceFormatError: a UDP address that cannot be listened on.
+        """
+        from rovslam.live.relay import UdpRelay, relay_address
+
+        address = relay_address(self.source.url)
+        if address is not None:
+            self.relay = UdpRelay(*address).start()
+            self._url = self.relay.url
         self._started_s = time.monotonic()
         self._thread.start()
         return self
 
     def close(self, timeout_s: float = 5.0) -> None:
         self._stop.set()
-        if not self._thread.is_alive():
-            return
-        with self._cond:
-            self._cond.notify_all()
         if self._thread.is_alive():
+            with self._cond:
+                self._cond.notify_all()
             self._thread.join(timeout_s)
+        if self.relay is not None:
+            self.relay.close()
 
     def __enter__(self) -> VideoStream:
         return self.start()
@@ -278,7 +291,7 @@ class VideoStream:
         while not self._stop.is_set():
             try:
                 opened = av.open(
-                    self.source.url,
+                    self._url,
                     format=self.source.format,
                     options=dict(self.source.options),
                     timeout=(min(self.wait_s, 5.0) if first_open else self.read_timeout_s, self.read_timeout_s),
@@ -366,8 +379,9 @@ class VideoStream:
     def _read(self, container: Any, stream: Any, packets: queue.Queue, done: threading.Event) -> None:
         """The demuxer's thread: each packet with the time its data arrived (network streams), then None or the error.
 
-        A frame of a network stream arrived :data:`HELD_FRAMES` frame intervals before FFmpeg hands its
-        packet out; the latency measured from there includes that wait.
+        A relayed stream's frame arrived when its first datagram did (:mod:`rovslam.live.relay`); any other
+        network stream's, :data:`HELD_FRAMES` frame intervals before FFmpeg hands its packet out. The latency
+        measured from there includes FFmpeg's wait.
         """
         network = network_arrival(self.source)
         held = HELD_FRAMES["mpegts"] if "mpegts" in container.format.name else HELD_FRAMES["rtp"]
@@ -384,8 +398,11 @@ class VideoStream:
                     intervals.append(pts_s - prev[0])
                     if network and now - prev[1] >= 0.5 * (pts_s - prev[0]):
                         self.settled.set()  # a packet that came at the stream's pace: past the probe's burst
-                held_s = held * float(np.median(intervals)) if intervals and network else 0.0
-                arrival = now - held_s
+                stamped = self.relay.arrival_s(packet.pts) if self.relay is not None else None
+                if stamped is not None:
+                    arrival = stamped  # its first datagram's arrival, taken at the socket
+                else:
+                    arrival = now - (held * float(np.median(intervals)) if intervals and network else 0.0)
                 if network:
                     self._floor(arrival, pts_s)
                 prev = (pts_s, now)
