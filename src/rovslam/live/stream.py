@@ -26,10 +26,10 @@ import numpy as np
 from rovslam.errors import SequenceFormatError
 
 BLIND_S = 0.5  # no new frame for this long: the video is blind (no position is sent)
-# FFmpeg hands a network video's packet out only once the next frames' data came (to know that one ended):
-# two frames later over MPEG-TS, one over RTP; measured on loopback with a sender that delivers each frame
-# at once (seen on the socket), frames told apart by their images.
-HELD_FRAMES = {"mpegts": 2, "rtp": 1}
+# Where a stream is not stamped at the socket (see rovslam.live.relay): FFmpeg hands a frame out this many frame
+# periods after its data came. MPEG-TS read without the parser: when the next frame's first bytes come (none
+# when the sender writes the PES length); RTP: the parser's wait for the next frame. Measured on loopback.
+HELD_FRAMES = {"mpegts": 1, "rtp": 1}
 READ_TIMEOUT_S = 3.0  # a stream silent this long is opened again (its frames up to the next key frame are lost)
 SETTLE_FRAMES = 3  # a file's or a device's clock is taken once this many frames were decoded
 PACKETS_AHEAD = 256  # compressed packets read ahead of the decoder (a few MB)
@@ -40,6 +40,7 @@ def network_arrival(source: VideoInput) -> bool:
     return not source.is_file and source.format != "v4l2"
 
 
+MPEGTS_NO_PARSER = {"fflags": "+noparse+nofillin", "probesize": "4096", "analyzeduration": "0"}
 NETWORK_SCHEMES = ("udp://", "rtp://", "rtsp://", "rtsps://", "tcp://", "srt://", "http://", "https://")
 SDP_TEXT = """v=0
 o=- 0 0 IN IP4 {host}
@@ -86,7 +87,9 @@ def resolve_video(video: str, sdp_folder: Path | None = None) -> VideoInput:
             raise SequenceFormatError(f"{video}: SDP file not found.")
         return VideoInput(video, "sdp", {"protocol_whitelist": "file,udp,rtp", **low_latency}, False, video)
     if low.startswith("udp://"):
-        return VideoInput(video, None, {"overrun_nonfatal": "1", **low_latency}, False, video)
+        # MPEG-TS: each PES packet is one frame as encoders and muxers write it, so FFmpeg's parser (which holds
+        # every frame until the next one begins: a frame period) is left out, and the probe kept short.
+        return VideoInput(video, None, {"overrun_nonfatal": "1", **MPEGTS_NO_PARSER}, False, video)
     if low.startswith(("rtsp://", "rtsps://")):
         return VideoInput(video, None, {"rtsp_transport": "tcp", **low_latency}, False, video)
     if low.startswith(NETWORK_SCHEMES):
