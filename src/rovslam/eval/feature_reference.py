@@ -130,8 +130,17 @@ class FeatureReference:
             # every compared pair, for the report's figure: frame, t_s, |token| px, |feature| px, difference px, relative,
             # sigmas, agrees (1/0), held (1/0)
             "per_pair": [
-                [p.frame, p.t_s, float(np.linalg.norm(p.token_px)), float(np.linalg.norm(p.feature_px)),
-                 float(np.linalg.norm(p.feature_px - p.token_px)), p.relative, p.mahalanobis, int(p.agrees), int(p.held)]
+                [
+                    p.frame,
+                    p.t_s,
+                    float(np.linalg.norm(p.token_px)),
+                    float(np.linalg.norm(p.feature_px)),
+                    float(np.linalg.norm(p.feature_px - p.token_px)),
+                    p.relative,
+                    p.mahalanobis,
+                    int(p.agrees),
+                    int(p.held),
+                ]
                 for p in self.compared
             ],
         }

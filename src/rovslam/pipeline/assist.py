@@ -51,9 +51,7 @@ def reduced_grey(image: np.ndarray, camera: Camera) -> np.ndarray:
     return grey
 
 
-def predicted_tokens(
-    camera: Camera, motion: FeatureMotion, uv_prev_px: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def predicted_tokens(camera: Camera, motion: FeatureMotion, uv_prev_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Where ``(N, 2)`` previous-frame pixels (distorted) are now: ``(N, 2)`` px and ``(N, 2, 2)`` px^2.
 
     Through the lens model: undistort, apply the similarity, distort again. The covariance is that
