@@ -192,3 +192,15 @@ def test_feature_plot_from_worst_pairs_only(tmp_path):
     del block["per_pair"]
     assert plot_feature_reference(block, tmp_path / "f.png") == tmp_path / "f.png"
     assert plot_feature_reference({"worst": [], "pairs": 3}, tmp_path / "g.png") is None
+
+
+def test_a_turn_the_compass_did_not_see_is_refused():
+    """A frame that is not the next view of the seabed (a glitch) must not become a motion: 35 degrees against 0."""
+    from rovslam.pipeline.assist import turn_agrees
+
+    c, s = math.cos(math.radians(35.0)), math.sin(math.radians(35.0))
+    turned = _motion([c, s, 10.0, 0.0])  # the image turns +35 degrees: the vehicle turned -35
+    sigma = math.sqrt(2.0) * math.radians(0.5)
+    assert not turn_agrees(turned, (0.0,), sigma, 3.0)
+    assert turn_agrees(turned, (0.0, math.radians(-35.0)), sigma, 3.0)  # the reading saw it
+    assert turn_agrees(turned, (0.0,), None, 3.0)  # no compass: nothing to check against

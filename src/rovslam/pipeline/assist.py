@@ -8,6 +8,8 @@ from its inliers' residuals). From it, as pure functions:
 * :func:`predicted_tokens`: where each previous token should be now (and how sure that is): the
   search windows are centred there, so that motions far beyond the search radius are found;
 * :func:`token_gate`: which tracked tokens agree with it (the others are refused);
+* :func:`turn_agrees`: whether its turn agrees with the compass (a frame that is not the next view
+  of the same seabed, a glitch, must not be taken as a motion);
 * :func:`feature_speed`: the motion itself as the step's speed, with its covariance, where the
   tokens still fail.
 
@@ -27,10 +29,12 @@ from rovslam.camera import Camera, distort_pixels, undistort_pixels
 from rovslam.sensor.odometry import SpeedMeasurement, speed_from_tokens
 from rovslam.vision.features import FeatureMotion, _design
 
-__all__ = ["feature_speed", "is_weak", "predicted_tokens", "reduced_grey", "token_gate"]
+__all__ = ["feature_speed", "is_weak", "predicted_tokens", "reduced_grey", "token_gate", "turn_agrees"]
 
 # Finite-difference steps of the similarity's parameters [a, b, tx_px, ty_px] for the speed's Jacobian.
 _PARAM_STEPS = np.array([1e-4, 1e-4, 0.5, 0.5])
+# The feature motion's turn may differ from the compass's by this beyond their sigmas (tilt changes, the lens).
+_TURN_SLACK_RAD = math.radians(2.0)
 
 
 def is_weak(speed: SpeedMeasurement, min_inliers: int) -> bool:
@@ -86,6 +90,22 @@ def token_gate(
         if np.all(np.isfinite(r)):
             keep[i] = float(r @ np.linalg.solve(c, r)) <= sigmas**2
     return keep
+
+
+def turn_agrees(
+    motion: FeatureMotion, dpsi_rad: tuple[float, ...], dpsi_sigma_rad: float | None, sigmas: float
+) -> bool:
+    """Whether the feature motion's turn agrees with one of the heading changes ``dpsi_rad`` the compass gives.
+
+    The seabed turns the other way on the image (a level camera looking down: ``theta = -dpsi``).
+    Allowed: ``sigmas`` times both standard deviations, plus ``_TURN_SLACK_RAD`` (tilt changes, the
+    lens). No compass (``dpsi_sigma_rad`` None or infinite): nothing to check against.
+    """
+    if dpsi_sigma_rad is None or not math.isfinite(dpsi_sigma_rad):
+        return True
+    sigma = math.hypot(dpsi_sigma_rad, motion.rotation_sigma_rad)
+    gaps = [abs(math.remainder(motion.rotation_rad + d, math.tau)) for d in dpsi_rad]
+    return min(gaps) <= sigmas * sigma + _TURN_SLACK_RAD
 
 
 def _grid(camera: Camera, n: int = 5, share: float = 0.6) -> np.ndarray:

@@ -10,6 +10,7 @@ tokens and the landmark observations are moved to the frame's time (:mod:`rovsla
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import numpy as np
@@ -17,7 +18,14 @@ import numpy as np
 from rovslam.camera import Camera
 from rovslam.config import RunConfig
 from rovslam.core import Frame
-from rovslam.pipeline.assist import feature_speed, is_weak, predicted_tokens, reduced_grey, token_gate
+from rovslam.pipeline.assist import (
+    feature_speed,
+    is_weak,
+    predicted_tokens,
+    reduced_grey,
+    token_gate,
+    turn_agrees,
+)
 from rovslam.pipeline.geometry import landmark_mn_at_frame_time, motion_hint, token_predictions
 from rovslam.pipeline.records import TrackedLandmark
 from rovslam.sensor.heading import HeadingPrior
@@ -93,6 +101,14 @@ class SpeedStep:
         motion = None
         if before is not None and before[0] == prev.t_s and before[1] is not None and frame is not None:
             motion = self._feature_motion(before[1], frame.image)
+        if motion is not None and not turn_agrees(
+            motion,
+            # the compass step, and the reading against the last heading (a fast turn the prior takes for a glitch)
+            (prior.step_rad, math.remainder(prior.compass_rad - prior.previous_rad, math.tau)),
+            prior.step_sigma_rad if prior.has_compass else None,
+            self.config.odometry.feature_gate_sigmas,
+        ):
+            motion = None  # a turn the compass did not see: not the next view of the same seabed
         if motion is None:  # no feature motion: the tokens as they are
             return tracks, self.speed.measure(self.camera, uv_prev, uv_curr, **step)
         return self._assisted(track_img, mask, motion, tracks, step, dt_s)
