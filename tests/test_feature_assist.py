@@ -56,6 +56,13 @@ def test_tokens_alone_fail_the_turned_and_zoomed_pairs(mosaic):
     assert failing == {p.name for p in cp.PAIRS if p.turn_deg != 0.0}, cp.table(results)
 
 
+def test_seeded_tokens_measure_some_turned_pairs_themselves(mosaic):
+    """Searched around the feature motion's prediction, the tokens are found again on the 10 and 5 degree pairs
+    (measured: 4 of 8 agree) and give the speed themselves; the feature motion is the speed only where they fail."""
+    results = [cp.measure_pair(mosaic, p) for p in cp.BASE_PAIRS if p.turn_deg in (10.0, 5.0)]
+    assert [r.inliers >= 3 for r in results] == [True, True], cp.table(results)
+
+
 def test_flat_pairs_unchanged_when_tokens_are_strong(mosaic):
     """Pure translation: the tokens agree (8 of 8), the feature motion is never asked; bit for bit the same speed."""
     for spec in (cp.PAIRS[0], cp.PAIRS[1]):

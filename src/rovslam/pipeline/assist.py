@@ -27,7 +27,7 @@ import numpy as np
 
 from rovslam.camera import Camera, distort_pixels, undistort_pixels
 from rovslam.sensor.odometry import SpeedMeasurement, speed_from_tokens
-from rovslam.vision.features import FeatureMotion, _design
+from rovslam.vision.features import FeatureMotion, similarity_design
 
 __all__ = ["feature_speed", "is_weak", "predicted_tokens", "reduced_grey", "token_gate", "turn_agrees"]
 
@@ -63,7 +63,7 @@ def predicted_tokens(camera: Camera, motion: FeatureMotion, uv_prev_px: np.ndarr
     """
     uv = np.asarray(uv_prev_px, dtype=np.float64).reshape(-1, 2)
     ideal = undistort_pixels(camera, uv)
-    jac = _design(ideal).reshape(len(uv), 2, 4)  # per point: [[u, -v, 1, 0], [v, u, 0, 1]]
+    jac = similarity_design(ideal).reshape(len(uv), 2, 4)  # per point: [[u, -v, 1, 0], [v, u, 0, 1]]
     moved = np.einsum("nij,j->ni", jac, motion.params)
     cov = np.einsum("nij,jk,nlk->nil", jac, motion.cov_params, jac)
     return distort_pixels(camera, moved), cov
@@ -118,7 +118,7 @@ def _grid(camera: Camera, n: int = 5, share: float = 0.6) -> np.ndarray:
 
 def _speed_of(camera: Camera, params: np.ndarray, grid: np.ndarray, step: dict[str, Any]) -> SpeedMeasurement:
     """The speed of the grid's points moved by the similarity ``params`` (:func:`speed_from_tokens`, exact points)."""
-    jac = _design(grid).reshape(len(grid), 2, 4)
+    jac = similarity_design(grid).reshape(len(grid), 2, 4)
     moved = np.einsum("nij,j->ni", jac, params)
     return speed_from_tokens(camera, distort_pixels(camera, grid), distort_pixels(camera, moved), **step)
 

@@ -96,21 +96,14 @@ class SpeedStep:
         step = self._step_args(alt, att, prior, has_attitude, prev, dt_s)
         uv_prev, uv_curr = tokens_at_frame_time(self.camera, tracks.uv_prev_px, tracks.uv_curr_px, dt_s)
         threshold = self.config.odometry.feature_assist_inliers
-        if not is_weak(self.speed.preview(self.camera, uv_prev, uv_curr, **step), threshold):
-            return tracks, self.speed.measure(self.camera, uv_prev, uv_curr, **step)
+        tokens_only = self.speed.preview(self.camera, uv_prev, uv_curr, **step)
+        if not is_weak(tokens_only, threshold):
+            return tracks, self.speed.take(tokens_only, dt_s)
         motion = None
         if before is not None and before[0] == prev.t_s and before[1] is not None and frame is not None:
-            motion = self._feature_motion(before[1], frame.image)
-        if motion is not None and not turn_agrees(
-            motion,
-            # the compass step, and the reading against the last heading (a fast turn the prior takes for a glitch)
-            (prior.step_rad, math.remainder(prior.compass_rad - prior.previous_rad, math.tau)),
-            prior.step_sigma_rad if prior.has_compass else None,
-            self.config.odometry.feature_gate_sigmas,
-        ):
-            motion = None  # a turn the compass did not see: not the next view of the same seabed
+            motion = self._feature_motion(before[1], frame.image, prior)
         if motion is None:  # no feature motion: the tokens as they are
-            return tracks, self.speed.measure(self.camera, uv_prev, uv_curr, **step)
+            return tracks, self.speed.take(tokens_only, dt_s)
         return self._assisted(track_img, mask, motion, tracks, step, dt_s)
 
     def _step_args(
@@ -136,12 +129,18 @@ class SpeedStep:
             attitude_noise_rad=self.config.odometry.attitude_noise_sigma_rad if has_attitude else 0.0,
         )
 
-    def _feature_motion(self, before: np.ndarray, now: np.ndarray | None) -> FeatureMotion | None:
-        """The similarity from the previous frame's image to this one's (processed pixels), None when unreliable."""
+    def _feature_motion(self, before: np.ndarray, now: np.ndarray | None, prior: HeadingPrior) -> FeatureMotion | None:
+        """The similarity from the previous frame's image to this one's (processed pixels); None when unreliable,
+        or when it turns where the compass did not (not the next view of the same seabed: a glitch)."""
         if now is None or np.shape(before) != np.shape(now):
             return None
         motion = feature_motion(reduced_grey(before, self.camera), reduced_grey(now, self.camera), camera=self.camera)
-        return motion if motion.ok else None
+        # the compass step, and the reading against the last heading (a fast turn the prior takes for a glitch)
+        steps = (prior.step_rad, math.remainder(prior.compass_rad - prior.previous_rad, math.tau))
+        sigma = prior.step_sigma_rad if prior.has_compass else None
+        if not motion.ok or not turn_agrees(motion, steps, sigma, self.config.odometry.feature_gate_sigmas):
+            return None
+        return motion
 
     def _assisted(
         self,
@@ -165,8 +164,9 @@ class SpeedStep:
         uv_prev, uv_curr = tokens_at_frame_time(self.camera, tracks.uv_prev_px, tracks.uv_curr_px, dt_s)
         keep = token_gate(self.camera, motion, uv_prev, uv_curr, odo.outlier_threshold_px, odo.feature_gate_sigmas)
         uv_curr = np.where(keep[:, None], uv_curr, np.nan)
-        if not is_weak(self.speed.preview(self.camera, uv_prev, uv_curr, **step), odo.feature_assist_inliers):
-            return tracks, self.speed.measure(self.camera, uv_prev, uv_curr, **step)
+        gated = self.speed.preview(self.camera, uv_prev, uv_curr, **step)
+        if not is_weak(gated, odo.feature_assist_inliers):
+            return tracks, self.speed.take(gated, dt_s)
         # the grid's points are exact up to the zoom the altitudes miss: all inliers, the zoom fitted
         config = dataclasses.replace(odo, min_inliers=1, outlier_threshold_px=_GRID_THRESHOLD_PX, token_scale=True)
         m = feature_speed(self.camera, motion, len(uv_prev), {**step, "config": config})

@@ -605,6 +605,13 @@ class SpeedEstimator:
             attitude_noise_rad,
             self.token_var_px2,
         )
+        return self.take(m, dt_s)
+
+    def take(self, m: SpeedMeasurement, dt_s: float) -> SpeedMeasurement:
+        """What :meth:`measure` does with its token measurement: learn from it, then :meth:`accept` it.
+
+        ``m``: a token measurement made with this estimator's averages (:meth:`preview`).
+        """
         if m.ok:
             self._learn_relief(m.relief_sample, float(dt_s), float(np.sum((m.speed_mps * dt_s) ** 2)))
             self._learn_token_noise(m, float(dt_s))
