@@ -4,7 +4,7 @@ On pairs cut from the real chamber3 photomosaic (tests/chamber_pairs.py: 30 to 7
 5 to 20 degrees, 2 to 5 % zoom, each also at a quarter of the contrast) the loop's speed gives the
 displacement within 10 %, or with a covariance holding the truth. Measured before the feature
 motion was used (tokens only, ``feature_assist_inliers = 0``): 4 of the 12 pairs passed, the 8 with
-a turn or a zoom gave no speed (the held zero); with it all 12 pass, within 1.3 % (2.4 px).
+a turn or a zoom gave no speed (the held zero); with it all 12 pass, within 1.1 % (2.3 px).
 
 On the real Sparus video decimated by 4 and by 8, the path between the first and the last frame
 kept is within 10 % of the full-rate path's length and direction. Measured: by 4, 0.988 of the length
