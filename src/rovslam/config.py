@@ -357,6 +357,11 @@ class OdometryConfig(_Checked):
     attitude_sigma_rad: float = _num(0.0035, ge=0)  # AHRS roll / pitch accuracy (0.2 deg), when frames.csv has them
     # AHRS reading-to-reading noise (0.01 deg): moves each frame's seabed
     attitude_noise_sigma_rad: float = _num(0.0002, ge=0)
+    # fewer tokens agreeing than this (or no speed): the motion between the two frames is measured from point
+    # features too; it seeds the token search (large motions), gates the tokens, and is the speed where they
+    # still fail (0: never; rovslam.pipeline.assist)
+    feature_assist_inliers: int = _num(3, ge=0)
+    feature_gate_sigmas: float = _num(3.0, gt=0)  # a token farther than this from the feature motion is refused
 
 
 @dataclass(frozen=True)

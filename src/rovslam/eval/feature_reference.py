@@ -127,6 +127,22 @@ class FeatureReference:
             "not_compared": reasons,
             "not_compared_pairs": [[p.frame_prev, p.frame, p.reason] for p in self.pairs if p.reason][:50],
             "worst": [p.to_dict() for p in self.worst()],
+            # every compared pair, for the report's figure: frame, t_s, |token| px, |feature| px, difference px, relative,
+            # sigmas, agrees (1/0), held (1/0)
+            "per_pair": [
+                [
+                    p.frame,
+                    p.t_s,
+                    float(np.linalg.norm(p.token_px)),
+                    float(np.linalg.norm(p.feature_px)),
+                    float(np.linalg.norm(p.feature_px - p.token_px)),
+                    p.relative,
+                    p.mahalanobis,
+                    int(p.agrees),
+                    int(p.held),
+                ]
+                for p in self.compared
+            ],
         }
 
 

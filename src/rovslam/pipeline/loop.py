@@ -162,7 +162,7 @@ class SlamPipeline:
         visible, tracked = self._track_landmarks(track_img, alt, att, prior, dt_s)  # type: ignore[arg-type]  # step 3
         new_template = self._choose_new_landmark(track_img, mask, tracked)  # type: ignore[arg-type]
         self._inhibit_landmarks(mask, tracked, new_template)  # step 4
-        tracks, speed = self._measure_speed(track_img, mask, alt, att, prior, dt_s, frame.has_attitude)  # type: ignore[arg-type]  # step 5
+        tracks, speed = self._measure_speed(track_img, mask, alt, att, prior, dt_s, frame.has_attitude, frame)  # type: ignore[arg-type]  # step 5
         heading = self._fuse_heading(prior, speed, dt_s)
         tracked = self.speed_step.landmarks_at_frame_time(tracked, speed, prior, alt, dt_s)  # rolling shutter, if any
         if self._n == 0 and frame.has_attitude:
@@ -284,11 +284,14 @@ class SlamPipeline:
         prior: HeadingPrior,
         dt_s: float,
         has_attitude: bool,
+        frame: Frame | None = None,
     ) -> tuple[TokenTracks, SpeedMeasurement | None]:
         """Step 5: track the previous frame's tokens (their windows follow the turn) -> surge, sway, turn
         (:meth:`rovslam.pipeline.speed.SpeedStep.measure`)."""
         last_speed_mps = self.prediction.last_speed_mps
-        return self.speed_step.measure(track_img, mask, alt, att, prior, dt_s, has_attitude, self._prev, last_speed_mps)
+        return self.speed_step.measure(
+            track_img, mask, alt, att, prior, dt_s, has_attitude, self._prev, last_speed_mps, frame
+        )
 
     def _fuse_heading(self, prior: HeadingPrior, speed: SpeedMeasurement | None, dt_s: float) -> HeadingEstimate:
         """Step 5, heading: the compass smoothed with the turn the tokens measured."""

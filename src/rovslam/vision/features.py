@@ -255,6 +255,11 @@ def compose(later: FeatureMotion, earlier: FeatureMotion) -> np.ndarray:
     return (m2 @ m1)[:2]
 
 
+def similarity_design(points_px: np.ndarray) -> np.ndarray:
+    """``(2N, 4)``: where ``(N, 2)`` points go is this times ``[a, b, tx, ty]`` (rows ``[u, -v, 1, 0]``, ``[v, u, 0, 1]``)."""
+    return _design(np.asarray(points_px, dtype=np.float64).reshape(-1, 2))
+
+
 def _design(points_px: np.ndarray) -> np.ndarray:
     """``(2N, 4)`` the design of ``[a, b, tx, ty]`` for ``(N, 2)`` points: rows ``[u, -v, 1, 0]``, ``[v, u, 0, 1]``."""
     n = len(points_px)

@@ -2,7 +2,8 @@
 
 ``write_report(OUT)`` writes ``OUT/report/index.html`` and the figures (``altitude_speed.png``,
 ``position.png``, ``map.png``, ``fig5_landmark_<id>.png``,
-``fig6_landmarks.png``, ``mosaic.png`` / ``mosaic_truth.png``). Every image is embedded in
+``fig6_landmarks.png``, ``mosaic.png`` / ``mosaic_truth.png``, ``feature_reference.png`` when
+``eval.json`` holds the feature reference). Every image is embedded in
 the HTML as a data URI, so the file opens offline, can be copied alone or mailed.
 
 Everything is computed from the result files (:mod:`rovslam.viz.runinfo`); a frame source
@@ -436,6 +437,7 @@ def write_report(
         ("Figure 4", plots.plot_map(res, out / "map.png", gt_xy), ""),
     ]
     rep.sections.append("<h2>Figures 2 to 4</h2>" + "".join(_img(p, name, cap) for name, p, cap in figs))
+    rep.sections.append(_feature_reference_section(folder, out))
     rep.sections.append(_gallery_section(res, out, folder, chosen, seq_path, cam_path))
     t1_id = chosen[0] if chosen else 0
     rep.sections.append(
@@ -459,6 +461,23 @@ def write_report(
     path = out / "index.html"
     atomic_write_text(path, render_html(rep), "the report")
     return path
+
+
+def _feature_reference_section(folder: Path, out: Path) -> str:
+    """The feature reference's figure when ``eval.json`` has a ``feature_reference`` block, else nothing."""
+    block = runinfo.read_eval_json(folder / "eval.json").get("feature_reference")
+    if not isinstance(block, dict):
+        return ""
+    from rovslam.viz.feature_plot import feature_reference_caption, plot_feature_reference
+
+    png = plot_feature_reference(block, out / "feature_reference.png")
+    if png is None:
+        return "<h2>Feature reference</h2><p>No frame pair could be compared with the feature motion.</p>"
+    caption = (
+        feature_reference_caption(block) + ". Each frame pair's token motion against the feature motion of the "
+        "same frames (rovslam eval --reference features); below, how far each pair is from agreeing."
+    )
+    return "<h2>Feature reference</h2>" + _img(png, "feature reference", html.escape(caption))
 
 
 def _report_folder(folder: Path) -> Path:

@@ -87,6 +87,7 @@ class SpeedMeasurement:
     relief_sample: float = float("nan")  # this frame's relief variance sample (:func:`relief_sample`)
     token_var_px2: float = float("nan")  # this step's per-axis token residual variance after the fit, pixels^2
     token_dof: float = 0.0  # its degrees of freedom
+    source: str = "tokens"  # what measured it: "tokens", or "features" (the feature motion, rovslam.pipeline.assist)
 
     @property
     def speed_mps(self) -> np.ndarray:
@@ -604,9 +605,36 @@ class SpeedEstimator:
             attitude_noise_rad,
             self.token_var_px2,
         )
+        return self.take(m, dt_s)
+
+    def take(self, m: SpeedMeasurement, dt_s: float) -> SpeedMeasurement:
+        """What :meth:`measure` does with its token measurement: learn from it, then :meth:`accept` it.
+
+        ``m``: a token measurement made with this estimator's averages (:meth:`preview`).
+        """
         if m.ok:
             self._learn_relief(m.relief_sample, float(dt_s), float(np.sum((m.speed_mps * dt_s) ** 2)))
             self._learn_token_noise(m, float(dt_s))
+        return self.accept(m, dt_s)
+
+    def preview(self, camera: Camera, uv_prev_px: np.ndarray, uv_curr_px: np.ndarray, **step) -> SpeedMeasurement:
+        """What :meth:`measure` would measure from the tokens (before the plausibility check), its state unchanged."""
+        return speed_from_tokens(
+            camera,
+            uv_prev_px,
+            uv_curr_px,
+            config=self.config,
+            relief_var=self.relief_var,
+            token_var_px2=self.token_var_px2,
+            **step,
+        )
+
+    def accept(self, m: SpeedMeasurement, dt_s: float) -> SpeedMeasurement:
+        """An ok measurement becomes the last good speed when plausible; else the held speed (:meth:`hold`).
+
+        :meth:`measure` ends here; a speed measured otherwise (the feature motion) enters here, without
+        teaching the token averages.
+        """
         if m.ok and self._plausible(m, float(dt_s)):
             self._learn_acceleration(m, float(dt_s))
             self._last, self._last_dt_s = m, float(dt_s)
