@@ -49,6 +49,7 @@ def fly_guided(
     preset: str = PRESET,
 ) -> tuple[dict[str, float], list[dict], str]:
     """One loopback mission: {point: true arrival error (m)}, the events, live's stderr."""
+    tmp.mkdir(parents=True, exist_ok=True)
     poi = tmp / "poi.csv"
     goals = write_poi(poi, points)
     vport, mport = free_udp_port(), free_udp_port()

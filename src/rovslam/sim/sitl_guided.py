@@ -13,7 +13,7 @@
   timeout), a mode other than GUIDED or a disarmed vehicle: zero velocity (station keeping,
   drifting with the current);
 * each frame is rendered from the true state (:class:`~rovslam.sim.live.LiveSimulator`, as
-  :class:`~rovslam.nav.closed_loop.ClosedLoop` does) a tenth of a frame period after the previous one
+  :class:`~rovslam.nav.closed_loop.ClosedLoop` does) half a frame period after the previous one
   went out, or as soon as the setpoint answering it (its ``time_boot_ms``) arrives;
 * every STATUSTEXT is a row of ``TRUTH/events.csv``: ``t_s,text,x_true_m,y_true_m`` (the true
   position when it arrived);
@@ -43,7 +43,7 @@ MAV_CMD_DO_SET_MODE, MAV_CMD_COMPONENT_ARM_DISARM = 176, 400
 MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_NED = 1, 8
 SETPOINT_TIMEOUT_S = 3.0
 GUIDED = 4
-ANSWER_WAIT = 0.1  # of a frame period: the longest wait for the answer to the last frame before rendering the next
+ANSWER_WAIT = 0.5  # of a frame period: the longest wait for the answer to the last frame before rendering the next
 
 
 def read_events(path: str | Path) -> list[dict[str, Any]]:
