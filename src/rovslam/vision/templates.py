@@ -19,6 +19,7 @@ chosen only if its whole window avoids the forbidden pixels.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -104,15 +105,27 @@ def inhibition_mask(
     elif out.shape != (h, w) or out.dtype != np.bool_:
         raise InvalidArgumentError(f"out must be an ({h}, {w}) bool mask, got {out.shape} {out.dtype}")
     r = float(radius_px)
-    for pu, pv in _points(points_uv_px, "points_uv_px"):
-        u0, u1 = max(0, int(np.ceil(pu - r))), min(w - 1, int(np.floor(pu + r)))
-        v0, v1 = max(0, int(np.ceil(pv - r))), min(h - 1, int(np.floor(pv + r)))
+    r2 = r * r
+    for pu, pv in _points(points_uv_px, "points_uv_px").tolist():  # Python floats: ceil/floor as NumPy's
+        u0, u1 = max(0, math.ceil(pu - r)), min(w - 1, math.floor(pu + r))
+        v0, v1 = max(0, math.ceil(pv - r)), min(h - 1, math.floor(pv + r))
         if u0 > u1 or v0 > v1:
             continue
-        du = np.arange(u0, u1 + 1) - pu
-        dv = np.arange(v0, v1 + 1) - pv
-        out[v0 : v1 + 1, u0 : u1 + 1] |= (dv[:, None] ** 2 + du[None, :] ** 2) <= r * r
+        du = _offsets(u0, u1 + 1) - pu
+        dv = _offsets(v0, v1 + 1) - pv
+        du *= du
+        dv *= dv
+        out[v0 : v1 + 1, u0 : u1 + 1] |= (dv[:, None] + du[None, :]) <= r2
     return out
+
+
+_AXIS = np.arange(4096, dtype=np.float64)
+_AXIS.setflags(write=False)
+
+
+def _offsets(start: int, stop: int) -> np.ndarray:
+    """``np.arange(start, stop)`` as float64 (a fresh array), from a slice of one built once when it fits."""
+    return _AXIS[start:stop].copy() if stop <= _AXIS.shape[0] else np.arange(start, stop, dtype=np.float64)
 
 
 def inhibit_boxes(mask: np.ndarray, centres_uv_px: np.ndarray | None, half_size_px: float) -> None:
