@@ -18,7 +18,7 @@ def main() -> None:
         from rovslam import __version__
 
         print(f"rovslam {__version__}")
-        return
+        sys.exit(0)
     try:
         from rovslam.cli import main as cli_main
     except KeyboardInterrupt:
