@@ -160,8 +160,9 @@ def window_inhibited(mask: np.ndarray, centre_uv_px: np.ndarray, size_hw: tuple[
     Used to refuse a match (speed token or landmark) that lands on forbidden pixels.
     """
     h, w = int(size_hw[0]), int(size_hw[1])
-    u0 = int(np.rint(centre_uv_px[0] - 0.5 * (w - 1)))
-    v0 = int(np.rint(centre_uv_px[1] - 0.5 * (h - 1)))
+    cu, cv = np.asarray(centre_uv_px, dtype=np.float64).reshape(2).tolist()
+    u0 = round(cu - 0.5 * (w - 1))  # half to even, as np.rint
+    v0 = round(cv - 0.5 * (h - 1))
     return bool(mask[max(0, v0) : max(0, v0 + h), max(0, u0) : max(0, u0 + w)].any())
 
 
@@ -171,10 +172,10 @@ _ONES3 = np.ones((3, 3), np.uint8)
 def second_peak(corr: np.ndarray, pu: int, pv: int, exclusion_px: int) -> float:
     """Highest 3x3 local maximum of the ``(h, w) float32`` correlation ``corr`` farther than
     ``exclusion_px`` (Chebyshev) from ``(pu, pv)``; -1 (the lowest correlation) when there is none."""
-    is_max = corr >= cv2.dilate(corr, _ONES3)
+    mask = cv2.compare(corr, cv2.dilate(corr, _ONES3), cv2.CMP_GE)  # 255 at the local maxima (corr >= dilated)
     ex = max(0, int(exclusion_px))
-    is_max[max(0, pv - ex) : pv + ex + 1, max(0, pu - ex) : pu + ex + 1] = False
-    mask = is_max.view(np.uint8)  # OpenCV's masked maximum: the same value as NumPy's, at half its cost
+    mask[max(0, pv - ex) : pv + ex + 1, max(0, pu - ex) : pu + ex + 1] = 0
+    # OpenCV's masked maximum: the same value as NumPy's, at half its cost
     if not cv2.countNonZero(mask):
         return -1.0
     return max(-1.0, cv2.minMaxLoc(corr, mask)[1])

@@ -658,7 +658,8 @@ _MIN_STAYING_TOKENS = 4
 
 def _large_motion(shift_uv_px: np.ndarray, search_radius_px: int) -> bool:
     """Whether a content motion is larger than the token search radius (tokens near the border then leave)."""
-    return bool(np.all(np.isfinite(shift_uv_px)) and float(np.max(np.abs(shift_uv_px))) > search_radius_px)
+    values = np.asarray(shift_uv_px, dtype=np.float64).reshape(-1).tolist()
+    return all(math.isfinite(x) for x in values) and max(abs(x) for x in values) > search_radius_px
 
 
 def leaving_mask(shape_hw: tuple[int, int], shift_uv_px: np.ndarray, margin_px: float) -> np.ndarray:
