@@ -684,7 +684,8 @@ def _coherent(matches: list[Match], tokens: Sequence[Template], offsets_uv_px: n
     ok = [i for i, m in enumerate(matches) if m.ok]
     if not ok:
         return 0
-    d = np.array([matches[i].uv_px - tokens[i].centre_uv_px - offsets_uv_px[i] for i in ok])
+    # (K, 2) displacements, offsets removed: stacked once, then the same subtractions element by element
+    d = np.array([matches[i].uv_px for i in ok]) - np.array([tokens[i].centre_uv_px for i in ok]) - offsets_uv_px[ok]
     dev = np.max(np.abs(d - median0(d)), axis=1)
     return int(np.count_nonzero(dev <= 1.5))
 
