@@ -113,3 +113,19 @@ def test_block_check_still_refuses_a_negative_determinant():
     p[2, 3] = p[3, 2] = 2.0  # the 2x2 block at row 2: det 1 - 4 < 0
     with pytest.raises(FilterInconsistencyError, match="block at state 2"):
         check_blocks(p, 6, 2, "a test")
+
+
+def test_version_is_answered_without_importing_the_command_line():
+    import subprocess
+    import sys
+
+    from rovslam import __version__
+
+    res = subprocess.run(
+        [sys.executable, "-X", "importtime", "-m", "rovslam", "--version"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert res.returncode == 0 and res.stdout == f"rovslam {__version__}\n"
+    assert "rovslam.cli" not in res.stderr and "typer" not in res.stderr
