@@ -98,6 +98,7 @@ class LandmarkSearch:
         # A landmark lost for several frames: a wider window, and only clear, unambiguous matches.
         strict = self._strict_tracker
         tracked = []
+        spots_px = self.scale.to_processed_px(alt.spots_uv_px)
         for k in inside:
             i, uv, s = int(visible[k]), uv_pred[k], s_pred[k]
             rec = self.landmarks[i]
@@ -111,7 +112,6 @@ class LandmarkSearch:
                 if rec.confirmed:
                     self.recovery.searched(i, False)
                 continue
-            spots_px = self.scale.to_processed_px(alt.spots_uv_px)
             refused = REASON_LASER if covers_laser_spot(m.uv_px, spots_px, lm.size_px) else ""
             tracked.append(
                 TrackedLandmark(rec, m.uv_px, pixels_to_mn(self.camera, m.uv_px, z, *att)[0], m.score, refused)

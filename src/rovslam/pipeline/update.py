@@ -9,8 +9,6 @@ match's decision (:func:`rovslam.mapping.association.associate`) in its landmark
 
 from __future__ import annotations
 
-import dataclasses
-
 from rovslam.config import RunConfig
 from rovslam.core import Frame
 from rovslam.mapping.association import (
@@ -147,8 +145,9 @@ class LandmarkUpdate:
 
 def judged(candidate: MatchCandidate, res: UpdateResult) -> MatchCandidate:
     """A match with the outcome of the filter's update (3) on it."""
-    return dataclasses.replace(
-        candidate, updated=True, accepted=res.accepted, nis=res.nis, innovation_px=res.innovation_px
+    c = candidate  # built directly: dataclasses.replace costs five times more
+    return MatchCandidate(
+        c.landmark_id, c.confirmed, c.score, c.refused, True, res.accepted, res.nis, res.innovation_px
     )
 
 

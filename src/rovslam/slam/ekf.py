@@ -251,14 +251,14 @@ class EkfSlam(SlamState):
         (K, 2) and the innovation covariances S (K, 2, 2) with the pixel noise only, in O(K).
         """
         ids = np.asarray(ids, dtype=np.intp).reshape(-1)
-        rows = np.array([self._index(i) for i in ids], dtype=np.intp).reshape(-1)  # (K,) first state row
+        rows = self._rows(ids)  # (K,) first state row
         psi = checked_scalar("heading_rad", heading_rad)
         z = checked_scalar("altitude_m", altitude_m, positive=True)
         f = checked_scalar("focal_px", focal_px, positive=True)
         sp, _, _ = self._noise_args(pixel_sigma_px, 0.0, 0.0)
         offset = checked_vector2("vehicle_offset_m", vehicle_offset_m)
         lay, x, p = self.layout, self._x, self._P
-        depth = np.array([self._depth(int(r), z) for r in rows]) if len(rows) else np.zeros(0)
+        depth = self._depths(rows, z)
         h, hh = observe_landmarks(lay, x, rows, x[:2] + offset, self.map_heading_rad(psi), depth, f)
         v = lay.vehicle_dim
         hv_m, hl_m = np.ascontiguousarray(hh[:, :, :v]), np.ascontiguousarray(hh[:, :, v:])  # (K, 2, v), (K, 2, lm)
@@ -275,6 +275,26 @@ class EkfSlam(SlamState):
         )
         s = s + np.eye(2) * sp**2
         return h, 0.5 * (s + np.swapaxes(s, 1, 2))
+
+    def _rows(self, ids: np.ndarray) -> np.ndarray:
+        """(K,) first state row of each of the (K,) landmark ids, the ids checked (as :meth:`_index`)."""
+        n_lm = self.n_landmarks
+        if len(ids) and not (0 <= int(ids.min()) and int(ids.max()) < n_lm):
+            for i in ids.tolist():
+                self._index(i)  # raises for the first id out of range
+        return self.layout.vehicle_dim + self.layout.landmark_dim * ids
+
+    def _depths(self, rows: np.ndarray, z: float) -> np.ndarray:
+        """(K,) depths :meth:`_depth` of the landmarks at state ``rows`` (K,), in one array operation."""
+        lay = self.layout
+        if not lay.has_landmark_heights and lay.b is None:
+            return np.full(len(rows), z)
+        above = z + self.altitude_bias_m
+        depth = above - self._x[rows + 2] if lay.has_landmark_heights else np.full(len(rows), above - 0.0)
+        if not np.all(depth > 0.05 * z):
+            for r in rows.tolist():
+                self._depth(r, z)  # raises for the first landmark above the camera
+        return depth
 
     def _innovation(
         self, i, mn_px, heading_rad, altitude_m, focal_px, pixel_sigma_px, altitude_sigma_m, heading_sigma_rad

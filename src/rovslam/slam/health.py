@@ -7,6 +7,7 @@ asymmetry, a NaN).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,11 +34,11 @@ class ConsistencyReport:
 def check_blocks(p: np.ndarray, n: int, k: int, where: str) -> None:
     """Cheap check of ``P[:n, :n]``: every variance >= 0, the vehicle's and state row k's 2x2 blocks PSD."""
     diag = np.diagonal(p)[:n]
-    dmax = float(np.max(diag))
+    dmax = float(diag.max())
     tol = PSD_RTOL * max(dmax, 1e-30)
-    dmin = float(np.min(diag))
-    if not (np.isfinite(dmin) and np.isfinite(dmax)) or dmin < -tol:
-        j = int(np.argmin(diag)) if np.isfinite(dmin) else int(np.flatnonzero(~np.isfinite(diag))[0])
+    dmin = float(diag.min())
+    if not (math.isfinite(dmin) and math.isfinite(dmax)) or dmin < -tol:
+        j = int(np.argmin(diag)) if math.isfinite(dmin) else int(np.flatnonzero(~np.isfinite(diag))[0])
         raise FilterInconsistencyError(
             f"FILTER INCONSISTENT after {where}: variance of state entry {j} is {diag[j]:.3e} "
             f"(negative or not finite); the covariance is no longer positive semi-definite. "
@@ -45,7 +46,8 @@ def check_blocks(p: np.ndarray, n: int, k: int, where: str) -> None:
         )
     for r in (0, k):  # the vehicle's and the landmark's 2x2 blocks
         b = p[r : r + 2, r : r + 2]
-        if b[0, 0] * b[1, 1] - b[0, 1] * b[1, 0] < -tol * tol:
+        (b00, b01), (b10, b11) = b.tolist()  # Python floats: the same products, without NumPy scalars
+        if b00 * b11 - b01 * b10 < -tol * tol:
             raise FilterInconsistencyError(
                 f"FILTER INCONSISTENT after {where}: the 2x2 covariance block at state {r} "
                 f"is not positive semi-definite: {b.tolist()}"

@@ -42,7 +42,10 @@ def observation_jacobians(
     the derivative with respect to the heading.
     """
     mn = np.asarray(mn_px, dtype=np.float64).reshape(-1, 2)
-    return (focal_px / altitude_m) * rot2(heading_rad).T, np.column_stack([mn[:, 1], -mn[:, 0]])
+    j_psi = np.empty_like(mn)
+    j_psi[:, 0] = mn[:, 1]
+    np.negative(mn[:, 0], out=j_psi[:, 1])
+    return (focal_px / altitude_m) * rot2(heading_rad).T, j_psi
 
 
 def landmark_from_mn(
@@ -80,14 +83,18 @@ def observation_noise_px2(
     in the estimate of the feature altitude"), plus the heading error propagated through
     ``d mn / d psi = [n, -m]``.
     """
-    mn = np.asarray(mn_px, dtype=np.float64).reshape(2)
-    r = np.eye(2) * pixel_sigma_px**2
+    m, n = np.asarray(mn_px, dtype=np.float64).reshape(2).tolist()
+    # Python floats, in the order of sigma^2 I + k mn mn^T + h j j^T (j = [n, -m]): the same bits as the matrix form
+    s2 = pixel_sigma_px**2
+    r00, r01, r10, r11 = 1.0 * s2, 0.0 * s2, 0.0 * s2, 1.0 * s2
     if altitude_sigma_m > 0.0:
-        r += (altitude_sigma_m / altitude_m) ** 2 * np.outer(mn, mn)
+        k = (altitude_sigma_m / altitude_m) ** 2
+        r00, r01, r10, r11 = r00 + k * (m * m), r01 + k * (m * n), r10 + k * (n * m), r11 + k * (n * n)
     if heading_sigma_rad > 0.0:
-        j = np.array([mn[1], -mn[0]])
-        r += heading_sigma_rad**2 * np.outer(j, j)
-    return r
+        h = heading_sigma_rad**2
+        jm, jn = n, -m
+        r00, r01, r10, r11 = r00 + h * (jm * jm), r01 + h * (jm * jn), r10 + h * (jn * jm), r11 + h * (jn * jn)
+    return np.array([[r00, r01], [r10, r11]])
 
 
 def pixels_to_mn(

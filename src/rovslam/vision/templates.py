@@ -19,6 +19,7 @@ chosen only if its whole window avoids the forbidden pixels.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -104,15 +105,27 @@ def inhibition_mask(
     elif out.shape != (h, w) or out.dtype != np.bool_:
         raise InvalidArgumentError(f"out must be an ({h}, {w}) bool mask, got {out.shape} {out.dtype}")
     r = float(radius_px)
-    for pu, pv in _points(points_uv_px, "points_uv_px"):
-        u0, u1 = max(0, int(np.ceil(pu - r))), min(w - 1, int(np.floor(pu + r)))
-        v0, v1 = max(0, int(np.ceil(pv - r))), min(h - 1, int(np.floor(pv + r)))
+    r2 = r * r
+    for pu, pv in _points(points_uv_px, "points_uv_px").tolist():  # Python floats: ceil/floor as NumPy's
+        u0, u1 = max(0, math.ceil(pu - r)), min(w - 1, math.floor(pu + r))
+        v0, v1 = max(0, math.ceil(pv - r)), min(h - 1, math.floor(pv + r))
         if u0 > u1 or v0 > v1:
             continue
-        du = np.arange(u0, u1 + 1) - pu
-        dv = np.arange(v0, v1 + 1) - pv
-        out[v0 : v1 + 1, u0 : u1 + 1] |= (dv[:, None] ** 2 + du[None, :] ** 2) <= r * r
+        du = _offsets(u0, u1 + 1) - pu
+        dv = _offsets(v0, v1 + 1) - pv
+        du *= du
+        dv *= dv
+        out[v0 : v1 + 1, u0 : u1 + 1] |= (dv[:, None] + du[None, :]) <= r2
     return out
+
+
+_AXIS = np.arange(4096, dtype=np.float64)
+_AXIS.setflags(write=False)
+
+
+def _offsets(start: int, stop: int) -> np.ndarray:
+    """``np.arange(start, stop)`` as float64 (a fresh array), from a slice of one built once when it fits."""
+    return _AXIS[start:stop].copy() if stop <= _AXIS.shape[0] else np.arange(start, stop, dtype=np.float64)
 
 
 def inhibit_boxes(mask: np.ndarray, centres_uv_px: np.ndarray | None, half_size_px: float) -> None:
@@ -147,8 +160,9 @@ def window_inhibited(mask: np.ndarray, centre_uv_px: np.ndarray, size_hw: tuple[
     Used to refuse a match (speed token or landmark) that lands on forbidden pixels.
     """
     h, w = int(size_hw[0]), int(size_hw[1])
-    u0 = int(np.rint(centre_uv_px[0] - 0.5 * (w - 1)))
-    v0 = int(np.rint(centre_uv_px[1] - 0.5 * (h - 1)))
+    cu, cv = np.asarray(centre_uv_px, dtype=np.float64).reshape(2).tolist()
+    u0 = round(cu - 0.5 * (w - 1))  # half to even, as np.rint
+    v0 = round(cv - 0.5 * (h - 1))
     return bool(mask[max(0, v0) : max(0, v0 + h), max(0, u0) : max(0, u0 + w)].any())
 
 
@@ -158,10 +172,10 @@ _ONES3 = np.ones((3, 3), np.uint8)
 def second_peak(corr: np.ndarray, pu: int, pv: int, exclusion_px: int) -> float:
     """Highest 3x3 local maximum of the ``(h, w) float32`` correlation ``corr`` farther than
     ``exclusion_px`` (Chebyshev) from ``(pu, pv)``; -1 (the lowest correlation) when there is none."""
-    is_max = corr >= cv2.dilate(corr, _ONES3)
+    mask = cv2.compare(corr, cv2.dilate(corr, _ONES3), cv2.CMP_GE)  # 255 at the local maxima (corr >= dilated)
     ex = max(0, int(exclusion_px))
-    is_max[max(0, pv - ex) : pv + ex + 1, max(0, pu - ex) : pu + ex + 1] = False
-    mask = is_max.view(np.uint8)  # OpenCV's masked maximum: the same value as NumPy's, at half its cost
+    mask[max(0, pv - ex) : pv + ex + 1, max(0, pu - ex) : pu + ex + 1] = 0
+    # OpenCV's masked maximum: the same value as NumPy's, at half its cost
     if not cv2.countNonZero(mask):
         return -1.0
     return max(-1.0, cv2.minMaxLoc(corr, mask)[1])

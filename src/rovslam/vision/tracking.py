@@ -93,8 +93,13 @@ def _subpixel_offset(c3: np.ndarray, method: str) -> np.ndarray:
     peak is about three times larger. ``"gaussian"`` fits the paraboloid to the logarithm
     (a Gaussian peak) when all nine samples are positive, else falls back to the parabola.
     """
+    return np.array(_subpixel_du_dv(c3, method))
+
+
+def _subpixel_du_dv(c3: np.ndarray, method: str) -> tuple[float, float]:
+    """:func:`_subpixel_offset` as two Python floats."""
     if method == "none":
-        return np.zeros(2)
+        return 0.0, 0.0
     # Plain Python floats: nine numbers, far cheaper than NumPy reductions on a 3x3 array.
     (a, b, c), (d, e, f), (g, h, i) = c3.tolist()
     if method == "gaussian" and min(a, b, c, d, e, f, g, h, i) > 0.0:
@@ -113,7 +118,7 @@ def _subpixel_offset(c3: np.ndarray, method: str) -> np.ndarray:
         den_u, den_v = d - 2.0 * e + f, b - 2.0 * e + h
         du = 0.5 * (d - f) / den_u if den_u < 0.0 else 0.0
         dv = 0.5 * (b - h) / den_v if den_v < 0.0 else 0.0
-    return np.array([min(0.5, max(-0.5, du)), min(0.5, max(-0.5, dv))])
+    return min(0.5, max(-0.5, du)), min(0.5, max(-0.5, dv))
 
 
 def match_template(
@@ -159,7 +164,7 @@ def match_template(
     pred = np.asarray(predicted_uv_px, dtype=np.float64).reshape(-1)
     if pred.shape != (2,):
         raise InvalidArgumentError(f"predicted_uv_px must be 2 numbers (u, v), got shape {pred.shape}")
-    pu_pred, pv_pred = float(pred[0]), float(pred[1])
+    pu_pred, pv_pred = pred.tolist()
     if not (math.isfinite(pu_pred) and math.isfinite(pv_pred)):
         return _fail(REASON_OUTSIDE)
     if img.dtype != np.float32:
@@ -183,23 +188,22 @@ def match_template(
 
     corr = cv2.matchTemplate(img[v0:v1, u0:u1], tpl, cv2.TM_CCOEFF_NORMED)
     _, best, _, (pu, pv) = cv2.minMaxLoc(corr)
-    if not np.isfinite(best):
+    if not math.isfinite(best):
         return _fail(REASON_NOT_FINITE)
     rh, rw = corr.shape
-    centre_off_u, centre_off_v = 0.5 * (tw - 1), 0.5 * (th - 1)
-    uv_int = np.array([u0 + pu + centre_off_u, v0 + pv + centre_off_v])
+    cu, cv = u0 + pu + 0.5 * (tw - 1), v0 + pv + 0.5 * (th - 1)  # the integer peak's centre
     if best < config.min_correlation:
-        return _fail(REASON_LOW, uv_int, float(best))
+        return _fail(REASON_LOW, np.array([cu, cv]), float(best))
     if pu == 0 or pv == 0 or pu == rw - 1 or pv == rh - 1:
-        return _fail(REASON_BORDER, uv_int, float(best))
+        return _fail(REASON_BORDER, np.array([cu, cv]), float(best))
 
     # Ambiguity: highest other local maximum outside the exclusion zone.
     second = second_peak(corr, pu, pv, int(config.second_peak_exclusion_px))
     if second >= config.max_second_peak_ratio * best:
-        return _fail(REASON_AMBIGUOUS, uv_int, float(best), second)
+        return _fail(REASON_AMBIGUOUS, np.array([cu, cv]), float(best), second)
 
-    uv = uv_int + _subpixel_offset(corr[pv - 1 : pv + 2, pu - 1 : pu + 2], config.subpixel)
-    return Match(True, uv, float(best), "", second)
+    du, dv = _subpixel_du_dv(corr[pv - 1 : pv + 2, pu - 1 : pu + 2], config.subpixel)
+    return Match(True, np.array([cu + du, cv + dv]), float(best), "", second)
 
 
 @lru_cache(maxsize=4)
@@ -654,7 +658,8 @@ _MIN_STAYING_TOKENS = 4
 
 def _large_motion(shift_uv_px: np.ndarray, search_radius_px: int) -> bool:
     """Whether a content motion is larger than the token search radius (tokens near the border then leave)."""
-    return bool(np.all(np.isfinite(shift_uv_px)) and float(np.max(np.abs(shift_uv_px))) > search_radius_px)
+    values = np.asarray(shift_uv_px, dtype=np.float64).reshape(-1).tolist()
+    return all(math.isfinite(x) for x in values) and max(abs(x) for x in values) > search_radius_px
 
 
 def leaving_mask(shape_hw: tuple[int, int], shift_uv_px: np.ndarray, margin_px: float) -> np.ndarray:
@@ -679,7 +684,8 @@ def _coherent(matches: list[Match], tokens: Sequence[Template], offsets_uv_px: n
     ok = [i for i, m in enumerate(matches) if m.ok]
     if not ok:
         return 0
-    d = np.array([matches[i].uv_px - tokens[i].centre_uv_px - offsets_uv_px[i] for i in ok])
+    # (K, 2) displacements, offsets removed: stacked once, then the same subtractions element by element
+    d = np.array([matches[i].uv_px for i in ok]) - np.array([tokens[i].centre_uv_px for i in ok]) - offsets_uv_px[ok]
     dev = np.max(np.abs(d - median0(d)), axis=1)
     return int(np.count_nonzero(dev <= 1.5))
 
