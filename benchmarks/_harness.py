@@ -10,7 +10,7 @@ so a changed simulator writes new ones. Cases:
   (1920x1080, f = 4800 px: a 52 x 29 cm footprint at 1.31 m; 25 frames/s, 0.2 m/s; the camera
   of the ``hd-survey`` preset of the simulator branch, rendered here without its relief and lamps);
 * texture ``sim``: the procedural seabed; ``photo``: the real rocky-seabed photomosaic
-  ``../shared/data/chamber3/seabed.jpg`` at 1.0 mm/px (``rovslam simulate --texture``).
+  ``chamber3/seabed.jpg``, found by ``rovslam.data``, at 1.0 mm/px (``rovslam simulate --texture``).
 """
 
 from __future__ import annotations
@@ -29,7 +29,6 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-PHOTO = ROOT.parent / "shared" / "data" / "chamber3" / "seabed.jpg"
 PHOTO_MM_PER_PX = 1.0
 CACHE = Path(os.environ.get("ROVSLAM_BENCH_CACHE", Path(tempfile.gettempdir()) / "rovslam-bench"))
 RESULTS = ROOT / "benchmarks" / "results"
@@ -77,6 +76,17 @@ def _hd_scenario():
     return "bench-hd"
 
 
+def _photo() -> Path:
+    """The real seabed photo, found by :mod:`rovslam.data` (``ROVSLAM_DATA``, its cache, the shared data folder)."""
+    from rovslam.data import file_path
+    from rovslam.errors import DataNotFoundError
+
+    try:
+        return file_path("chamber3", "seabed.jpg")
+    except DataNotFoundError as exc:
+        raise SystemExit(f"benchmark: the real seabed photo is missing: {exc}") from None
+
+
 def sequence_folder(case: Case, log=print) -> Path:
     """The simulated sequence of ``case`` (simulated on first use, then reused from the cache)."""
     from rovslam.sim import simulate
@@ -86,14 +96,11 @@ def sequence_folder(case: Case, log=print) -> Path:
     folder = CACHE / key
     if (folder / ".complete").is_file():
         return folder
-    if case.texture == "photo" and not PHOTO.is_file():
-        raise SystemExit(
-            f"benchmark: the real seabed photo {PHOTO} is missing (the shared data folder beside the repo)"
-        )
+    photo = _photo() if case.texture == "photo" else None
     shutil.rmtree(folder, ignore_errors=True)
     folder.parent.mkdir(parents=True, exist_ok=True)
     log(f"simulating {case.name} into {folder} (once; cached)", flush=True)
-    texture = dict(texture_path=PHOTO, texture_mm_per_px=PHOTO_MM_PER_PX) if case.texture == "photo" else {}
+    texture = dict(texture_path=photo, texture_mm_per_px=PHOTO_MM_PER_PX) if photo is not None else {}
     simulate(scenario, folder, frames=case.frames, seed=0, image_format=case.image_format, **texture)
     (folder / ".complete").write_text("ok\n")
     return folder
