@@ -306,7 +306,7 @@ class LaserConfig(_Checked):
     # at most max_plane_slope_rad), not the one depth below the camera
     plane_depth: bool = False
     plane_slope_tau_s: float = _num(1.0, gt=0)  # averaging time of the spots' plane's slope, seconds
-    max_plane_slope_rad: float = _num(0.3, ge=0, le=1.2)  # a steeper averaged slope is clipped to this
+    max_plane_slope_rad: float = _num(0.3, ge=0)  # a steeper averaged slope is clipped to this
 
     def _check_relations(self) -> None:
         if self.max_spot_area_px < self.min_spot_area_px:
