@@ -116,7 +116,7 @@ def test_the_relief_off_the_plane_widens_a_landmark_observation():
     """The consider parameter: 1 cm of relief off the plane (gain 1) turns Z's 2 mm sigma into 10.2 mm, and the
     innovation covariance of a landmark 150 px off the image centre grows by (150 x 0.0102 / 1.31)^2 - ... px^2."""
     on = RunConfig(slam=dataclasses.replace(RunConfig().slam, landmark_relief_gain=1.0))
-    off = RunConfig()
+    off = RunConfig(slam=dataclasses.replace(RunConfig().slam, landmark_relief_gain=0.0))
     alt = _estimate(0.01**2)
     mn = np.array([150.0, 0.0])
     depth_on, sigma_on = landmark_depth(on, alt, mn, F_PX)
