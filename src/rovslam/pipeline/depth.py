@@ -5,6 +5,10 @@ readings over time (:class:`rovslam.sensor.altitude.AltitudeFilter`), holds the 
 through a frame without a reading, widens Z's sigma by the relief when the EKF holds no
 altitude offset, and gives the offset ``b``'s process over each step. The relief's height
 spread comes from the speed tokens' parallax (:attr:`rovslam.sensor.odometry.SpeedEstimator.relief_var`).
+:class:`PlaneAverage` averages the laser spots' plane over frames: the relief off it (the spots'
+residuals), which widens each altitude reading before the filter (``[laser] relief_altitude_gain``)
+and each landmark observation (``[slam] landmark_relief_gain``, :func:`rovslam.pipeline.update.landmark_depth`),
+and its slope (``[laser] plane_depth``).
 """
 
 from __future__ import annotations
