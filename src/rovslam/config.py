@@ -296,6 +296,18 @@ class LaserConfig(_Checked):
     assumed_altitude_m: float = _num(1.31, gt=0)  # no laser, no sonar, no [vehicle] altitude_m: the paper's 1.31 m
     # vertical acceleration of the altitude filter (rovslam.sensor.altitude)
     altitude_accel_sigma_mps2: float = _num(0.05, gt=0)
+    # the relief off the laser spots' plane (four or more spots: their residuals from the plane fit) is averaged
+    # over this time, seconds (rovslam.pipeline.depth)
+    relief_tau_s: float = _num(2.0, gt=0)
+    # that relief's sigma times this widens each altitude reading's sigma in quadrature before the altitude filter:
+    # the filter then averages the relief under the spots (3: 10 % less ATE over the relief presets, 23 % on the
+    # real-photo survey, docs/consistency.md; 0: the spots' centroid noise alone, as before)
+    relief_altitude_gain: float = _num(3.0, ge=0)
+    # true: each landmark's image depth is the spots' plane at its pixel (its slope averaged over plane_slope_tau_s,
+    # at most max_plane_slope_rad), not the one depth below the camera
+    plane_depth: bool = False
+    plane_slope_tau_s: float = _num(1.0, gt=0)  # averaging time of the spots' plane's slope, seconds
+    max_plane_slope_rad: float = _num(0.3, ge=0)  # a steeper averaged slope is clipped to this
 
     def _check_relations(self) -> None:
         if self.max_spot_area_px < self.min_spot_area_px:
@@ -385,6 +397,10 @@ class SlamConfig(_Checked):
     backend: Backend = "ekf"  # the online estimate: "ekf" (the paper's) or "isam2" (GTSAM, [smoother])
     # > 0: each landmark's height in the state, this prior (0: flat seabed, the paper)
     landmark_height_sigma_m: float = _num(0.03, ge=0)
+    # > 0: a landmark's height off the laser spots' plane as a consider parameter: this times the relief off that plane
+    # ([laser] relief_tau_s) widens the landmark observation's altitude sigma in (3), (4) in quadrature (0: off; 3: 1
+    # to 3 % less ATE over the relief presets, docs/consistency.md)
+    landmark_relief_gain: float = _num(3.0, ge=0)
     # > 0: the measured altitude's offset from the seabed datum in the state
     altitude_bias_sigma_m: float = _num(0.01, ge=0)
     # its correlation time (the altimeter's lasting offset: its calibration, a codec's spot)

@@ -5,12 +5,18 @@ readings over time (:class:`rovslam.sensor.altitude.AltitudeFilter`), holds the 
 through a frame without a reading, widens Z's sigma by the relief when the EKF holds no
 altitude offset, and gives the offset ``b``'s process over each step. The relief's height
 spread comes from the speed tokens' parallax (:attr:`rovslam.sensor.odometry.SpeedEstimator.relief_var`).
+:class:`PlaneAverage` averages the laser spots' plane over frames: the relief off it (the spots'
+residuals), which widens each altitude reading before the filter (``[laser] relief_altitude_gain``)
+and each landmark observation (``[slam] landmark_relief_gain``, :func:`rovslam.pipeline.update.landmark_depth`),
+and its slope (``[laser] plane_depth``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+
+import numpy as np
 
 from rovslam.config import RunConfig
 from rovslam.sensor.altitude import AltitudeFilter
@@ -19,7 +25,54 @@ from rovslam.slam import EkfSlam
 from rovslam.slam.motion import altitude_offset_sigma_m, ou_sum_as_one
 from rovslam.vision.laser import SOURCE_FIXED, SOURCE_HELD, AltitudeEstimate
 
-__all__ = ["DepthModel"]
+__all__ = ["DepthModel", "PlaneAverage"]
+
+
+class PlaneAverage:
+    """The laser spots' plane averaged over time: the relief off it (m^2) and its slope (rad).
+
+    Each frame with a plane (four or more spots for the relief, three for the slope) moves the
+    averages towards its own by ``1 - exp(-dt / tau)``; a frame without one leaves them as they
+    are. One frame's relief has one degree of freedom (four spots, a plane of three parameters):
+    its average over a few seconds is what is carried.
+
+    Args:
+        relief_tau_s: averaging time of the relief off the plane.
+        slope_tau_s: averaging time of the slope (the slope is clipped to ``max_slope_rad`` on output).
+        max_slope_rad: the largest slope returned, per axis.
+    """
+
+    def __init__(self, relief_tau_s: float, slope_tau_s: float, max_slope_rad: float = 0.3) -> None:
+        self.relief_tau_s = float(relief_tau_s)
+        self.slope_tau_s = float(slope_tau_s)
+        self.max_slope_rad = float(max_slope_rad)
+        self.relief_var_m2 = float("nan")
+        self._tan = np.full(2, np.nan)  # averaged tangents of the slope (forward, starboard)
+        self._t_relief_s: float | None = None
+        self._t_slope_s: float | None = None
+
+    def add(self, t_s: float, alt: AltitudeEstimate) -> tuple[float, tuple[float, float] | None]:
+        """Fold in the frame at ``t_s``; returns ``(relief_var_m2, slope_rad or None)`` averaged so far."""
+        if math.isfinite(alt.relief_var_m2):
+            if self._t_relief_s is None or not math.isfinite(self.relief_var_m2):
+                self.relief_var_m2 = float(alt.relief_var_m2)
+            else:
+                a = 1.0 - math.exp(-max(t_s - self._t_relief_s, 0.0) / self.relief_tau_s)
+                self.relief_var_m2 += a * (float(alt.relief_var_m2) - self.relief_var_m2)
+            self._t_relief_s = t_s
+        if alt.slope_rad is not None and all(math.isfinite(v) for v in alt.slope_rad):
+            tan = np.tan(np.asarray(alt.slope_rad, dtype=np.float64))
+            if self._t_slope_s is None:
+                self._tan = tan
+            else:
+                a = 1.0 - math.exp(-max(t_s - self._t_slope_s, 0.0) / self.slope_tau_s)
+                self._tan = self._tan + a * (tan - self._tan)
+            self._t_slope_s = t_s
+        if not np.all(np.isfinite(self._tan)):
+            return self.relief_var_m2, None
+        lim = self.max_slope_rad
+        slope = np.clip(np.arctan(self._tan), -lim, lim)
+        return self.relief_var_m2, (float(slope[0]), float(slope[1]))
 
 
 class DepthModel:
@@ -30,13 +83,33 @@ class DepthModel:
         self.altitude = altitude
         self.speed = speed
         self.ekf = ekf
+        self.plane = PlaneAverage(
+            config.laser.relief_tau_s, config.laser.plane_slope_tau_s, config.laser.max_plane_slope_rad
+        )
 
     def filtered(self, t_s: float, alt: AltitudeEstimate) -> AltitudeEstimate:
-        """The reading of the frame at ``t_s`` filtered over time (held when there was none)."""
+        """The reading of the frame at ``t_s`` filtered over time (held when there was none).
+
+        The returned estimate carries the spots' plane averaged over time: ``relief_var_m2`` the relief
+        off it (``[laser] relief_tau_s``; NaN before any plane), ``slope_rad`` its slope
+        (``plane_slope_tau_s``, clipped to ``max_plane_slope_rad``; None before any plane). The reading's
+        sigma is widened by ``relief_altitude_gain`` times that relief's sigma before the filter.
+        """
+        relief_var, slope = self.plane.add(t_s, alt)
         if alt.source == SOURCE_FIXED:
-            return self.held(t_s, alt)
-        z, sigma = self.altitude.update(t_s, alt.altitude_m, alt.sigma_m)
-        return dataclasses.replace(alt, altitude_m=z, sigma_m=self.with_terrain_sigma_m(z, sigma, alt))
+            return dataclasses.replace(self.held(t_s, alt), relief_var_m2=relief_var, slope_rad=slope)
+        laser = self.config.laser
+        sigma_in = alt.sigma_m
+        if laser.relief_altitude_gain > 0.0 and alt.source.startswith("laser") and math.isfinite(relief_var):
+            sigma_in = math.hypot(sigma_in, laser.relief_altitude_gain * math.sqrt(relief_var))
+        z, sigma = self.altitude.update(t_s, alt.altitude_m, sigma_in)
+        return dataclasses.replace(
+            alt,
+            altitude_m=z,
+            sigma_m=self.with_terrain_sigma_m(z, sigma, alt),
+            relief_var_m2=relief_var,
+            slope_rad=slope,
+        )
 
     def with_terrain_sigma_m(self, altitude_m: float, sigma_m: float, alt: AltitudeEstimate) -> float:
         """The filtered altitude's sigma, widened by the relief without the filter's altitude-offset state b:

@@ -25,6 +25,7 @@ __all__ = [
     "inside_image",
     "landmark_mn_at_frame_time",
     "motion_hint",
+    "plane_depth_m",
     "search_radius_px",
     "token_predictions",
     "yaw_rate_radps",
@@ -40,6 +41,24 @@ def inside_image(uv_px: np.ndarray, half_px: float, camera: Camera) -> bool:
         and half_px <= u <= camera.width_px - 1 - half_px
         and half_px <= v <= camera.height_px - 1 - half_px
     )
+
+
+def plane_depth_m(
+    altitude_m: float, slope_rad: tuple[float, float] | None, mn_px: np.ndarray, focal_px: float
+) -> np.ndarray:
+    """Image depth of the seabed plane below the camera at the ``(N, 2)`` level-equivalent [m, n]: ``(N,)`` metres.
+
+    The plane ``z = Z + tan(a) x + tan(b) y`` (level frame, x forward, y starboard; ``slope_rad = (a, b)``,
+    positive: deeper forward / to starboard) cut by the ray of [m, n], whose seabed offset at depth z
+    is ``z [m, n] / f``: ``z = Z / (1 - (tan(a) m + tan(b) n) / f)``. No slope (None): ``Z`` everywhere.
+    A ray that grazes or misses the plane (denominator below 0.5) keeps ``Z``.
+    """
+    mn = np.asarray(mn_px, dtype=np.float64).reshape(-1, 2)
+    if slope_rad is None:
+        return np.full(len(mn), float(altitude_m))
+    k = (math.tan(slope_rad[0]) * mn[:, 0] + math.tan(slope_rad[1]) * mn[:, 1]) / focal_px
+    den = 1.0 - k
+    return np.where(den >= 0.5, altitude_m / np.maximum(den, 0.5), altitude_m)
 
 
 def search_radius_px(innovation_cov_px2: np.ndarray, slack_px: float, lm: LandmarkTemplateConfig) -> int:

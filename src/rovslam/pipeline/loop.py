@@ -42,7 +42,7 @@ from rovslam.pipeline.prediction import Prediction
 from rovslam.pipeline.records import Estimate, FrameRecords, FrameResult, FrameStep, Observation, TrackedLandmark
 from rovslam.pipeline.search import LandmarkSearch
 from rovslam.pipeline.speed import PreviousFrame, SpeedStep
-from rovslam.pipeline.update import LandmarkUpdate
+from rovslam.pipeline.update import LandmarkUpdate, landmark_depth
 from rovslam.sensor.altitude import AltitudeFilter
 from rovslam.sensor.heading import HeadingEstimate, HeadingPrior, HeadingTracker
 from rovslam.sensor.odometry import SpeedEstimator, SpeedMeasurement
@@ -339,12 +339,13 @@ class SlamPipeline:
         mn = landmark_mn_at_frame_time(
             self.camera, mn, template.centre_uv_px[1], alt.altitude_m, speed, prior, dt_s
         )  # rolling shutter
+        depth_m, depth_sigma_m = landmark_depth(self.config, alt, mn, self.focal_px)  # the spots' plane at its pixel
         new_id = self.ekf.augment(
             mn,
             heading.heading_rad,
-            alt.altitude_m,
+            depth_m,
             self.focal_px,
-            altitude_sigma_m=alt.sigma_m,
+            altitude_sigma_m=depth_sigma_m,
             heading_sigma_rad=heading.observation_sigma_rad,
         )
         self.landmarks.append(

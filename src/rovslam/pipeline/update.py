@@ -9,6 +9,10 @@ match's decision (:func:`rovslam.mapping.association.associate`) in its landmark
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+
 from rovslam.config import RunConfig
 from rovslam.core import Frame
 from rovslam.mapping.association import (
@@ -23,13 +27,14 @@ from rovslam.mapping.association import (
     strong_refusals,
     told_offset_m,
 )
+from rovslam.pipeline.geometry import plane_depth_m
 from rovslam.pipeline.records import Observation, TrackedLandmark
 from rovslam.sensor.heading import HeadingEstimate
 from rovslam.slam import EkfSlam
 from rovslam.slam.ekf import UpdateResult
 from rovslam.vision.laser import AltitudeEstimate
 
-__all__ = ["LandmarkUpdate"]
+__all__ = ["LandmarkUpdate", "landmark_depth"]
 
 
 class LandmarkUpdate:
@@ -86,15 +91,16 @@ class LandmarkUpdate:
         return candidates
 
     def update_args(self, t: TrackedLandmark, alt: AltitudeEstimate, heading: HeadingEstimate) -> tuple:
-        """The arguments of ``EkfSlam.update`` / ``joint_nis`` for one match."""
+        """The arguments of ``EkfSlam.update`` / ``joint_nis`` for one match (its depth: :func:`landmark_depth`)."""
+        depth_m, sigma_m = landmark_depth(self.config, alt, t.mn_px, self.focal_px)
         return (
             t.record.id,
             t.mn_px,
             heading.heading_rad,
-            alt.altitude_m,
+            depth_m,
             self.focal_px,
             None,
-            alt.sigma_m,
+            sigma_m,
             heading.observation_sigma_rad,
         )
 
@@ -141,6 +147,24 @@ class LandmarkUpdate:
             )
         )
         return candidates
+
+
+def landmark_depth(config: RunConfig, alt: AltitudeEstimate, mn_px: np.ndarray, focal_px: float) -> tuple[float, float]:
+    """The image depth Z of (3), (4) for a landmark seen at the ``(2,)`` [m, n], and its sigma (metres).
+
+    With ``[laser] plane_depth`` the laser spots' plane (averaged, :mod:`rovslam.pipeline.depth`) at that
+    pixel (:func:`rovslam.pipeline.geometry.plane_depth_m`), else the one depth below the camera. The
+    sigma is Z's, widened in quadrature by ``[slam] landmark_relief_gain`` times the relief off the
+    spots' plane: the landmark's own height off that plane, a consider parameter of (3) (0: not added).
+    """
+    depth_m = alt.altitude_m
+    if config.laser.plane_depth:
+        depth_m = float(plane_depth_m(alt.altitude_m, alt.slope_rad, mn_px, focal_px)[0])
+    sigma_m = alt.sigma_m
+    gain = config.slam.landmark_relief_gain
+    if gain > 0.0 and math.isfinite(alt.relief_var_m2):
+        sigma_m = math.hypot(sigma_m, gain * math.sqrt(max(alt.relief_var_m2, 0.0)))
+    return depth_m, sigma_m
 
 
 def judged(candidate: MatchCandidate, res: UpdateResult) -> MatchCandidate:

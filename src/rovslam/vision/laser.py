@@ -62,6 +62,9 @@ class AltitudeEstimate:
     laser_altitude_m: the laser-only altitude before the sonar fusion (NaN when none).
     sonar_rejected: why the frame's sonar reading was not used (outside the plausible range),
         None when it was used or there was none.
+    relief_var_m2: the relief off the spots' plane, measured: the spots' squared residuals from
+        the plane fit, less what their centroid noise explains, per degree of freedom (four or more
+        spots; NaN otherwise). The pipeline averages it over frames (:mod:`rovslam.pipeline.depth`).
     """
 
     altitude_m: float
@@ -72,6 +75,7 @@ class AltitudeEstimate:
     slope_rad: tuple[float, float] | None = None
     laser_altitude_m: float = float("nan")
     sonar_rejected: str | None = None
+    relief_var_m2: float = float("nan")
 
 
 def sonar_reading_problem(sonar_altitude_m: float | None, config: LaserConfig) -> str | None:
@@ -298,8 +302,13 @@ def _points_and_sigmas(
     return pts, spot_sigma_px * np.hypot(dz_du, dz_dv)
 
 
-def _fit_plane(points: np.ndarray, sigmas: np.ndarray) -> tuple[float, float, tuple[float, float]] | None:
-    """Weighted LS plane ``z = a + b x + c y``: (a, sigma_a, (atan b, atan c)) or None if degenerate."""
+def _fit_plane(points: np.ndarray, sigmas: np.ndarray) -> tuple[float, float, tuple[float, float], float] | None:
+    """Weighted LS plane ``z = a + b x + c y`` of ``(K, 3)`` points with ``(K,)`` depth sigmas.
+
+    Returns ``(a, sigma_a, (atan b, atan c), relief_var_m2)`` or None if degenerate (collinear).
+    ``relief_var_m2``: the points' relief off the plane, ``(sum r^2 - sum sigma^2 (K - 3) / K) / (K - 3)``
+    (their residuals less what the depth noise explains, at least 0), NaN for three points (no residual).
+    """
     design = np.column_stack([np.ones(len(points)), points[:, 0], points[:, 1]])
     w = 1.0 / sigmas**2
     normal = design.T @ (design * w[:, None])
@@ -308,7 +317,18 @@ def _fit_plane(points: np.ndarray, sigmas: np.ndarray) -> tuple[float, float, tu
         return None  # collinear spots: no plane
     cov = np.linalg.inv(normal)
     coef = cov @ (design.T @ (w * points[:, 2]))
-    return float(coef[0]), float(np.sqrt(cov[0, 0])), (float(np.arctan(coef[1])), float(np.arctan(coef[2])))
+    dof = len(points) - 3
+    relief_var = float("nan")
+    if dof > 0:
+        resid = points[:, 2] - design @ coef
+        noise = float(np.sum(sigmas**2)) * dof / len(points)
+        relief_var = max(float(resid @ resid) - noise, 0.0) / dof
+    return (
+        float(coef[0]),
+        float(np.sqrt(cov[0, 0])),
+        (float(np.arctan(coef[1])), float(np.arctan(coef[2]))),
+        relief_var,
+    )
 
 
 def _consistent(alts: np.ndarray, valid: np.ndarray, sonar: float | None, rel: float) -> np.ndarray:
@@ -396,13 +416,13 @@ def fuse_altitude(
     valid = np.isfinite(alts) & np.isfinite(sigs) & (sigs > 0) & (alts > 0)
     inl = _consistent(alts, valid, sonar, float(config.max_relative_disagreement))
     n_in = int(inl.sum())
-    laser_alt, laser_sig, slope = float("nan"), float("nan"), None
+    laser_alt, laser_sig, slope, relief_var = float("nan"), float("nan"), None, float("nan")
     if n_in >= 3 and points_level_m is not None:
         pts = np.asarray(points_level_m, dtype=np.float64).reshape(-1, 3)
         if len(pts) == len(alts) and np.all(np.isfinite(pts[inl])):
             fit = _fit_plane(pts[inl], sigs[inl])
             if fit is not None:
-                laser_alt, laser_sig, slope = fit
+                laser_alt, laser_sig, slope, relief_var = fit
     if n_in >= 1 and not np.isfinite(laser_alt):
         w = 1.0 / sigs[inl] ** 2
         laser_alt = float(np.sum(w * alts[inl]) / np.sum(w))
@@ -411,9 +431,20 @@ def fuse_altitude(
     if np.isfinite(laser_alt) and sonar is not None:
         w_l, w_s = 1.0 / laser_sig**2, 1.0 / config.sonar_sigma_m**2
         alt = (w_l * laser_alt + w_s * sonar) / (w_l + w_s)
-        return AltitudeEstimate(alt, float(1.0 / np.sqrt(w_l + w_s)), SOURCE_LASER_SONAR, spots, n_in, slope, laser_alt)
+        return AltitudeEstimate(
+            alt,
+            float(1.0 / np.sqrt(w_l + w_s)),
+            SOURCE_LASER_SONAR,
+            spots,
+            n_in,
+            slope,
+            laser_alt,
+            relief_var_m2=relief_var,
+        )
     if np.isfinite(laser_alt):
-        return AltitudeEstimate(laser_alt, laser_sig, SOURCE_LASER, spots, n_in, slope, laser_alt)
+        return AltitudeEstimate(
+            laser_alt, laser_sig, SOURCE_LASER, spots, n_in, slope, laser_alt, relief_var_m2=relief_var
+        )
     if sonar is not None:
         return AltitudeEstimate(sonar, float(config.sonar_sigma_m), SOURCE_SONAR, spots, 0)
     return AltitudeEstimate(float(fallback_altitude_m), float(config.fixed_altitude_sigma_m), SOURCE_FIXED, spots, 0)
