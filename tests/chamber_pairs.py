@@ -13,6 +13,7 @@ principal point was, ``p - c`` (px of the first image).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -139,13 +140,19 @@ class PairResult:
         return self.speed_ok and (self.relative <= 0.10 or self.sigmas <= math.sqrt(9.21))
 
 
+# The loop with the feature motion on (``[odometry] feature_assist_inliers``, off by default).
+ASSISTED = dataclasses.replace(
+    RunConfig(), odometry=dataclasses.replace(RunConfig().odometry, feature_assist_inliers=3)
+)
+
+
 def measure_pair(mosaic: np.ndarray, spec: PairSpec, config: RunConfig | None = None) -> PairResult:
     """Run the loop on the pair's two frames; the second frame's speed as ``p - c``."""
     from rovslam.pipeline import SlamPipeline
 
     f0, f1, truth = pair_frames(mosaic, spec)
     info = SequenceInfo(name="pair", camera=CAMERA, lasers=(), fixed_altitude_m=Z_M)
-    pipe = SlamPipeline(info, config or RunConfig())
+    pipe = SlamPipeline(info, config or ASSISTED)
     pipe.process(f0)
     r = pipe.process(f1)
     speed = np.array([r.surge_mps, r.sway_mps])

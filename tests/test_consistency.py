@@ -122,7 +122,7 @@ def _run(root, config: RunConfig | None = None, inject=None, speed_fault=None):
     gt = read_groundtruth(root / "groundtruth.csv")
     pipe = SlamPipeline(seq.info, config or RunConfig())
     if speed_fault is not None:
-        measure, clock = pipe.speed.measure, {"k": -1, "dt_s": 0.0}
+        measure, clock = pipe.speed.take, {"k": -1, "dt_s": 0.0}  # step 5's speed as it leaves the estimator
 
         def faulty(*args, **kwargs):
             m = measure(*args, **kwargs)
@@ -130,7 +130,7 @@ def _run(root, config: RunConfig | None = None, inject=None, speed_fault=None):
                 m = dataclasses.replace(m, surge_mps=m.surge_mps + speed_fault[1] / clock["dt_s"])
             return m
 
-        pipe.speed.measure = faulty
+        pipe.speed.take = faulty
     results, nees, t_prev = [], [], 0.0
     for frame in seq.frames():
         if inject and frame.index in inject:

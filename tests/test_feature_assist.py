@@ -147,7 +147,7 @@ def _sparus_paths(config: RunConfig) -> dict[int, np.ndarray]:
 
 @datasets.needs("sparus")
 def test_decimated_sparus_path_matches_the_full_rate():
-    d = _sparus_paths(RunConfig())
+    d = _sparus_paths(cp.ASSISTED)
     for k in (4, 8):
         dec, full = d[k], d[-k]
         ratio = float(np.linalg.norm(dec) / np.linalg.norm(full))
