@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -37,7 +38,7 @@ from rovslam.nav.estimate import check_estimator
 from rovslam.nav.guidance import GuidanceConfig
 from rovslam.runner import StopRequest
 
-__all__ = ["NAVIGATION_COLUMNS", "NavigateSummary", "navigate"]
+__all__ = ["NAVIGATION_COLUMNS", "NavigateSummary", "navigate", "navigation_row"]
 
 NAVIGATION_COLUMNS = (
     "t_s",
@@ -61,6 +62,42 @@ NAVIGATION_COLUMNS = (
     "true_current_x_mps",
     "true_current_y_mps",
 )
+
+
+def navigation_row(
+    t_s: float,
+    phase: str,
+    goal_index: int,
+    target_xy_m: Any,
+    est: Any,
+    command: Any,
+    current_mps: Any,
+    truth: tuple[float, ...] = (math.nan,) * 5,
+) -> tuple[Any, ...]:
+    """One row of ``navigation.csv`` (:data:`NAVIGATION_COLUMNS`): ``target_xy_m`` ``(2,)`` or None, ``est`` the
+    estimate steered by (``xy_m`` ``(2,)``, ``cov_m2`` ``(2, 2)``), ``current_mps`` ``(2,)``, ``truth`` the true
+    x, y, heading and current (NaN where there is no truth: a live run)."""
+    tgt = target_xy_m if target_xy_m is not None else (math.nan, math.nan)
+    return (
+        t_s,
+        phase,
+        goal_index,
+        float(tgt[0]),
+        float(tgt[1]),
+        float(est.xy_m[0]),
+        float(est.xy_m[1]),
+        float(est.cov_m2[0, 0]),
+        float(est.cov_m2[0, 1]),
+        float(est.cov_m2[1, 1]),
+        command.surge_mps,
+        command.sway_mps,
+        command.yaw_rate_radps,
+        float(current_mps[0]),
+        float(current_mps[1]),
+        *truth,
+    )
+
+
 GROUNDTRUTH_COLUMNS = ("t_s", "x_m", "y_m", "altitude_m", "heading_rad")
 FLUSH_EVERY = 50
 
@@ -108,36 +145,11 @@ class _NavFiles:
         self.write_arrivals([])
 
     def write_step(self, s: LoopStep) -> None:
-        n, est, tr = s.nav, s.nav.estimate, s.truth
-        tgt = n.target_xy_m if n.target_xy_m is not None else (math.nan, math.nan)
+        n, tr = s.nav, s.truth
+        truth = (tr.x_m, tr.y_m, tr.heading_rad, float(s.current_true_mps[0]), float(s.current_true_mps[1]))
+        row = navigation_row(tr.t_s, n.phase, n.goal_index, n.target_xy_m, n.estimate, n.command, n.current_mps, truth)
         with output_errors(self.out / "navigation.csv"):
-            self._w["navigation.csv"].writerow(
-                [
-                    _f(v)
-                    for v in (
-                        tr.t_s,
-                        n.phase,
-                        n.goal_index,
-                        float(tgt[0]),
-                        float(tgt[1]),
-                        float(est.xy_m[0]),
-                        float(est.xy_m[1]),
-                        float(est.cov_m2[0, 0]),
-                        float(est.cov_m2[0, 1]),
-                        float(est.cov_m2[1, 1]),
-                        n.command.surge_mps,
-                        n.command.sway_mps,
-                        n.command.yaw_rate_radps,
-                        float(n.current_mps[0]),
-                        float(n.current_mps[1]),
-                        tr.x_m,
-                        tr.y_m,
-                        tr.heading_rad,
-                        float(s.current_true_mps[0]),
-                        float(s.current_true_mps[1]),
-                    )
-                ]
-            )
+            self._w["navigation.csv"].writerow([_f(v) for v in row])
         with output_errors(self.out / "groundtruth.csv"):
             self._w["groundtruth.csv"].writerow(
                 [_f(v) for v in (tr.t_s, tr.x_m, tr.y_m, tr.altitude_m, tr.heading_rad)]

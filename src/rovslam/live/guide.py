@@ -52,7 +52,7 @@ from rovslam.nav.closed_loop import (
 from rovslam.nav.dynamics import Command
 from rovslam.nav.estimate import DeadReckoningCovariance, check_estimator, nav_estimate
 from rovslam.nav.guidance import Arrival, GuidanceConfig, HoldEnd, Mission, ellipse_semi_major_m, saturate
-from rovslam.navigate import NAVIGATION_COLUMNS
+from rovslam.navigate import NAVIGATION_COLUMNS, navigation_row
 
 __all__ = ["GUIDED_MODE", "VELOCITY_ONLY_MASK", "Guide", "GuideOptions"]
 
@@ -347,25 +347,15 @@ class Guide:
 
     def _write_row(self, t_s: float, est: Any, cmd: Command, phase: str | None) -> None:
         m = self.mission
-        tgt = m.target_xy_m if m is not None and m.target_xy_m is not None else (math.nan, math.nan)
-        cur = m.current_mps if m is not None else np.full(2, math.nan)
-        row = (
+        row = navigation_row(
             t_s,
             phase or (m.phase if m is not None else "waiting"),
             m.p.index if m is not None else 0,
-            float(tgt[0]),
-            float(tgt[1]),
-            float(est.xy_m[0]),
-            float(est.xy_m[1]),
-            float(est.cov_m2[0, 0]),
-            float(est.cov_m2[0, 1]),
-            float(est.cov_m2[1, 1]),
-            cmd.surge_mps,
-            cmd.sway_mps,
-            cmd.yaw_rate_radps,
-            float(cur[0]),
-            float(cur[1]),
-        ) + (math.nan,) * 5
+            m.target_xy_m if m is not None else None,
+            est,
+            cmd,
+            m.current_mps if m is not None else np.full(2, math.nan),
+        )
         self._writers["navigation.csv"].writerow([_f(v) for v in row])
         self._files["navigation.csv"].flush()
 
