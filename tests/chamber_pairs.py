@@ -13,7 +13,6 @@ principal point was, ``p - c`` (px of the first image).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -116,6 +115,7 @@ class PairResult:
     cov_px2: np.ndarray
     speed_ok: bool
     inliers: int
+    source: str = "tokens"  # what measured the speed (trajectory.csv's speed_source)
 
     @property
     def error_px(self) -> float:
@@ -140,10 +140,8 @@ class PairResult:
         return self.speed_ok and (self.relative <= 0.10 or self.sigmas <= math.sqrt(9.21))
 
 
-# The loop with the feature motion on (``[odometry] feature_assist_inliers``, off by default).
-ASSISTED = dataclasses.replace(
-    RunConfig(), odometry=dataclasses.replace(RunConfig().odometry, feature_assist_inliers=3)
-)
+# The loop as it runs by default: the feature motion on (``[odometry] feature_assist_inliers = 3``).
+ASSISTED = RunConfig()
 
 
 def measure_pair(mosaic: np.ndarray, spec: PairSpec, config: RunConfig | None = None) -> PairResult:
@@ -157,7 +155,7 @@ def measure_pair(mosaic: np.ndarray, spec: PairSpec, config: RunConfig | None = 
     r = pipe.process(f1)
     speed = np.array([r.surge_mps, r.sway_mps])
     px, cov = token_motion_px(speed, np.asarray(r.speed_cov_mps2), DT_S, Z_M, CAMERA)
-    return PairResult(spec, truth, px, cov, bool(r.speed_ok), int(r.tokens_inliers))
+    return PairResult(spec, truth, px, cov, bool(r.speed_ok), int(r.tokens_inliers), r.speed_source)
 
 
 def load_mosaic(path: Path) -> np.ndarray:

@@ -27,7 +27,7 @@ import pytest
 from rovslam.config import OdometryConfig, RunConfig
 from rovslam.errors import ConfigError
 from rovslam.eval.feature_reference import FeatureReference, PairComparison
-from rovslam.pipeline.assist import feature_speed, is_weak, predicted_tokens, token_gate
+from rovslam.pipeline.assist import beyond_reach, feature_speed, is_weak, predicted_tokens, token_gate
 from rovslam.sensor.odometry import SpeedMeasurement
 from rovslam.vision.features import FeatureMotion
 
@@ -211,3 +211,31 @@ def test_a_turn_the_compass_did_not_see_is_refused():
     assert not turn_agrees(turned, (0.0,), sigma, 3.0)
     assert turn_agrees(turned, (0.0, math.radians(-35.0)), sigma, 3.0)  # the reading saw it
     assert turn_agrees(turned, (0.0,), None, 3.0)  # no compass: nothing to check against
+
+
+def test_speed_source_says_where_the_features_stood_in(mosaic):
+    """``speed_source``: "tokens" on a pure translation, "features" where the tokens failed under a turn and a zoom."""
+    flat = cp.measure_pair(mosaic, cp.PAIRS[0])
+    assert flat.source == "tokens" and flat.inliers >= 7
+    results = [cp.measure_pair(mosaic, p) for p in cp.PAIRS if p.turn_deg != 0.0]
+    sources = {r.source for r in results}
+    assert sources == {"tokens", "features"}, cp.table(results)  # re-seeded tokens on some, the features on others
+    assert all(r.inliers == 0 for r in results if r.source == "features"), cp.table(results)
+
+
+def test_beyond_reach_only_when_the_motion_leaves_the_search_windows():
+    """A 30 px motion: beyond an 8 px window around zero, within one around the phase correlation's 28 px."""
+    cam = cp.CAMERA
+    uv = np.array([[100.0, 80.0], [200.0, 150.0], [250.0, 60.0], [150.0, 200.0]])
+    shift = _motion([1.0, 0.0, 30.0, 0.0])
+    zero = np.zeros((4, 2))
+    assert beyond_reach(cam, shift, uv, [(zero, 8.0)])
+    assert not beyond_reach(cam, shift, uv, [(zero, 8.0), (zero + [28.0, 0.0], 12.0)])
+    assert not beyond_reach(cam, _motion([1.0, 0.0, 3.0, -2.0]), uv, [(zero, 8.0)])  # a small motion: within reach
+    # a 15 degree turn about the image centre moves the corner tokens 30 px and more: beyond a window at the mean
+    c, s = math.cos(math.radians(15.0)), math.sin(math.radians(15.0))
+    cx, cy = cam.cx_px, cam.cy_px
+    turned = _motion([c, s, cx - c * cx + s * cy, cy - s * cx - c * cy])
+    corners = np.array([[20.0, 20.0], [340.0, 20.0], [20.0, 250.0], [340.0, 250.0]])
+    assert beyond_reach(cam, turned, corners, [(zero, 12.0)])
+    assert not beyond_reach(cam, shift, np.zeros((0, 2)), [(np.zeros((0, 2)), 8.0)])  # no tokens: nothing to seed

@@ -114,3 +114,24 @@ def test_token_motion_in_pixels():
 def test_compare_pair():
     rel, maha = compare_pair(np.array([10.0, 0.0]), np.eye(2), np.array([11.0, 0.0]), np.eye(2) * 0.25)
     assert rel == pytest.approx(0.1) and maha == pytest.approx(1.0 / math.sqrt(1.25))
+
+
+def test_a_speed_from_the_features_is_not_compared_with_them(dive, tmp_path):
+    """A frame whose speed the run took from the feature motion would check the method against itself:
+    left out and counted (``speed_source = features`` in trajectory.csv)."""
+    import csv
+
+    out = tmp_path / "out"
+    shutil.copytree(dive / "out", out)
+    path = out / "trajectory.csv"
+    with path.open(newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    assert {r["speed_source"] for r in rows[1:]} <= {"tokens", ""} and rows[10]["speed_source"] == "tokens"
+    rows[10]["speed_source"] = "features"
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    d = feature_reference(out).to_dict()
+    assert d["not_compared"].get("speed from the feature motion") == 1, d["not_compared"]
+    assert [10 - 1, 10, "speed from the feature motion"] in d["not_compared_pairs"], d["not_compared_pairs"]

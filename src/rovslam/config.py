@@ -370,11 +370,10 @@ class OdometryConfig(_Checked):
     # AHRS reading-to-reading noise (0.01 deg): moves each frame's seabed
     attitude_noise_sigma_rad: float = _num(0.0002, ge=0)
     # fewer tokens agreeing than this (or no speed): the motion between the two frames is measured from point
-    # features too; it seeds the token search (large motions), gates the tokens, and is the speed where they
-    # still fail (rovslam.pipeline.assist). 0, the default: never. 3 for real footage with large motions
-    # (turns, zoom, a third of the image between frames); on the simulated dives it lowers the 2-sigma coverage
-    # of fast turns without a compass, so it is not on by default
-    feature_assist_inliers: int = _num(0, ge=0)
+    # features too; where it moved most tokens beyond the windows they were searched in (a large motion: a
+    # third of the image, a turn, a zoom), it seeds the token search, gates the tokens, and is the speed where
+    # they still fail (rovslam.pipeline.assist); within reach, the weak tokens stay as they are. 0: never
+    feature_assist_inliers: int = _num(3, ge=0)
     feature_gate_sigmas: float = _num(3.0, gt=0)  # a token farther than this from the feature motion is refused
 
 

@@ -14,6 +14,10 @@ none, the speed the run held; a level camera, no lever arm, as ``eval.baselines`
 (keypoints freed of the lens distortion), applied to the principal point. A pair agrees when the two differ by at most 10 % of the token
 motion, or by at most 2 sigma (Mahalanobis distance of the difference under the sum of the two
 covariances: the speed's Q times dt^2 in pixels, and the features' from their inliers).
+
+A frame whose speed the run took from the feature motion itself (``trajectory.csv``
+``speed_source = features``: the tokens were weak under a large motion) is not compared: the
+method would be checked against itself. Such pairs are counted under ``not_compared``.
 """
 
 from __future__ import annotations
@@ -39,7 +43,8 @@ class PairComparison:
     ``frame_prev`` / ``frame``: the input's frame numbers. ``held``: the tokens measured no speed
     at ``frame`` and the run moved by the speed it held (compared all the same: it is the motion
     the run integrated). ``reason``: why the pair could not be compared ("" when compared): no
-    speed at all, an unreadable frame, or no reliable feature motion.
+    speed at all, a speed the run took from the feature motion (not independent), an unreadable
+    frame, or no reliable feature motion.
     """
 
     frame_prev: int
@@ -213,6 +218,8 @@ def _pair(traj: dict, q_all: np.ndarray | None, i_prev: int, i: int, prev: Any, 
     base["held"] = bool(traj["speed_ok"][i] != 1)
     if not (np.all(np.isfinite(speed)) and altitude_m > 0 and dt_s > 0):
         return PairComparison(**base, token_px=nan2, feature_px=nan2, reason="no speed")
+    if "speed_source" in traj and traj["speed_source"][i] == "features":
+        return PairComparison(**base, token_px=nan2, feature_px=nan2, reason="speed from the feature motion")
     q = q_all[i] if q_all is not None and np.all(np.isfinite(q_all[i])) else np.zeros((2, 2))
     tok_px, tok_cov = token_motion_px(speed, q, dt_s, altitude_m, camera)
     if prev.image is None or cur.image is None:

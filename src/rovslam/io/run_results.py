@@ -233,7 +233,7 @@ def read_results(out_dir: str | Path) -> RunResults:
     if not out.is_dir():
         raise ResultsFormatError(f"{out}: not a folder. Give the --out folder of a `rovslam run`.")
     traj_path = out / "trajectory.csv"
-    traj, lines = _read_table(traj_path, TRAJECTORY_COLUMNS, ("altitude_source",))
+    traj, lines = _read_table(traj_path, TRAJECTORY_COLUMNS, ("altitude_source", "speed_source"))
     if len(traj["t_s"]) == 0:
         failed = failure_of_run(read_summary(out / "summary.json"))
         raise ResultsFormatError(

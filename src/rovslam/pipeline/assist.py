@@ -7,6 +7,9 @@ from its inliers' residuals). From it, as pure functions:
 
 * :func:`predicted_tokens`: where each previous token should be now (and how sure that is): the
   search windows are centred there, so that motions far beyond the search radius are found;
+* :func:`beyond_reach`: whether it moved the seabed beyond the windows the tokens were searched
+  in (only then are weak tokens taken for a large motion: tokens that failed where the motion was
+  within reach failed for another reason, turbid water or a bland seabed, and stay as they are);
 * :func:`token_gate`: which tracked tokens agree with it (the others are refused);
 * :func:`turn_agrees`: whether its turn agrees with the compass (a frame that is not the next view
   of the same seabed, a glitch, must not be taken as a motion);
@@ -29,7 +32,7 @@ from rovslam.camera import Camera, distort_pixels, undistort_pixels
 from rovslam.sensor.odometry import SpeedMeasurement, speed_from_tokens
 from rovslam.vision.features import FeatureMotion, similarity_design
 
-__all__ = ["feature_speed", "is_weak", "predicted_tokens", "reduced_grey", "token_gate", "turn_agrees"]
+__all__ = ["beyond_reach", "feature_speed", "is_weak", "predicted_tokens", "reduced_grey", "token_gate", "turn_agrees"]
 
 # Finite-difference steps of the similarity's parameters [a, b, tx_px, ty_px] for the speed's Jacobian.
 _PARAM_STEPS = np.array([1e-4, 1e-4, 0.5, 0.5])
@@ -67,6 +70,29 @@ def predicted_tokens(camera: Camera, motion: FeatureMotion, uv_prev_px: np.ndarr
     moved = np.einsum("nij,j->ni", jac, motion.params)
     cov = np.einsum("nij,jk,nlk->nil", jac, motion.cov_params, jac)
     return distort_pixels(camera, moved), cov
+
+
+def beyond_reach(
+    camera: Camera,
+    motion: FeatureMotion,
+    uv_prev_px: np.ndarray,
+    windows: list[tuple[np.ndarray, float]],
+) -> bool:
+    """Whether the feature motion puts most of the ``(N, 2)`` previous tokens outside every search window.
+
+    ``windows``: the searches the tokens had, each ``((N, 2) centre shifts px, radius px)``: a
+    square window per token around its previous centre plus the shift. True when more than half
+    of the tokens' predicted shifts (:func:`predicted_tokens`) fall outside all of them.
+    """
+    uv = np.asarray(uv_prev_px, dtype=np.float64).reshape(-1, 2)
+    if len(uv) == 0:
+        return False
+    pred, _ = predicted_tokens(camera, motion, uv)
+    shift = pred - uv
+    outside = np.all(np.isfinite(shift), axis=1)
+    for centres, radius in windows:
+        outside &= np.max(np.abs(shift - centres), axis=1) > radius
+    return float(np.mean(outside)) > 0.5
 
 
 def token_gate(

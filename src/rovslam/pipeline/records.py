@@ -87,6 +87,7 @@ class FrameResult:
     tokens_given: int
     tokens_tracked: int
     tokens_inliers: int
+    speed_source: str  # what measured the speed: "tokens", "features" (the feature motion of step 5), "" none
     used_global_search: bool
     landmarks_visible: int
     landmarks_tracked: int
@@ -230,6 +231,7 @@ class FrameRecords:
             tokens_given=tracks.n_given if tracks else 0,
             tokens_tracked=tracks.n_tracked if tracks else 0,
             tokens_inliers=speed.n_inliers if speed else 0,
+            speed_source=speed.source if speed is not None and speed.ok else "",
             used_global_search=tracks.used_global_search if tracks else False,
             landmarks_visible=step.visible,
             landmarks_tracked=sum(o.accepted for o in observations if o.kind == "track"),

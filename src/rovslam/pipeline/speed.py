@@ -19,6 +19,7 @@ from rovslam.camera import Camera
 from rovslam.config import RunConfig
 from rovslam.core import Frame
 from rovslam.pipeline.assist import (
+    beyond_reach,
     feature_speed,
     is_weak,
     predicted_tokens,
@@ -102,9 +103,28 @@ class SpeedStep:
         motion = None
         if before is not None and before[0] == prev.t_s and before[1] is not None and frame is not None:
             motion = self._feature_motion(before[1], frame.image, prior)
-        if motion is None:  # no feature motion: the tokens as they are
+        if motion is None or not self._beyond_reach(motion, tracks, common, offsets):
+            # no feature motion, or one the tokens' search covered: the tokens as they are
             return tracks, self.speed.take(tokens_only, dt_s)
         return self._assisted(track_img, mask, motion, tracks, step, dt_s)
+
+    def _beyond_reach(
+        self, motion: FeatureMotion, tracks: TokenTracks, common: np.ndarray | None, offsets: np.ndarray | None
+    ) -> bool:
+        """Whether the feature motion lies beyond the windows the tokens were searched in (:func:`beyond_reach`):
+        around the prediction ``common + offsets``, around the phase correlation's shift, else around zero."""
+        toks = self.tokens.tokens
+        if not toks:
+            return False
+        uv = np.array([t.centre_uv_px for t in toks])
+        rot = np.zeros((len(toks), 2)) if offsets is None else np.asarray(offsets, dtype=np.float64)
+        radius = float(self.tokens.speed_config.search_radius_px)
+        windows = [((np.zeros(2) if common is None else common) + rot, radius)]
+        g_shift = tracks.global_shift_uv_px
+        if g_shift is not None:
+            g_radius = float(self.tokens.tracker_config.global_search_radius_px)
+            windows.append((np.asarray(g_shift, dtype=np.float64) + rot - rot.mean(axis=0), g_radius))
+        return beyond_reach(self.camera, motion, uv, windows)
 
     def _step_args(
         self,
