@@ -31,6 +31,15 @@ of the consensus's tokens, turn and scale followed): median per-frame share 0.03
 under the simulator's caustics (slow, fast, small cells), the smoothed share never falling
 below 0.021 once on; 0.006 to 0.012 on the presets without them (real-photo survey and turns,
 relief, turbid), the smoothed share at most 0.028; 0.017 on the real Sparus video.
+
+Each frame's share enters the average as the median of it and the two frames before
+(``SUNLIGHT_MEDIAN_FRAMES``; of the first two, the smaller): one frame is not the light. A vehicle holding station over the
+real-photo seabed under its lamps (a guided mission's point) measured 0.014 to 0.023 a frame,
+the average 0.02, until one frame's share of 0.199 (a consensus of three tokens on a glitch)
+lifted it over 0.03; the wide opening then took the lamp-lit specks out of every image, the
+landmarks cut before were never found again, and the average, at 0.018 with the vehicle still,
+stayed above ``SUNLIGHT_OFF_SHARE``: the map was lost for the rest of the mission. Caustics give
+a share above 0.03 frame after frame, so the median delays their detection by one frame.
 """
 
 from __future__ import annotations
@@ -47,6 +56,7 @@ SUNLIGHT_ON_SHARE = 0.03  # the smoothed moving share above which the sunlight i
 SUNLIGHT_OFF_SHARE = 0.015  # ... and below which it is left in again
 SUNLIGHT_SMOOTHING = 0.1  # exponential smoothing per frame (about 10 frames)
 SUNLIGHT_MIN_FRAMES = 3  # frames with a share before the first decision
+SUNLIGHT_MEDIAN_FRAMES = 3  # each frame's share enters as the median of the last this many (one frame is not the light)
 MIN_BRIGHT_RMS = 10.0  # grey levels: a token window with fainter bright structures says nothing
 # The light is compared over at least this much time (3/4 of it, for timestamps that jitter), whatever
 # the frame rate: the shares and thresholds above were measured between frames 0.2 s apart, and
@@ -226,6 +236,7 @@ class SunlightMonitor:
         self.share = 0.0
         self.active = False
         self._mean = DecayingMean()  # the exponential average over its own weight
+        self._recent: deque[float] = deque(maxlen=SUNLIGHT_MEDIAN_FRAMES)  # the last frames' shares
 
     @property
     def frames(self) -> int:
@@ -236,7 +247,9 @@ class SunlightMonitor:
         """Fold one frame in (a NaN share changes nothing); True when :attr:`active` flipped."""
         if not np.isfinite(share):
             return False
-        self._mean.add(float(share), self.smoothing, 1.0 - self.smoothing)
+        self._recent.append(float(share))
+        lower_median = sorted(self._recent)[(len(self._recent) - 1) // 2]  # of two frames, the smaller
+        self._mean.add(lower_median, self.smoothing, 1.0 - self.smoothing)
         self.share = self._mean.mean()  # the first frames' mean, not pulled towards 0
         if self.frames < SUNLIGHT_MIN_FRAMES:
             return False
