@@ -70,7 +70,14 @@ TRAJECTORY_COLUMNS = (
 OBSERVATION_COLUMNS = ("t_s", "frame", "landmark_id", "kind", "u_px", "v_px", "score", "nis", "accepted")
 # Written since the consistency work; readers do not require them (older runs lack them).
 OBSERVATION_EXTRA_COLUMNS = ("reason", "tentative")
-TRAJECTORY_EXTRA_COLUMNS = ("var_surge_mps2", "cov_surge_sway_mps2", "var_sway_mps2", "tokens_inliers", "recovery", "speed_source")
+TRAJECTORY_EXTRA_COLUMNS = (
+    "var_surge_mps2",
+    "cov_surge_sway_mps2",
+    "var_sway_mps2",
+    "tokens_inliers",
+    "recovery",
+    "speed_source",
+)
 LANDMARK_EXTRA_COLUMNS = ("height_m", "height_sigma_m", "self_similarity", "confirmed", "rejected")
 LANDMARK_COLUMNS = (
     "id",
