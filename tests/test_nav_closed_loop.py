@@ -133,6 +133,9 @@ def test_the_mission_writes_the_usual_results_and_its_own(acceptance):
     # frame 600 (t = 120 s) ends the survey: its command is the first towards a point, frame 601 the first flown so
     assert s["status"] == "complete" and s["estimator"] == "slam" and s["navigation_start_frame"] == 601
     assert len(rows(out / "landmarks.csv")) == summary.landmarks > 10
+    # the sunlight watch and the speed error as `rovslam run` reports them (no caustics on this preset)
+    assert s["sunlight"]["frames_removed"] == 0 and s["sunlight"]["changes"] == []
+    assert s["speed_bias"]["frames"] == 0
 
 
 def test_ctrl_c_keeps_what_is_written(tmp_path):
