@@ -127,6 +127,24 @@ def test_one_frame_is_not_the_sunlight():
     assert any(mon.observe(0.05) for _ in range(6)) and mon.active
 
 
+def test_the_median_never_raises_the_average():
+    """A frame enters as the smaller of its share and the median: on the first frames of the real Sparus video
+    decimated by 3 (0.033, 0.030, 0.022) the median alone, 0.030 for the third, would have switched the watch on."""
+    rng = np.random.default_rng(11)
+    shares = rng.uniform(0.0, 0.06, 300)
+    mon, means = SunlightMonitor(), []
+    for s in shares:
+        mon.observe(float(s))
+        means.append(mon.share)
+    a, num, den, ref = 1 - SUNLIGHT_SMOOTHING, 0.0, 0.0, []
+    for s in shares:  # the plain average, by hand: the exponential mean over its own weight
+        num, den = a * num + SUNLIGHT_SMOOTHING * s, a * den + SUNLIGHT_SMOOTHING
+        ref.append(num / den)
+    assert all(m <= r + 1e-12 for m, r in zip(means, ref))
+    mon = SunlightMonitor()
+    assert not any(mon.observe(s) for s in (0.0333, 0.0301, 0.0223)) and not mon.active
+
+
 def test_bright_history_compares_over_a_fifth_of_a_second_whatever_the_frame_rate():
     rng = np.random.default_rng(8)
     uv = rng.uniform([40, 40], [220, 160], size=(6, 2))
