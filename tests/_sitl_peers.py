@@ -9,6 +9,7 @@ import os
 import socket
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -20,15 +21,37 @@ def free_udp_port() -> int:
         return int(s.getsockname()[1])
 
 
+def _udp_bound(port: int) -> bool:
+    """Whether a UDP socket is bound to ``port``, read from the kernel's table (Linux), without binding it.
+
+    Probing by binding the port ourselves would hold it for an instant: a receiver binding at that
+    instant fails ("address already in use") and never binds (a loopback test then waited 120 s).
+    Elsewhere than Linux, that probe is the fallback.
+    """
+    tables = [Path("/proc/net/udp"), Path("/proc/net/udp6")]
+    if any(t.exists() for t in tables):
+        for table in tables:
+            try:
+                rows = table.read_text().splitlines()[1:]
+            except OSError:
+                continue
+            if any(int(row.split()[1].rsplit(":", 1)[1], 16) == port for row in rows if len(row.split()) > 1):
+                return True
+        return False
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return True
+    return False
+
+
 def wait_udp_bound(port: int, deadline_s: float = 120.0) -> bool:
     """Wait until something (a receiver) has bound UDP ``127.0.0.1:port``: then a datagram sent there is kept."""
     end = time.monotonic() + deadline_s
     while time.monotonic() < end:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                return True
+        if _udp_bound(port):
+            return True
         time.sleep(0.02)
     return False
 
