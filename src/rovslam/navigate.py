@@ -229,7 +229,6 @@ def navigate(
             error = error or exc
             status = "failed"
         interrupted = status == "interrupted"
-        pipe = loop.navigator.pipeline
         summary = {
             **base,
             "status": status,
@@ -242,9 +241,7 @@ def navigate(
             "wall_time_s": wall,
             "arrivals": book.table(),
             "navigation_start_frame": flight.nav_start,
-            # as `rovslam run` says them: when the sunlight was taken out, and the speed error's use
-            "sunlight": {**pipe.sunlight_summary(), "warnings": pipe.sunlight_warnings()},
-            "speed_bias": pipe.speed_bias_summary(),
+            **loop.navigator.pipeline.light_summaries(),  # as `rovslam run` writes them
         }
         writer.write_summary(summary)
         if error is not None:

@@ -124,6 +124,13 @@ class SlamPipeline:
         watch = self.sunlight_watch
         return records.sunlight_summary(watch.opening_px, watch.frames_removed, watch.events)
 
+    def light_summaries(self) -> dict:
+        """``summary.json``'s ``sunlight`` (with its warnings) and ``speed_bias`` blocks (``rovslam run`` and ``navigate``)."""
+        return {
+            "sunlight": {**self.sunlight_summary(), "warnings": self.sunlight_warnings()},
+            "speed_bias": self.speed_bias_summary(),
+        }
+
     def speed_bias_summary(self) -> dict:
         """What ``summary.json`` says of the speed error w (:func:`rovslam.pipeline.records.speed_bias_summary`)."""
         return self.prediction.speed_bias_summary()
