@@ -86,6 +86,9 @@ frames = 50
         ('[[scenario]]\nname = "portofino-short"\n[[scenario]]\nname = "portofino-short"\n', "appears twice"),
         ('[[scenario]]\nname = "portofino-short"\nconfig = "nope.toml"\n', "nope.toml: configuration file not found"),
         ('[[sequence]]\nname = "a b"\npath = "x"\n', "a folder name"),
+        ('[[scenario]]\nname = "portofino-short"\nrelief_scale = 2\n', "relief_scale: this scenario has a flat seabed"),
+        ('[[scenario]]\nname = "portofino-relief"\nrelief_scale = "deep"\n', "relief_scale must be a number >= 0"),
+        ('[[scenario]]\nname = "portofino-relief"\nrelief_scale = 3\n', "use a scale of at most 1.67"),
         ('name = "empty"\n', "no cells"),
         ("[[scenario]\n", "not valid TOML"),
     ],
@@ -107,10 +110,22 @@ def test_cli_unknown_scenario_is_one_line_exit_2(tmp_path):
     assert not (tmp_path / "o").exists()  # nothing ran
 
 
+def test_a_scenario_entry_scales_its_relief(tmp_path):
+    p = _matrix(
+        tmp_path,
+        '[[scenario]]\nname = "portofino-relief"\nlabel = "flat"\nframes = 5\nrelief_scale = 0\n'
+        '[[scenario]]\nname = "portofino-relief"\nframes = 5\n',
+    )
+    flat, base = load_matrix(p).cells
+    assert (flat.cell_id, flat.relief_scale) == ("flat_s0", 0.0) and base.relief_scale == 1.0
+
+
 def test_shipped_matrices_load():
     from pathlib import Path
 
     smoke = load_matrix(Path(__file__).parents[1] / "matrices" / "smoke.toml")
+    relief = load_matrix(Path(__file__).parents[1] / "matrices" / "relief.toml")
+    assert {c.relief_scale for c in relief.cells} == {0.0, 1.0, 1.5, 1.6}
     assert len(smoke.cells) == 4 and {c.frames for c in smoke.cells} == {250}
     # The default matrix names the hard presets; every one of them at 10 seeds, 3 to 10 minutes.
     import tomllib

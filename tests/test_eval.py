@@ -336,3 +336,52 @@ def test_eval_judges_the_measured_speed_of_a_simulated_dive_against_the_truth(sh
     assert f.to_dict()["speed"]["steps"] == s.steps
     res = CliRunner().invoke(app, ["eval", str(short_run / "out"), "-g", str(short_run / "seq" / "groundtruth.csv")])
     assert res.exit_code == 0 and "speed NEES mean" in res.output
+
+
+def test_altitude_errors_are_relative_to_the_true_altitude_and_skip_frames_without_one():
+    from rovslam.eval import altitude_errors
+
+    true = np.full(5, 1.25)
+    measured = np.array([1.25 * 1.01, 1.25 * 0.98, np.nan, 0.0, 1.25 * 1.002])
+    a = altitude_errors(measured, true, "altitude_m")
+    assert a is not None and a.frames == 3  # NaN and 0: no altitude on those frames
+    assert a.median_error_pct == pytest.approx(1.0) and a.mean_error_pct == pytest.approx((1.0 - 2.0 + 0.2) / 3)
+    assert a.p95_error_pct == pytest.approx(np.percentile([1.0, 2.0, 0.2], 95))
+    assert altitude_errors(np.full(3, np.nan), np.ones(3), "altitude_m") is None
+
+
+def test_over_relief_the_altitude_is_judged_against_the_seabed_under_the_camera():
+    from types import SimpleNamespace
+
+    from rovslam.core import GroundTruth
+    from rovslam.eval.metrics import _altitude_errors
+
+    n = 4
+    relief = np.array([0.00, 0.05, -0.03, 0.10])
+    gt = GroundTruth(np.arange(n) * 0.2, np.zeros(n), np.zeros(n), np.full(n, 1.30), np.zeros(n), relief)
+    below = 1.30 - relief  # what a perfect altimeter reads
+    run = SimpleNamespace(trajectory={"altitude_m": below})
+    a = _altitude_errors(run, gt, np.arange(n))  # type: ignore[arg-type]
+    assert (
+        a is not None and a.truth == "seabed under the camera" and a.median_error_pct == pytest.approx(0.0, abs=1e-12)
+    )
+    flat = GroundTruth(gt.t_s, gt.x_m, gt.y_m, gt.altitude_m, gt.heading_rad)  # no relief column: altitude_m
+    b = _altitude_errors(run, flat, np.arange(n))  # type: ignore[arg-type]
+    assert b is not None and b.truth == "altitude_m"
+    assert b.median_error_pct == pytest.approx(100 * np.median(np.abs(below / 1.30 - 1)))
+
+
+def test_eval_reports_the_altitude_error_of_a_simulated_dive(short_run):
+    from typer.testing import CliRunner
+
+    from rovslam.cli import app
+    from rovslam.eval import evaluate_run
+
+    f = evaluate_run(short_run / "out", short_run / "seq" / "groundtruth.csv")
+    a = f.altitude
+    # Measured (seed 0, 300 frames over the flat seabed): median 0.060 %, 95th percentile 0.154 %, mean +0.010 %.
+    assert a is not None and a.frames == 300 and a.truth == "altitude_m"
+    assert 0.0 < a.median_error_pct < 0.2 and a.p95_error_pct < 0.5
+    assert f.to_dict()["altitude"]["frames"] == 300
+    res = CliRunner().invoke(app, ["eval", str(short_run / "out"), "-g", str(short_run / "seq" / "groundtruth.csv")])
+    assert res.exit_code == 0 and "altitude error" in res.output

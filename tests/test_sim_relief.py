@@ -425,3 +425,62 @@ def test_rolling_shutter_skews_the_image_by_the_motion_during_readout():
         )
     np.testing.assert_allclose(shifts, expected, atol=0.05)
     assert max(np.abs(expected)) > 4.0
+
+
+def test_a_relief_scale_multiplies_every_height_and_zero_is_flat():
+    from rovslam.sim.relief import scaled_relief
+
+    base = SCENARIOS["portofino-relief"].relief
+    assert isinstance(base, ReliefParams)
+    half = scaled_relief(base, 0.5)
+    assert isinstance(half, ReliefParams)
+    assert half.ripple_height_m == pytest.approx(0.5 * base.ripple_height_m)
+    assert half.stone_height_ratio == pytest.approx(0.5 * base.stone_height_ratio)
+    assert half.ledge_height_m == pytest.approx(0.5 * base.ledge_height_m)
+    assert half.undulation_m == pytest.approx(0.5 * base.undulation_m)
+    assert scaled_relief(base, 1.0) is base and scaled_relief(base, 0.0) is None
+    deep = scaled_relief(base, 1.6)  # the ledge's face widens so that it stays no steeper than the preset's
+    assert isinstance(deep, ReliefParams) and deep.ledge_height_m <= 2.0 * deep.ledge_width_m
+    photo = scaled_relief(PhotoReliefParams(relief_m=0.08), 1.5)
+    assert isinstance(photo, PhotoReliefParams) and photo.relief_m == pytest.approx(0.12)
+    # the heights themselves scale: the same seabed, half as deep
+    x, y = np.linspace(-0.4, 0.4, 50), np.linspace(0.3, -0.2, 50)
+    texture = SCENARIOS["portofino-relief"].texture
+    full_h = heights_at(World.procedural(4, texture, relief=base, grow_m=0.05).relief, x, y)
+    half_h = heights_at(World.procedural(4, texture, relief=half, grow_m=0.05).relief, x, y)
+    assert np.std(half_h) == pytest.approx(0.5 * np.std(full_h), rel=0.15)
+
+
+@pytest.mark.parametrize(
+    "relief,scale,needle",
+    [
+        (None, 2.0, "flat seabed"),
+        (ReliefParams(stone_height_ratio=0.6), 2.0, "at most 1.67"),
+        (ReliefParams(ripple_height_m=0.01), -1.0, "a number >= 0"),
+        (ReliefParams(ripple_height_m=0.01), float("nan"), "a number >= 0"),
+    ],
+)
+def test_a_bad_relief_scale_says_why(relief, scale, needle):
+    from rovslam.sim.relief import scaled_relief
+
+    with pytest.raises(SimulationError, match=needle):
+        scaled_relief(relief, scale)
+
+
+def test_simulate_records_the_relief_scale_and_refuses_it_on_a_flat_scenario(tmp_path):
+    import tomllib
+
+    from rovslam.sim import simulate
+
+    simulate("portofino-relief", tmp_path / "deep", frames=2, seed=1, relief_scale=1.5)
+    meta = tomllib.loads((tmp_path / "deep" / "sequence.toml").read_text())["metadata"]
+    assert meta["relief_scale"] == 1.5 and meta["relief"].startswith("ProceduralRelief")
+    simulate("portofino-relief", tmp_path / "flat", frames=2, seed=1, relief_scale=0.0)
+    assert (
+        not (tmp_path / "flat" / "groundtruth.csv")
+        .read_text()
+        .startswith("t_s,x_m,y_m,altitude_m,heading_rad,relief_m")
+    )
+    with pytest.raises(SimulationError, match="flat seabed"):
+        simulate("portofino-short", tmp_path / "no", frames=2, relief_scale=2.0)
+    assert not (tmp_path / "no").exists()  # refused before anything was written

@@ -118,6 +118,7 @@ def _run(spec: CellSpec, cell_dir: Path, keep_sequence: bool) -> dict[str, Any]:
             seed=spec.seed,  # type: ignore[arg-type]
             image_format=spec.image_format,
             calibration=CalibrationErrors() if spec.calibration_errors else None,
+            relief_scale=spec.relief_scale,
         )
         groundtruth = seq / "groundtruth.csv"
         max_frames = None
@@ -203,6 +204,7 @@ def cell_figures(ev) -> dict[str, Any]:
     row["sm_nees_mean"] = None if smc is None else smc.nees_mean
     row["speed_nees_mean"] = None if ev.speed is None else ev.speed.nees_mean
     row["speed_coverage_2sigma"] = None if ev.speed is None else ev.speed.coverage_2sigma
+    row["altitude_error_median_pct"] = None if ev.altitude is None else ev.altitude.median_error_pct
     row["dr_over_slam"] = ev.dead_reckoning_over_slam_rmse
     row["pc_over_slam"] = ev.phase_correlation_over_slam_rmse
     return row

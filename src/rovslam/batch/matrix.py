@@ -15,6 +15,7 @@ Format (TOML; paths relative to the matrix file)::
     # label = "portofino-other-cfg"  # optional: the row name (default the scenario's), to run a preset twice
     # format = "jpg"                 # optional: image files of the simulated dive, png (default) or jpg
     # calibration_errors = true      # optional: draw each seed's lasting sensor errors (rovslam.sim.calibration)
+    # relief_scale = 2.0             # optional: every height of the preset's relief times this (0: flat)
 
     [[sequence]]                     # zero or more: a recorded dive with ground truth
     name = "my-dive"                 # the cell's name
@@ -44,7 +45,17 @@ from rovslam.errors import ConfigError, parse_toml
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 _TOP_KEYS = ("name", "seeds", "config", "smooth", "scenario", "sequence")
-_SCENARIO_KEYS = ("name", "frames", "duration_s", "seeds", "config", "label", "format", "calibration_errors")
+_SCENARIO_KEYS = (
+    "name",
+    "frames",
+    "duration_s",
+    "seeds",
+    "config",
+    "label",
+    "format",
+    "calibration_errors",
+    "relief_scale",
+)
 _SEQUENCE_KEYS = ("name", "path", "groundtruth", "frames", "config")
 
 
@@ -64,6 +75,7 @@ class CellSpec:
     image_format: str = "png"  # of the simulated images: png, or jpg (about a third of the cost in HD)
     smooth: bool = True  # also smooth the run (GTSAM iSAM2) and evaluate the smoothed path
     calibration_errors: bool = False  # simulate with the seed's drawn compass / laser-rig / sonar errors
+    relief_scale: float = 1.0  # every height of the preset's relief times this (0: a flat seabed)
 
     @property
     def simulated(self) -> bool:
@@ -125,6 +137,7 @@ def load_matrix(path: str | Path, scenarios: dict[str, Any] | None = None) -> Ma
         calibration = entry.get("calibration_errors", False)
         if not isinstance(calibration, bool):
             raise ConfigError(f"{where}: calibration_errors must be true or false, got {calibration!r}")
+        relief_scale = _relief_scale(entry, scenarios[name], where)  # type: ignore[index]
         cells += [
             CellSpec(
                 f"{label}_s{s}",
@@ -137,6 +150,7 @@ def load_matrix(path: str | Path, scenarios: dict[str, Any] | None = None) -> Ma
                 image_format=fmt,
                 smooth=smooth,
                 calibration_errors=calibration,
+                relief_scale=relief_scale,
             )
             for s in seeds
         ]
@@ -184,6 +198,21 @@ def _tables(data: dict, key: str, p: Path) -> list[dict]:
     if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
         raise ConfigError(f"{p}: {key} must be an array of tables, written [[{key}]]")
     return entries
+
+
+def _relief_scale(entry: dict, scenario: Any, where: str) -> float:
+    """The entry's ``relief_scale`` (default 1), checked against the preset's relief."""
+    from rovslam.errors import SimulationError
+    from rovslam.sim.relief import scaled_relief
+
+    value = entry.get("relief_scale", 1.0)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{where}: relief_scale must be a number >= 0, got {value!r}")
+    try:
+        scaled_relief(getattr(scenario, "relief", None), float(value))
+    except SimulationError as exc:
+        raise ConfigError(f"{where}: relief_scale: {exc}") from None
+    return float(value)
 
 
 def _check_keys(table: dict, allowed: Iterable[str], where: str) -> None:

@@ -207,6 +207,13 @@ def print_eval(f) -> None:
             " ".join(f"{1e3 * e:.2f}/{1e3 * s:.2f}" for e, s in zip(sp.rms_error_mps, sp.rms_sigma_mps)) + " mm/s",
             *[""] * (len(runs) - 1),
         )
+    if f.altitude is not None:
+        a = f.altitude
+        t.add_row(
+            "altitude error" + (" (seabed below)" if a.truth != "altitude_m" else ""),
+            f"median {a.median_error_pct:.2f} %, p95 {a.p95_error_pct:.2f} %, mean {a.mean_error_pct:+.2f} %",
+            *[""] * (len(runs) - 1),
+        )
     t.add_row("skipped frames", str(f.skipped_frames), *[""] * (len(runs) - 1))
     console.print(t)
     for note in f.notes:

@@ -28,6 +28,11 @@ def simulate(
         help="Draw the seed's lasting sensor errors (compass deviation 0.5 deg, laser-rig baseline 0.76 %, sonar offset "
         "1 cm, one sigma) and record them in sequence.toml; default: exact sensors.",
     ),
+    relief_scale: float = typer.Option(
+        1.0,
+        "--relief-scale",
+        help="Multiply every height of the scenario's relief (0: a flat seabed; 2: twice as deep).",
+    ),
     list_scenarios: bool = typer.Option(False, "--list", help="List the scenarios and exit."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
@@ -55,6 +60,7 @@ def simulate(
             texture_mm_per_px=texture_mm_per_px,
             progress=bar,
             calibration=CalibrationErrors() if calibration_errors else None,
+            relief_scale=relief_scale,
         )
     typer.echo(f"wrote {out} ({_describe(summary)})")
     d = summary.calibration

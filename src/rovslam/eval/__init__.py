@@ -6,11 +6,13 @@ from rovslam.eval.baselines import (
     phase_correlation_path,
 )
 from rovslam.eval.metrics import (
+    AltitudeErrors,
     Consistency,
     Evaluation,
     RevisitRow,
     SpeedConsistency,
     TrajectoryErrors,
+    altitude_errors,
     consistency,
     error_jump_before_sigma,
     error_jump_sigma,
@@ -24,11 +26,13 @@ from rovslam.eval.metrics import (
 )
 
 __all__ = [
+    "AltitudeErrors",
     "Consistency",
     "Evaluation",
     "RevisitRow",
     "SpeedConsistency",
     "TrajectoryErrors",
+    "altitude_errors",
     "consistency",
     "error_jump_before_sigma",
     "error_jump_sigma",

@@ -243,6 +243,47 @@ def _speed_consistency(results: RunResults, gt: GroundTruth, idx: np.ndarray) ->
     return speed_consistency(meas[use] - truth[use], q[use])
 
 
+@dataclass(frozen=True)
+class AltitudeErrors:
+    """The run's altitude against the truth's distance from the camera down to the seabed.
+
+    Over relief (a ground truth with ``relief_m``) the truth is the seabed under the camera,
+    ``altitude_m - relief_m``: what an altimeter should read there. Without that column it is
+    the truth's ``altitude_m``.
+    """
+
+    frames: int  # frames with a measured altitude
+    median_error_pct: float  # median |measured - true| / true, per cent
+    p95_error_pct: float  # its 95th percentile
+    mean_error_pct: float  # mean (measured - true) / true, per cent: the lasting part
+    truth: str  # "seabed under the camera" or "altitude_m"
+
+
+def altitude_errors(measured_m: np.ndarray, true_m: np.ndarray, truth: str) -> AltitudeErrors | None:
+    """:class:`AltitudeErrors` of ``(N,)`` measured altitudes (NaN or <= 0: none) against ``(N,)`` true ones."""
+    measured_m, true_m = np.asarray(measured_m, dtype=np.float64), np.asarray(true_m, dtype=np.float64)
+    use = np.isfinite(measured_m) & (measured_m > 0) & np.isfinite(true_m) & (true_m > 0)
+    if not np.any(use):
+        return None
+    rel = 100.0 * (measured_m[use] / true_m[use] - 1.0)
+    return AltitudeErrors(
+        frames=int(np.count_nonzero(use)),
+        median_error_pct=float(np.median(np.abs(rel))),
+        p95_error_pct=float(np.percentile(np.abs(rel), 95.0)),
+        mean_error_pct=float(np.mean(rel)),
+        truth=truth,
+    )
+
+
+def _altitude_errors(results: RunResults, gt: GroundTruth, idx: np.ndarray) -> AltitudeErrors | None:
+    measured = results.trajectory.get("altitude_m")
+    if measured is None:
+        return None
+    if gt.relief_m is not None:
+        return altitude_errors(measured, gt.altitude_m[idx] - gt.relief_m[idx], "seabed under the camera")
+    return altitude_errors(measured, gt.altitude_m[idx], "altitude_m")
+
+
 def _largest(jumps: np.ndarray, t_s: np.ndarray | None) -> tuple[float, float | None]:
     """The largest frame-to-frame jump (N-1,) and the time of the frame after it."""
     k = int(np.argmax(jumps))
@@ -325,6 +366,7 @@ class Evaluation:
     speed: SpeedConsistency | None = (
         None  # the odometry's Q against the true speed, per measured step (None: no Q in trajectory.csv)
     )
+    altitude: AltitudeErrors | None = None  # the measured altitude against the truth (None: no altitude)
 
     @property
     def dead_reckoning_over_slam_rmse(self) -> float | None:
@@ -477,6 +519,7 @@ def evaluate(
         partial_run=partial_run(results.summary, int(len(est))),
         groundtruth_shift_m=(float(-start[0]), float(-start[1])),
         speed=_speed_consistency(results, gt, idx),
+        altitude=_altitude_errors(results, gt, idx),
     )
 
 

@@ -24,7 +24,8 @@ fixed-point ray cast converges (see :mod:`rovslam.sim.render`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -300,6 +301,43 @@ def relief_from_photo(seabed: ImageSeabed, params: PhotoReliefParams | None = No
             f"the photo relief stays steeper than max_slope={p.max_slope}; lower relief_m or fine_weight"
         )
     return ArrayRelief(h, mm, origin_px=seabed.origin_px)
+
+
+def scaled_relief(
+    relief: ReliefParams | PhotoReliefParams | None, scale: float
+) -> ReliefParams | PhotoReliefParams | None:
+    """A scenario's relief with every height multiplied by ``scale`` (0: a flat seabed, None).
+
+    Photo relief: its span ``relief_m``. Procedural relief: the ripples, the stones' height over
+    their radius, the ledge's step (its face widened where the step would be steeper than the
+    preset's) and the undulation. Raises SimulationError for a negative or non-finite scale, a
+    scale on a flat scenario, or stones steeper than a hemisphere.
+    """
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not (math.isfinite(scale) and scale >= 0):
+        raise SimulationError(f"relief scale must be a number >= 0, got {scale!r}")
+    if scale == 1.0:
+        return relief
+    if relief is None:
+        raise SimulationError("this scenario has a flat seabed: a relief scale applies only to a scenario with relief")
+    if scale == 0.0:
+        return None
+    if isinstance(relief, PhotoReliefParams):
+        return replace(relief, relief_m=relief.relief_m * scale)
+    stones = relief.stone_height_ratio * scale
+    if stones > 1.0:
+        raise SimulationError(
+            f"relief scale {scale:g}: the stones would be {stones:.2f} times as high as their radius (at most 1); "
+            f"use a scale of at most {1.0 / relief.stone_height_ratio:.2f} on this scenario"
+        )
+    ledge = relief.ledge_height_m * scale
+    return replace(
+        relief,
+        ripple_height_m=relief.ripple_height_m * scale,
+        stone_height_ratio=stones,
+        ledge_height_m=ledge,
+        ledge_width_m=max(relief.ledge_width_m, ledge / 2.0),
+        undulation_m=relief.undulation_m * scale,
+    )
 
 
 def heights_at(relief: ReliefSource, x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:

@@ -50,7 +50,7 @@ from rovslam.errors import SimulationError
 from rovslam.sim.calibration import CalibrationErrors, DrawnCalibration, draw_calibration, recorded_lasers
 from rovslam.sim.codec import H264Params
 from rovslam.sim.lighting import CausticParams, Lamp, LightingParams
-from rovslam.sim.relief import PhotoReliefParams, ReliefParams
+from rovslam.sim.relief import PhotoReliefParams, ReliefParams, scaled_relief
 from rovslam.sim.render import LaserSpotParams, Pose, SensorParams, renderer_for
 from rovslam.sim.texture import TextureParams
 from rovslam.sim.vehicle import (
@@ -491,6 +491,7 @@ def simulate(
     texture_mm_per_px: float | None = None,
     progress: Callable[[int, int], None] | None = None,
     calibration: CalibrationErrors | DrawnCalibration | None = None,
+    relief_scale: float = 1.0,
 ) -> SimulationSummary:
     """Simulate scenario ``scenario`` and write the sequence folder ``out_dir`` (format v1).
 
@@ -505,6 +506,8 @@ def simulate(
     ``calibration``: lasting sensor errors (compass deviation, laser-rig baseline, sonar offset;
     :mod:`rovslam.sim.calibration`), drawn for the seed from a :class:`CalibrationErrors` or given
     as a :class:`DrawnCalibration`, recorded in ``[metadata]``; None: exact sensors.
+    ``relief_scale`` multiplies every height of the scenario's relief (0: a flat seabed;
+    :func:`~rovslam.sim.relief.scaled_relief`), recorded in ``[metadata]``.
     """
     from rovslam.core import SequenceInfo
     from rovslam.io.sequence import SequenceWriter
@@ -512,6 +515,8 @@ def simulate(
 
     t_start = time.perf_counter()
     sc, n, fmt = _check_args(scenario, frames, seed, image_format, texture_path, texture_mm_per_px)
+    if relief_scale != 1.0:
+        sc = replace(sc, relief=scaled_relief(sc.relief, relief_scale))
     drawn = _drawn_calibration(calibration, int(seed))
     out = Path(out_dir)
     from rovslam.io.output import check_output_folder
@@ -538,7 +543,7 @@ def simulate(
         name=f"rovslam simulate {sc.name} (seed {int(seed)})",
         camera=sc.recorded_camera,
         lasers=lasers_recorded,
-        metadata=_metadata(sc, int(seed), n, texture_note, world, drawn),
+        metadata=_metadata(sc, int(seed), n, texture_note, world, drawn, relief_scale),
     )
     codec = (
         None if sc.h264 is None else H264RoundTrip(sc.camera.width_px, sc.camera.height_px, sc.frame_rate_hz, sc.h264)
@@ -590,7 +595,15 @@ def _relief_under_vehicle(sc: Scenario, world: World, traj: Trajectory) -> tuple
     return relief_m, sonar_m
 
 
-def _metadata(sc: Scenario, seed: int, n: int, texture_note: str, world: World, drawn: DrawnCalibration | None) -> dict:
+def _metadata(
+    sc: Scenario,
+    seed: int,
+    n: int,
+    texture_note: str,
+    world: World,
+    drawn: DrawnCalibration | None,
+    relief_scale: float,
+) -> dict:
     """The ``[metadata]`` of the sequence: what was simulated, and how."""
     metadata = {
         "generator": "rovslam.sim",
@@ -604,6 +617,8 @@ def _metadata(sc: Scenario, seed: int, n: int, texture_note: str, world: World, 
     if world.relief is not None:  # (only then: the original presets' files stay as they were)
         lo, hi = world.relief.height_range_m
         metadata["relief"] = f"{type(world.relief).__name__}, heights within [{lo:.3f}, {hi:.3f}] m"
+    if relief_scale != 1.0:
+        metadata["relief_scale"] = float(relief_scale)
     if drawn is not None:
         metadata.update(drawn.metadata())
     if sc.h264 is not None:
