@@ -715,6 +715,7 @@ def test_landmark_height_and_altitude_bias_states_match_a_dense_ekf(bias_b, bias
         altitude_bias_consider=False,  # b learned (the consider form: the test below)
         speed_bias_sigma_mps=bias_w,
         speed_bias_tau_s=tau_w,
+        seabed_offset_sigma_m=0.0,  # the seabed offset s: the test after the next
     )
     ekf = EkfSlam(cfg, initial_cov_m2=np.eye(2) * 1e-4)
     w = 4 if bias_b else 3  # first row of w
@@ -819,6 +820,104 @@ def test_landmark_height_and_altitude_bias_states_match_a_dense_ekf(bias_b, bias
     ekf.check_consistency()
 
 
+def test_the_seabed_offset_state_matches_a_dense_ekf():
+    # With the seabed offset s (the seabed under the laser spots relative to the start's) and the landmark
+    # heights h above the start's seabed, (3) is [m, n] = f/(Z + s - h) R(psi - eps)^T (X - x); s is an
+    # Ornstein-Uhlenbeck process that does not move the vehicle; a new landmark's height starts at s
+    # (h = s + e, e of variance sig_h^2) and its position (4) X = x + (Z - e)/f R [m, n] does not depend
+    # on s. Prediction, update and augmentation against a textbook EKF with numeric Jacobians on
+    # [x, y, eps, s, X1, Y1, h1, ...].
+    rng = np.random.default_rng(47)
+    sig_h, sig_s, tau_s, tau_e = 0.03, 0.02, 5.0, 60.0
+    cfg = SlamConfig(
+        landmark_height_sigma_m=sig_h,
+        heading_bias_sigma_rad=0.01,
+        heading_bias_tau_s=tau_e,
+        heading_sigma_rad=0.0,
+        altitude_bias_sigma_m=0.0,
+        speed_bias_sigma_mps=0.0,
+        seabed_offset_sigma_m=sig_s,
+        seabed_offset_tau_s=tau_s,
+    )
+    ekf = EkfSlam(cfg, initial_cov_m2=np.eye(2) * 1e-4)
+    lay = ekf.layout
+    assert (lay.eps, lay.b, lay.s, lay.w, lay.vehicle_dim) == (2, None, 3, None, 4)
+    assert ekf.seabed_offset_m == 0.0 and ekf.covariance_m2.shape == (4, 4)  # the start's seabed: the datum
+    for _ in range(4):
+        ekf.predict(MotionInput(0.1, 0.02, np.diag([4e-6, 2e-6]), rng.uniform(-3, 3), DT, altitude_m=Z))
+        ekf.augment(rng.uniform(-120, 120, 2), rng.uniform(-3, 3), Z, F, altitude_sigma_m=0.02)
+    ekf.update(1, ekf.predict_observation(1, 0.3, Z, F)[0] + [1.5, -1.0], 0.3, Z, F)
+    assert ekf.state_dim == 4 + 3 * 4 and ekf.seabed_offset_m != 0.0  # learned from the landmark
+
+    # Predict: s decays towards 0 and gains its process noise; the step does not depend on it.
+    x0, p0 = snapshot(ekf)
+    u, v, psi_p, q = 0.1, -0.02, 0.7, np.diag([4e-6, 9e-6])
+    a_e, a_s = np.exp(-DT / tau_e), np.exp(-DT / tau_s)
+
+    def fpred(x):
+        y = x.copy()
+        y[:2] += rot2(psi_p - x[2]) @ [u, v] * DT
+        y[2] *= a_e
+        y[3] *= a_s
+        return y
+
+    ekf.predict(MotionInput(u, v, q, psi_p, DT, altitude_m=Z))
+    fj = _numjac(fpred, x0)
+    gq = np.zeros((len(x0), 2))
+    gq[:2] = rot2(psi_p - x0[2]) * DT
+    p_ref = fj @ p0 @ fj.T + gq @ q @ gq.T
+    p_ref[2, 2] += 0.01**2 * (1 - a_e**2)
+    p_ref[3, 3] += sig_s**2 * (1 - a_s**2)
+    x1, p1 = snapshot(ekf)
+    np.testing.assert_allclose(x1, fpred(x0), atol=1e-15)
+    np.testing.assert_allclose(p1, p_ref, atol=1e-8 * np.abs(p_ref).max())
+
+    # Update (3) with the depth Z + s - h.
+    k, psi = 4 + 3 * 2, -0.4
+
+    def h(x):
+        return (F / (Z + x[3] - x[k + 2])) * rot2(psi - x[2]).T @ (x[k : k + 2] - x[:2])
+
+    mn = h(x1) + np.array([0.6, -0.3])
+    hj = _numjac(h, x1)
+    s = hj @ p1 @ hj.T + observation_noise_px2(h(x1), 0.5, Z + x1[3] - x1[k + 2], 0.01)
+    gain = p1 @ hj.T @ np.linalg.inv(s)
+    res = ekf.update(2, mn, psi, Z, F, altitude_sigma_m=0.01)
+    assert res.accepted
+    np.testing.assert_allclose(res.innovation_cov_px2, s, rtol=1e-6)
+    x2, p2 = snapshot(ekf)
+    np.testing.assert_allclose(x2, x1 + gain @ (mn - h(x1)), atol=1e-9)
+    np.testing.assert_allclose(p2, (np.eye(len(x1)) - gain @ hj) @ p1, atol=1e-8 * np.abs(p1).max())
+    assert ekf.landmark_depth_m(2, Z) == pytest.approx(Z + x2[3] - x2[k + 2], abs=1e-15)
+
+    # Augmentation: h = s + e, X = x + (Z - e)/f R(psi - eps) [m, n].
+    mn_new = np.array([40.0, -70.0])
+
+    def g_aug(xe):
+        x, e = xe[:-1], xe[-1]
+        return np.concatenate([x, x[:2] + ((Z - e) / F) * rot2(psi - x[2]) @ mn_new, [x[3] + e]])
+
+    lid = ekf.augment(mn_new, psi, Z, F)
+    assert lid == 4 and ekf.landmark_height_m(4) == x2[3]  # starts at the seabed under the camera now
+    x_ext = np.concatenate([x2, [0.0]])
+    p_ext = np.zeros((len(x_ext), len(x_ext)))
+    p_ext[:-1, :-1] = p2
+    p_ext[-1, -1] = sig_h**2
+    ja = _numjac(g_aug, x_ext)
+    gm = np.zeros((len(x2) + 3, 2))
+    gm[-3:-1] = (Z / F) * rot2(psi - x2[2])
+    p_aug = ja @ p_ext @ ja.T + gm @ observation_noise_px2(mn_new, 0.5, Z) @ gm.T
+    x4, p4 = snapshot(ekf)
+    np.testing.assert_allclose(x4, g_aug(x_ext), atol=1e-12)
+    np.testing.assert_allclose(p4, p_aug, atol=1e-8 * np.abs(p_aug).max())
+    ekf.check_consistency()
+
+
+def test_without_the_landmark_heights_there_is_no_seabed_offset():
+    cfg = SlamConfig(landmark_height_sigma_m=0.0, seabed_offset_sigma_m=0.02)
+    assert EkfSlam(cfg).layout.s is None
+
+
 def test_joint_compatibility_points_at_the_landmark_that_does_not_fit():
     rng = np.random.default_rng(44)
     ekf = random_filter(rng, 5)
@@ -907,6 +1006,7 @@ def test_consider_altitude_bias_is_a_schmidt_update_of_the_dense_ekf():
         speed_bias_sigma_mps=0.0,
         altitude_bias_tau_s=30.0,
         altitude_bias_consider=True,
+        seabed_offset_sigma_m=0.0,  # the layout [x, y, eps, b, w..., X, Y, h]: s has its own test above
     )
     ekf = EkfSlam(cfg, initial_cov_m2=np.eye(2) * 1e-4)
     for _ in range(3):

@@ -144,6 +144,15 @@ class DepthModel:
         """The relief's height spread at depth Z from the tokens' parallax, over ``samples`` independent points (m)."""
         return self.config.odometry.relief_scale_gain * altitude_m * math.sqrt(self.speed.relief_var / samples)
 
+    def seabed_offset_sigma_m(self, altitude_m: float, alt: AltitudeEstimate) -> float:
+        """The seabed offset s's stationary sigma over this step: the relief under the laser spots (m).
+
+        The relief's height spread from the tokens' parallax (:meth:`relief_sigma_m`, one point: the
+        spots, a few centimetres apart, stand on the same relief): a flat seabed keeps s at 0;
+        ``[slam] seabed_offset_sigma_m`` caps it.
+        """
+        return min(self.relief_sigma_m(altitude_m), self.config.slam.seabed_offset_sigma_m)
+
     def bias_process(self, altitude_m: float, alt: AltitudeEstimate) -> tuple[float, float]:
         """The altitude offset ``b``'s stationary sigma (m) and correlation time (s) over this step.
 
@@ -161,6 +170,8 @@ class DepthModel:
         slam = self.config.slam
         # the altimeter's lasting error at this depth: its offset and the laser rig's share of Z
         lasting = altitude_offset_sigma_m(slam.altitude_bias_sigma_m, slam.altitude_scale_sigma, altitude_m)
+        if slam.seabed_offset_sigma_m > 0:  # the relief under the spots is the seabed offset s's: b is the altimeter's
+            return lasting, slam.altitude_bias_tau_s
         if not slam.altitude_bias_relief:  # the altimeter's lasting error, or the relief under its spots if larger
             return max(lasting, self.terrain_sigma_m(altitude_m, alt)), slam.altitude_bias_tau_s
         relief = self.relief_sigma_m(altitude_m)  # one token's spread: the tokens share their relief features

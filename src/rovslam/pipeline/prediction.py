@@ -46,11 +46,14 @@ class Prediction:
         dt_s: float,
         altitude_m: float,
         altitude_bias: tuple[float, float],
+        seabed_offset_sigma_m: float | None = None,
     ) -> None:
         """Step 6: prediction (1), (2) with the speed the tokens measured.
 
         ``altitude_bias``: the offset ``b``'s stationary sigma (m) and correlation time (s) over
-        the step (:meth:`rovslam.pipeline.depth.DepthModel.bias_process`).
+        the step (:meth:`rovslam.pipeline.depth.DepthModel.bias_process`); ``seabed_offset_sigma_m``: the
+        seabed offset s's (:meth:`~rovslam.pipeline.depth.DepthModel.seabed_offset_sigma_m`; None: the
+        configured one).
         """
         bias_sigma, bias_tau = altitude_bias
         self.altitude_bias_sigmas_m.append(bias_sigma)
@@ -64,6 +67,7 @@ class Prediction:
             bias_sigma,
             walk,
             bias_tau,
+            seabed_offset_sigma_m,
         )
 
     def speed_bias_sigma_mps(self) -> float:
@@ -82,6 +86,7 @@ class Prediction:
         altitude_bias_sigma_m: float | None = None,
         heading_walk_var_rad2: float | None = None,
         altitude_bias_tau_s: float | None = None,
+        seabed_offset_sigma_m: float | None = None,
     ) -> None:
         """Prediction (1) of the filter and of the dead reckoning reported beside it."""
         drag_sigma = self.speed_bias_sigma_mps()
@@ -98,6 +103,7 @@ class Prediction:
                 heading_walk_var_rad2,
                 drag_sigma,
                 altitude_bias_tau_s,
+                seabed_offset_sigma_m,
             )
         )
         if drag_sigma > 0.0:

@@ -192,10 +192,11 @@ class FrameRecords:
     def _landmark_measurement(self, o: Observation, altitude_m: float, sigma_z: float) -> LandmarkMeasurement:
         """An observation as the flat-seabed model (3) at the frame's altitude sees it (for the smoother).
 
-        A landmark ``h`` above the seabed is seen at depth ``Z - h``: its [m, n] scaled by
-        ``(Z - h) / Z`` is what a flat seabed at Z would show (the filter's current height).
+        A landmark ``h`` above the seabed is seen at depth ``Z - h`` (``Z + s - h`` with the seabed offset
+        s): its [m, n] scaled by ``depth / Z`` is what a flat seabed at Z would show (the filter's current
+        estimates).
         """
-        depth = altitude_m - self.ekf.landmark_height_m(o.landmark_id)
+        depth = altitude_m + self.ekf.seabed_offset_m - self.ekf.landmark_height_m(o.landmark_id)
         scale = depth / altitude_m
         noise = observation_noise_px2(o.mn_px, self.config.slam.pixel_sigma_px * self.scale.focal_ratio, depth, sigma_z)
         return LandmarkMeasurement(o.landmark_id, o.kind, o.mn_px * scale, noise * scale**2, o.accepted)

@@ -243,7 +243,7 @@ class SpeedStep:
                     self.camera,
                     t.mn_px,
                     t.uv_px[1],
-                    alt.altitude_m - self.ekf.landmark_height_m(t.record.id),
+                    self.ekf.landmark_depth_m(t.record.id, alt.altitude_m),
                     speed,
                     prior,
                     dt_s,

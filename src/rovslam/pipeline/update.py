@@ -124,7 +124,7 @@ class LandmarkUpdate:
         offsets = [
             told_offset_m(
                 candidates[k].innovation_px,  # type: ignore[arg-type]
-                alt.altitude_m - self.ekf.landmark_height_m(candidates[k].landmark_id),
+                self.ekf.landmark_depth_m(candidates[k].landmark_id, alt.altitude_m),
                 theta,
                 self.focal_px,
             )

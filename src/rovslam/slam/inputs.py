@@ -86,6 +86,8 @@ class MotionInput:
             ``config.speed_bias_sigma_mps`` while it takes sunlight out); 0 lets ``w`` fade.
         altitude_bias_tau_s: the bias's correlation time over this step (the relief's part of it
             decorrelates faster than the altimeter's offset); None: ``config.altitude_bias_tau_s``.
+        seabed_offset_sigma_m: the seabed offset s's stationary sigma over this step (the relief under
+            the laser spots); None: ``config.seabed_offset_sigma_m``.
     """
 
     surge_mps: float
@@ -99,6 +101,7 @@ class MotionInput:
     heading_walk_var_rad2: float | None = None
     speed_bias_sigma_mps: float = 0.0
     altitude_bias_tau_s: float | None = None
+    seabed_offset_sigma_m: float | None = None
 
     def __post_init__(self) -> None:
         checks: tuple[tuple[str, dict[str, bool] | None], ...] = (
@@ -111,6 +114,7 @@ class MotionInput:
             ("altitude_m", {"positive": True}),
             ("altitude_bias_sigma_m", {"nonnegative": True}),
             ("altitude_bias_tau_s", {"positive": True}),
+            ("seabed_offset_sigma_m", {"nonnegative": True}),
             ("heading_walk_var_rad2", {"nonnegative": True}),
             ("speed_bias_sigma_mps", {"nonnegative": True}),
         )

@@ -53,6 +53,8 @@ def observe_landmarks(
         blocks.append(-j_psi[:, :, None])
     if layout.b is not None:
         blocks.append(-(h / depth_m[:, None])[:, :, None])
+    if layout.s is not None:
+        blocks.append(-(h / depth_m[:, None])[:, :, None])
     if layout.w is not None:
         blocks.append(np.zeros((len(h), 2, 2)))
     blocks.append(a)

@@ -41,7 +41,8 @@ class MotionTerms:
         j: (2,) d(position) / d(psi).
         speed_cov_mps2: (2, 2) Q.
         heading_sigma_rad, altitude_bias_sigma_m, altitude_bias_tau_s, heading_walk_var_rad2,
-        speed_bias_sigma_mps: as :class:`rovslam.slam.inputs.MotionInput`, the defaults resolved.
+        speed_bias_sigma_mps, seabed_offset_sigma_m: as :class:`rovslam.slam.inputs.MotionInput`, the defaults
+        resolved.
     """
 
     dt_s: float
@@ -56,6 +57,7 @@ class MotionTerms:
     altitude_bias_tau_s: float
     heading_walk_var_rad2: float | None
     speed_bias_sigma_mps: float
+    seabed_offset_sigma_m: float = 0.0
 
 
 def motion_terms(
@@ -84,6 +86,11 @@ def motion_terms(
         altitude_bias_tau_s=tb,
         heading_walk_var_rad2=motion.heading_walk_var_rad2,
         speed_bias_sigma_mps=motion.speed_bias_sigma_mps,
+        seabed_offset_sigma_m=(
+            float(config.seabed_offset_sigma_m)
+            if motion.seabed_offset_sigma_m is None
+            else motion.seabed_offset_sigma_m
+        ),
     )
 
 
@@ -132,6 +139,7 @@ def drive_biases(
     for row, tau, sigma in (
         (layout.eps, layout.heading_bias_tau_s, layout.heading_bias_sigma_rad),
         (layout.b, t.altitude_bias_tau_s, t.altitude_bias_sigma_m),
+        (layout.s, layout.seabed_offset_tau_s, t.seabed_offset_sigma_m),
         (w, layout.speed_bias_tau_s, sw),
         (None if w is None else w + 1, layout.speed_bias_tau_s, sw),
     ):

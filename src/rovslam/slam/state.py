@@ -34,8 +34,9 @@ class StateLayout:
     Attributes:
         eps: row of the heading input's slow error (radians); None without it.
         b: row of the measured altitude's offset (metres); None without it.
+        s: row of the seabed level under the laser spots relative to the start's (metres, learned); None without it.
         w: first of the two rows of the world-frame speed error (m/s); None without it.
-        vehicle_dim: rows of the vehicle block: 2 (+1 with eps, +1 with b, +2 with w).
+        vehicle_dim: rows of the vehicle block: 2 (+1 with eps, +1 with b, +1 with s, +2 with w).
         landmark_dim: rows of a landmark block: 2, or 3 with the landmark heights.
         heading_bias_sigma_rad, heading_bias_tau_s: eps's Ornstein-Uhlenbeck process.
         altitude_bias_sigma_m, altitude_bias_tau_s: b's, unless a step gives its own.
@@ -43,6 +44,7 @@ class StateLayout:
         landmark_process_sigma_m: (2)'s landmark process noise per step (0: static).
         altitude_bias_consider: b is carried, never learned (a Schmidt consider state).
         landmark_height_sigma_m: a new landmark's height prior.
+        seabed_offset_sigma_m, seabed_offset_tau_s: s's Ornstein-Uhlenbeck process.
     """
 
     eps: int | None
@@ -58,18 +60,27 @@ class StateLayout:
     landmark_process_sigma_m: float
     altitude_bias_consider: bool
     landmark_height_sigma_m: float
+    s: int | None = None
+    seabed_offset_sigma_m: float = 0.0
+    seabed_offset_tau_s: float = 5.0
 
     @classmethod
     def from_config(cls, config: SlamConfig) -> StateLayout:
         """The layout a configuration asks for (a sigma > 0 puts its state in)."""
         eps = 2 if config.heading_bias_sigma_rad > 0 else None
         b = (2 + (eps is not None)) if config.altitude_bias_sigma_m > 0 else None
-        w = (2 + (eps is not None) + (b is not None)) if config.speed_bias_sigma_mps > 0 else None
+        # s needs the landmark heights: a new landmark's height starts at s
+        with_s = config.seabed_offset_sigma_m > 0 and config.landmark_height_sigma_m > 0
+        s = (2 + (eps is not None) + (b is not None)) if with_s else None
+        w = (2 + (eps is not None) + (b is not None) + (s is not None)) if config.speed_bias_sigma_mps > 0 else None
         return cls(
             eps=eps,
             b=b,
             w=w,
-            vehicle_dim=2 + (eps is not None) + (b is not None) + 2 * (w is not None),
+            s=s,
+            seabed_offset_sigma_m=config.seabed_offset_sigma_m,
+            seabed_offset_tau_s=config.seabed_offset_tau_s,
+            vehicle_dim=2 + (eps is not None) + (b is not None) + (s is not None) + 2 * (w is not None),
             landmark_dim=3 if config.landmark_height_sigma_m > 0 else 2,
             heading_bias_sigma_rad=config.heading_bias_sigma_rad,
             heading_bias_tau_s=config.heading_bias_tau_s,
@@ -151,7 +162,8 @@ class SlamState:
         ``cov(X, .) = jv cov(vehicle, .)`` (``jv`` (2, vehicle_dim)) plus ``noise_m2`` (2, 2), the
         observation's share; ``full``: with the cross-covariances, else the diagonal block alone.
         With the heights, ``h = 0`` with variance ``landmark_height_sigma_m^2``, independent of the
-        rest, and X moves with it by ``jh`` (2,) = d X / d h.
+        rest, and X moves with it by ``jh`` (2,) = d X / d h; with the seabed offset s, ``h = s + e``,
+        ``e`` of that variance (the seabed under the camera now), and X moves with ``e``.
         """
         lay = self.layout
         lm, v = lay.landmark_dim, lay.vehicle_dim
@@ -167,7 +179,17 @@ class SlamState:
         else:
             p[n : n + 2, :n] = 0.0
             p[:n, n : n + 2] = 0.0
-        if jh is not None:  # the height: a prior of zero, independent of the rest
+        if jh is not None and lay.s is not None:
+            # the height: the seabed level under the spots now (s) plus the landmark's own, h = s + e
+            var_h = lay.landmark_height_sigma_m**2
+            block = block + var_h * np.outer(jh, jh)
+            s = lay.s
+            self._x[n + 2] = self._x[s]
+            p[n + 2, :n] = p[s, :n]
+            p[:n, n + 2] = p[:n, s]
+            p[n + 2, n : n + 2] = p[n : n + 2, n + 2] = cross[:, s] + var_h * jh
+            p[n + 2, n + 2] = p[s, s] + var_h
+        elif jh is not None:  # the height: a prior of zero, independent of the rest
             var_h = lay.landmark_height_sigma_m**2
             block = block + var_h * np.outer(jh, jh)
             self._x[n + 2] = 0.0
@@ -182,7 +204,7 @@ class SlamState:
     # ------------------------------------------------------------------ the whole state
     @property
     def state_dim(self) -> int:
-        """2 (+1 with eps, +1 with b, +2 with w) + 2N (3N with the landmark heights)."""
+        """2 (+1 with eps, +1 with b, +1 with s, +2 with w) + 2N (3N with the landmark heights)."""
         return self._n
 
     @property
@@ -243,6 +265,15 @@ class SlamState:
         return self._sigma(self.layout.b)
 
     @property
+    def seabed_offset_m(self) -> float:
+        """Estimated seabed level under the laser spots relative to the start's (s); 0 without the state."""
+        return self._value(self.layout.s)
+
+    def landmark_depth_m(self, i: int, z: float) -> float:
+        """Landmark i's depth under a camera at measured altitude z: ``Z + b + s - h``."""
+        return self._depth(self._index(i), float(z))
+
+    @property
     def speed_bias_mps(self) -> np.ndarray:
         """(2,) estimated world-frame speed error w (true step = measured step + w dt); zeros without the state."""
         w = self.layout.w
@@ -276,8 +307,8 @@ class SlamState:
     def _depth(self, k: int, z: float) -> float:
         """Depth of the landmark at state row k under a camera at measured altitude z: ``Z + b - h``."""
         heights = self.layout.has_landmark_heights
-        depth = z + self.altitude_bias_m - (float(self._x[k + 2]) if heights else 0.0)
-        if not heights and self.layout.b is None:
+        depth = z + self.altitude_bias_m + self.seabed_offset_m - (float(self._x[k + 2]) if heights else 0.0)
+        if not heights and self.layout.b is None and self.layout.s is None:
             return z
         if not depth > 0.05 * z:
             raise FilterInconsistencyError(
@@ -287,7 +318,7 @@ class SlamState:
         return depth
 
     def landmark_height_m(self, i: int) -> float:
-        """Landmark i's height above the seabed Z refers to (0 without the height state)."""
+        """Landmark i's height above the seabed Z refers to: the start's with the seabed offset s (0 without the height state)."""
         r = self._index(i)
         return float(self._x[r + 2]) if self.layout.has_landmark_heights else 0.0
 
