@@ -571,3 +571,70 @@ def test_a_navigation_log_range_is_its_own_first_and_last_times(tmp_path):
         nav.check_overlap((0.0, 20.0), "video", "")
     assert "from 1000.000 to 1008.000 s" in str(exc.value)
     assert "999.5" not in str(exc.value) and "1008.5" not in str(exc.value)
+
+
+def _plain_frame(k: int):
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    return SimpleNamespace(
+        index=k,
+        t_s=0.2 * k,
+        x_m=0.01 * k,
+        y_m=0.0,
+        cov_xy_m2=np.eye(2) * 1e-6,
+        altitude_m=1.31,
+        surge_mps=0.05,
+        sway_mps=0.0,
+        tokens_tracked=8,
+        landmarks_tracked=1,
+        heading_rad=0.1,
+        altitude_sigma_m=0.003,
+        altitude_source="laser",
+        speed_ok=True,
+        dr_x_m=0.01 * k,
+        dr_y_m=0.0,
+        skipped_reason=None,
+        speed_cov_mps2=np.eye(2) * 1e-8,
+        tokens_inliers=8,
+        recovery=None,
+        speed_source="tokens",
+        observations=(),
+    )
+
+
+@pytest.mark.parametrize("csv_takes_rows", [0, 1, 3])
+def test_trajectory_tum_never_holds_a_frame_trajectory_csv_lost_to_a_full_disk(tmp_path, monkeypatch, csv_takes_rows):
+    # The disk fills while trajectory.csv is written (it takes only the first rows) but still takes the
+    # shorter TUM rows: before, trajectory.tum could then hold frames trajectory.csv did not (seen once at one
+    # disk size in tests/test_outputs_safety.py's fake full disk, where the byte counts fell that way).
+    from rovslam.io.results import ResultWriter
+
+    out = tmp_path / "out"
+    out.mkdir()
+    writer = ResultWriter(out, flush_every=1000)
+    for k in range(6):
+        writer.write_frame(_plain_frame(k))
+    csv_fd = writer._fhs["trajectory.csv"]._fd
+    fits = sum(len(row) for row in writer._fhs["trajectory.csv"]._pending[:csv_takes_rows])
+    real_write = os.write
+    taken = {"bytes": 0}
+
+    def full_for_the_csv(fd, data):
+        if fd != csv_fd:
+            return real_write(fd, data)
+        room = fits - taken["bytes"]
+        if room <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        n = real_write(fd, bytes(data[: min(len(data), room + 7)]))  # and a few bytes of the next row
+        taken["bytes"] += n
+        return n
+
+    monkeypatch.setattr(os, "write", full_for_the_csv)
+    writer.close(quiet=True)
+    monkeypatch.undo()
+    csv_rows = (out / "trajectory.csv").read_text().splitlines()
+    tum_rows = (out / "trajectory.tum").read_text().splitlines()
+    assert len(csv_rows) == 1 + csv_takes_rows  # the header, then whole rows only
+    assert len(tum_rows) == len(csv_rows)  # the same frames, no more

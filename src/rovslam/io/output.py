@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import math
 import os
 import secrets
 import stat
@@ -223,17 +224,20 @@ class StreamFile:
             self.flush()
         return len(text)
 
-    def flush(self, max_bytes: int | None = None) -> None:
+    def flush(self, max_bytes: int | None = None, max_rows: int | None = None) -> None:
         """Write the pending rows; on an error, cut the file back to its last complete row and raise OutputError.
 
-        ``max_bytes``: write only the first rows that fit in that many bytes (the others stay pending).
+        ``max_bytes``: write only the first rows that fit in that many bytes; ``max_rows``: only as many as
+        leave the file with at most that many complete rows (the others stay pending).
         """
         if not self._pending or self._fd is None:
             return
-        if max_bytes is not None:
+        if max_bytes is not None or max_rows is not None:
+            room = len(self._pending) if max_rows is None else max(0, max_rows - self.rows)
+            budget = math.inf if max_bytes is None else max_bytes
             rows = size = 0
-            for row in self._pending:
-                if size + len(row) > max_bytes:
+            for row in self._pending[:room]:
+                if size + len(row) > budget:
                     break
                 size += len(row)
                 rows += 1

@@ -319,9 +319,9 @@ class ResultWriter:
         traj = fhs.get("trajectory.csv")
         first: OutputError | None = None
         self._unwritten = {}
-        for name, fh in fhs.items():
+        for name, fh in fhs.items():  # trajectory.csv first: trajectory.tum never holds a frame it does not
             try:
-                fh.flush()
+                fh.flush(max_rows=self._tum_rows(name, traj))
             except OutputError as exc:
                 first = first or exc
                 self._unwritten[name] = fh  # its rows kept in memory: see salvage
@@ -332,15 +332,22 @@ class ResultWriter:
         if first is not None and not quiet:
             raise first
 
+    def _tum_rows(self, name: str, traj: StreamFile | None) -> int | None:
+        """The most rows ``name`` may hold: trajectory.tum no more than trajectory.csv (one header each)."""
+        if name != "trajectory.tum":
+            return None
+        return traj.rows if traj is not None else 1 + self._frames_written
+
     def salvage(self, summary: dict[str, Any]) -> None:
         """After a full disk: write what it now takes of the rows a failed flush kept in memory (whole rows only),
         leaving room for twice ``summary`` (the summary.json to write next) and 16 KiB; then close those files."""
         unwritten, self._unwritten = self._unwritten, {}
         keep_free = 2 * len(json_text(summary)) + 16 * 1024
-        for name, fh in unwritten.items():
+        traj = unwritten.get("trajectory.csv")
+        for name, fh in unwritten.items():  # trajectory.csv first, as in close
             try:
                 st = os.statvfs(self.out)
-                fh.flush(max_bytes=max(0, st.f_bavail * st.f_frsize - keep_free))
+                fh.flush(max_bytes=max(0, st.f_bavail * st.f_frsize - keep_free), max_rows=self._tum_rows(name, traj))
             except (OSError, OutputError):
                 pass  # the disk took no more: the rows on disk stay whole
             finally:
