@@ -419,8 +419,9 @@ class SlamConfig(_Checked):
     altitude_bias_consider: bool = True
     # > 0 (with landmark_height_sigma_m > 0): the seabed level under the laser spots, relative to the start's, in the
     # state and learned from the landmarks (s): the altitude Z ranges to the relief under the spots, so a landmark's
-    # depth is Z + b + s - h with h its height above the start's seabed; this is s's stationary sigma (0: off, h is
-    # above the seabed under the spots at each frame; b then also carries that relief)
+    # depth is Z + b + s - h with h its height above the start's seabed; s's stationary sigma over each step is the
+    # relief from the tokens' parallax, capped at this (0: off, h is above the seabed under the spots at each frame;
+    # b then also carries that relief)
     seabed_offset_sigma_m: float = _num(0.02, ge=0)
     seabed_offset_tau_s: float = _num(5.0, gt=0)  # its correlation time (the relief passing under the spots)
     # > 0: the odometry's slow world-frame speed error w in the state, while sunlight drags the tokens (0: none)
