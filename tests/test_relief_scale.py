@@ -226,9 +226,12 @@ def test_over_the_relief_trial_with_a_noisy_compass_the_truth_stays_inside(tmp_p
 @pytest.mark.slow
 def test_the_worst_real_photo_dive_stays_inside_its_bounds(tmp_path):
     # The check matrix's worst cell (photo-turns seed 2, 300 s): 92.3 % inside 2-sigma with the
-    # relief as white noise in Q only, 98.3 % with it in b too (measured).
+    # relief as white noise in Q only, 98.3 % with it in b too (measured). Without the seabed offset s
+    # ([slam] seabed_offset_sigma_m = 0), which this b term was measured without: with s the default
+    # run is 97.1 % inside (the check matrix's photo-turns seed 2).
+    no_s = dataclasses.replace(RunConfig().slam, seabed_offset_sigma_m=0.0)
     seq = _photo_turns(tmp_path, 2, 1500)
-    inside, _ = _inside_2sigma(seq, _ON)
+    inside, _ = _inside_2sigma(seq, RunConfig(slam=dataclasses.replace(no_s, altitude_bias_relief=True)))
     assert inside >= 0.95
-    inside_before, _ = _inside_2sigma(seq, RunConfig())  # the relief as white noise in Q only
+    inside_before, _ = _inside_2sigma(seq, RunConfig(slam=no_s))  # the relief as white noise in Q only
     assert inside_before < 0.95

@@ -144,7 +144,7 @@ class DepthModel:
         """The relief's height spread at depth Z from the tokens' parallax, over ``samples`` independent points (m)."""
         return self.config.odometry.relief_scale_gain * altitude_m * math.sqrt(self.speed.relief_var / samples)
 
-    def seabed_offset_sigma_m(self, altitude_m: float, alt: AltitudeEstimate) -> float:
+    def seabed_offset_sigma_m(self, altitude_m: float) -> float:
         """The seabed offset s's stationary sigma over this step: the relief under the laser spots (m).
 
         The relief's height spread from the tokens' parallax (:meth:`relief_sigma_m`, one point: the
@@ -170,9 +170,9 @@ class DepthModel:
         slam = self.config.slam
         # the altimeter's lasting error at this depth: its offset and the laser rig's share of Z
         lasting = altitude_offset_sigma_m(slam.altitude_bias_sigma_m, slam.altitude_scale_sigma, altitude_m)
-        if slam.seabed_offset_sigma_m > 0:  # the relief under the spots is the seabed offset s's: b is the altimeter's
-            return lasting, slam.altitude_bias_tau_s
         if not slam.altitude_bias_relief:  # the altimeter's lasting error, or the relief under its spots if larger
+            if self.ekf.layout.s is not None:  # the relief under the spots is the seabed offset s's
+                return lasting, slam.altitude_bias_tau_s
             return max(lasting, self.terrain_sigma_m(altitude_m, alt)), slam.altitude_bias_tau_s
         relief = self.relief_sigma_m(altitude_m)  # one token's spread: the tokens share their relief features
         return ou_sum_as_one(lasting, slam.altitude_bias_tau_s, relief, slam.altitude_bias_relief_tau_s)

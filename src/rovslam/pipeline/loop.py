@@ -325,7 +325,7 @@ class SlamPipeline:
         then the landmark updates (3) and the decision on each match (:class:`rovslam.pipeline.update.LandmarkUpdate`)."""
         if speed is not None and dt_s > 0:
             bias = self._altitude_bias_process(alt.altitude_m, alt)
-            seabed = self.depth.seabed_offset_sigma_m(alt.altitude_m, alt) if self.ekf.layout.s is not None else None
+            seabed = self.depth.seabed_offset_sigma_m(alt.altitude_m) if self.ekf.layout.s is not None else None
             self.prediction.measured(speed, prior, heading, dt_s, alt.altitude_m, bias, seabed)
         return self.landmark_update.observe(tracked, alt, heading, frame)
 

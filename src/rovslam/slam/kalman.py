@@ -42,24 +42,25 @@ def observe_landmarks(
     Returns:
         ``h`` (K, 2) the predicted [m, n], and ``H`` (K, 2, vehicle_dim + landmark_dim): each
         observation's derivative with respect to the vehicle block (``-A``, then ``d h / d eps =
-        -d h / d psi``, ``d h / d b = -h / depth``, ``d h / d w = 0``, for the states present) and to
+        -d h / d psi``, ``d h / d b = d h / d s = -h / depth``, ``d h / d w = 0``, for the states present) and to
         its landmark's block (``A = f/depth R^T``, then ``d h / d h_i = h / depth``); the other columns are zero.
     """
     lm_rows = layout.landmark_rows(rows)  # (K, lm)
     h = observe_mn(x[lm_rows[:, :2]], vehicle_xy_m, theta_rad, depth_m[:, None], focal_px)  # type: ignore[arg-type]  # one depth per landmark
     a, j_psi = observation_jacobians(h, theta_rad, depth_m[:, None, None], focal_px)  # type: ignore[arg-type]  # (K, 2, 2), (K, 2)
+    dh_ddepth = -(h / depth_m[:, None])[:, :, None]  # (K, 2, 1): b, s (and -h_i) move every depth
     blocks = [-a]
     if layout.eps is not None:
         blocks.append(-j_psi[:, :, None])
     if layout.b is not None:
-        blocks.append(-(h / depth_m[:, None])[:, :, None])
+        blocks.append(dh_ddepth)
     if layout.s is not None:
-        blocks.append(-(h / depth_m[:, None])[:, :, None])
+        blocks.append(dh_ddepth)
     if layout.w is not None:
         blocks.append(np.zeros((len(h), 2, 2)))
     blocks.append(a)
     if layout.has_landmark_heights:
-        blocks.append((h / depth_m[:, None])[:, :, None])
+        blocks.append(-dh_ddepth)
     return h, np.concatenate(blocks, axis=2)
 
 

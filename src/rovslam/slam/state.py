@@ -179,24 +179,15 @@ class SlamState:
         else:
             p[n : n + 2, :n] = 0.0
             p[:n, n : n + 2] = 0.0
-        if jh is not None and lay.s is not None:
-            # the height: the seabed level under the spots now (s) plus the landmark's own, h = s + e
+        if jh is not None:  # the height h = e, e its own prior, or h = s + e (the seabed under the spots now)
             var_h = lay.landmark_height_sigma_m**2
             block = block + var_h * np.outer(jh, jh)
             s = lay.s
-            self._x[n + 2] = self._x[s]
-            p[n + 2, :n] = p[s, :n]
-            p[:n, n + 2] = p[:n, s]
-            p[n + 2, n : n + 2] = p[n : n + 2, n + 2] = cross[:, s] + var_h * jh
-            p[n + 2, n + 2] = p[s, s] + var_h
-        elif jh is not None:  # the height: a prior of zero, independent of the rest
-            var_h = lay.landmark_height_sigma_m**2
-            block = block + var_h * np.outer(jh, jh)
-            self._x[n + 2] = 0.0
-            p[n + 2, : n + 2] = 0.0
-            p[: n + 2, n + 2] = 0.0
-            p[n : n + 2, n + 2] = p[n + 2, n : n + 2] = var_h * jh
-            p[n + 2, n + 2] = var_h
+            self._x[n + 2] = 0.0 if s is None else self._x[s]
+            p[n + 2, :n] = 0.0 if s is None else p[s, :n]
+            p[:n, n + 2] = 0.0 if s is None else p[:n, s]
+            p[n : n + 2, n + 2] = p[n + 2, n : n + 2] = var_h * jh if s is None else cross[:, s] + var_h * jh
+            p[n + 2, n + 2] = var_h if s is None else p[s, s] + var_h
         p[n : n + 2, n : n + 2] = 0.5 * (block + block.T)
         self._n = n + lm
         return (n - v) // lm
@@ -305,7 +296,7 @@ class SlamState:
         return self.layout.landmark_row(k)
 
     def _depth(self, k: int, z: float) -> float:
-        """Depth of the landmark at state row k under a camera at measured altitude z: ``Z + b - h``."""
+        """Depth of the landmark at state row k under a camera at measured altitude z: ``Z + b + s - h``."""
         heights = self.layout.has_landmark_heights
         depth = z + self.altitude_bias_m + self.seabed_offset_m - (float(self._x[k + 2]) if heights else 0.0)
         if not heights and self.layout.b is None and self.layout.s is None:
