@@ -117,3 +117,31 @@ def test_corrupt_and_black_frames_are_skipped_and_reported(short_dive, tmp_path)
     # Measured: ATE RMSE 0.0566 cm over these 150 frames with the two skipped (this test's own dive and
     # run, then rovslam.eval.evaluate); bound at 2.6 times that, and above a third of it.
     assert 0.0002 < f.slam.ate_rmse_m < 0.0015
+
+
+def test_the_run_uses_one_opencv_thread_and_its_results_do_not_depend_on_it(short_dive, tmp_path, monkeypatch):
+    import contextlib
+
+    import cv2
+
+    import rovslam.runner as runner
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(2)
+    try:
+        seen = []
+        run_sequence(
+            short_dive / "seq", tmp_path / "one", max_frames=60, on_frame=lambda r: seen.append(cv2.getNumThreads())
+        )
+        assert seen == [1] * 60
+        assert cv2.getNumThreads() == 2  # set back after the run
+        # OpenCV's own threads left on (two): the same result files, byte for byte
+        monkeypatch.setattr(runner, "opencv_threads", lambda n=1: contextlib.nullcontext())
+        run_sequence(
+            short_dive / "seq", tmp_path / "two", max_frames=60, on_frame=lambda r: seen.append(cv2.getNumThreads())
+        )
+        assert seen[60:] == [2] * 60
+        for name in ("trajectory.csv", "observations.csv", "landmarks.csv"):
+            assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes(), name
+    finally:
+        cv2.setNumThreads(before)
