@@ -150,3 +150,28 @@ def test_latency_percentiles():
     p = percentiles_ms([0.01 * k for k in range(1, 101)])
     assert p["p50"] == pytest.approx(505.0) and p["max"] == pytest.approx(1000.0) and p["count"] == 100
     assert percentiles_ms([])["p99"] is None
+
+
+def test_a_frame_just_past_the_newest_attitude_gets_it_moved_on_by_its_rates_without_waiting():
+    tel = Telemetry()
+    tel.add_attitude(0.0, 0.0, 0.0, 1.0, arrival_s=0.0, rates_rad_s=(0.1, -0.2, 0.5))
+    tel.add_attitude(0.04, 0.004, -0.008, 1.02, arrival_s=0.04, rates_rad_s=(0.1, -0.2, 0.5))
+    roll, pitch, yaw = tel.attitude_at(0.07)  # 30 ms past the newest sample
+    assert (roll, pitch, yaw) == pytest.approx((0.007, -0.014, 1.035))
+    roll, pitch, yaw = tel.attitude_at(0.3)  # 0.26 s past: moved on by 0.1 s at most, then held
+    assert yaw == pytest.approx(1.07) and tel.attitude_at(0.4) is None  # beyond the hold: nothing
+    assert tel.attitude_at(0.02)[2] == pytest.approx(1.01)  # between two samples: interpolated, as before
+    # waiting: never for a frame within 0.1 s of the newest sample (the clock is not read twice)...
+    clock = iter([0.07, 0.07])
+    assert tel.wait_attitude(0.07, late_s=0.5, now=lambda: next(clock))[2] == pytest.approx(1.035)
+    # ... while a frame 0.2 s past it waits (here until late_s, no sample coming), then holds what it can
+    t = [0.24]
+    waited = tel.wait_attitude(0.24, late_s=0.05, now=lambda: t.__setitem__(0, t[0] + 0.03) or t[0])
+    assert waited[2] == pytest.approx(1.07) and t[0] >= 0.24 + 0.05
+
+
+def test_an_attitude_without_rates_is_held_past_the_newest_sample():
+    tel = Telemetry()
+    tel.add_attitude(0.0, 0.0, 0.0, 1.0, arrival_s=0.0)
+    tel.add_attitude(0.04, 0.0, 0.0, 1.02, arrival_s=0.04, rates_rad_s=(math.nan, 0.0, 0.0))
+    assert tel.attitude_at(0.09) == pytest.approx((0.0, 0.0, 1.02))

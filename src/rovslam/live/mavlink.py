@@ -183,7 +183,12 @@ class MavlinkLink:
     def _telemetry(self, kind: str, msg: Any, now: float) -> None:
         if kind == "ATTITUDE":
             self.telemetry.add_attitude(
-                msg.time_boot_ms / 1000.0, float(msg.roll), float(msg.pitch), float(msg.yaw), now
+                msg.time_boot_ms / 1000.0,
+                float(msg.roll),
+                float(msg.pitch),
+                float(msg.yaw),
+                now,
+                (float(msg.rollspeed), float(msg.pitchspeed), float(msg.yawspeed)),
             )
         elif kind == "DISTANCE_SENSOR" and msg.orientation == ORIENTATION_DOWN:
             d_cm = int(msg.current_distance)
