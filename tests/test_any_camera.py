@@ -38,7 +38,7 @@ from rovslam.core import Frame, SequenceInfo
 from rovslam.io.sequence import open_sequence
 from rovslam.pipeline import SlamPipeline
 from rovslam.sensor.odometry import SpeedEstimator
-from rovslam.vision.filters import bandpass, local_variance, template_channel
+from rovslam.vision.filters import bandpass, local_variance, template_channel, template_channel_u8
 from rovslam.vision.scale import ProcessingScale, auto_scale, processing_scale
 from rovslam.vision.tracking import TokenTracker, leaving_mask
 
@@ -79,6 +79,25 @@ def test_auto_scale_keeps_the_papers_camera_and_reduces_hd_to_the_papers_pixels(
     s = auto_scale(wide, Z_M)
     assert s == pytest.approx(500.0 * Z_M / 1000.0) and s * 1000.0 / Z_M == pytest.approx(500.0)
     assert processing_scale(HD, ProcessingConfig(scale=0.5), Z_M).camera.width_px == 960
+
+
+@pytest.mark.parametrize(
+    "size_wh, scale",
+    [((1920, 1080), 0.25), ((1920, 1080), 0.5), ((1440, 810), 1 / 3), ((1200, 900), 0.2), ((1280, 720), 0.3)],
+)
+def test_a_channel_is_reduced_as_its_float_copy_bit_for_bit(size_wh, scale):
+    """The whole-factor block sums (and the general path) give OpenCV's area average of the float32 channel exactly."""
+    w, h = size_wh
+    sc = ProcessingScale.for_camera(Camera(w, h, 1000.0, 1000.0, (w - 1) / 2, (h - 1) / 2), scale)
+    rng = np.random.default_rng(w + h)
+    rgb = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    rgb[: h // 3] = 255  # saturated rows: the largest sums
+    for channel in ("green", "blue", "grey"):
+        ch = template_channel_u8(rgb, channel)
+        want = sc.reduce(template_channel(rgb, channel))
+        got = sc.reduce_channel(ch)
+        assert got.dtype == np.float32 and got.shape == want.shape == (sc.camera.height_px, sc.camera.width_px)
+        assert np.array_equal(got, want), (channel, np.abs(got - want).max())
 
 
 def test_processed_pixels_map_to_the_full_frame_through_the_camera_model():

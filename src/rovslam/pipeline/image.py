@@ -16,7 +16,7 @@ import numpy as np
 
 from rovslam.config import BandpassConfig
 from rovslam.sensor.sunlight import BrightHistory, SunlightEvent, SunlightMonitor, moving_light_share
-from rovslam.vision.filters import bandpass, contrast_std, despeckled_channels, remove_specks, template_channel
+from rovslam.vision.filters import bandpass, contrast_std, despeckled_channels, remove_specks, template_channel_u8
 from rovslam.vision.scale import ProcessingScale
 
 __all__ = ["MIN_TEXTURE_STD", "SunlightWatch", "tracking_image"]
@@ -42,7 +42,7 @@ def tracking_image(
     if scale.identity:
         chan, wide = despeckled_channels(image, cfg.channel, cfg.despeckle_px, wide_px)
     else:  # the channel reduced to the processing scale (area average on floats), then despeckled
-        chan = remove_specks(scale.reduce(template_channel(image, cfg.channel)), cfg.despeckle_px)
+        chan = remove_specks(scale.reduce_channel(template_channel_u8(image, cfg.channel)), cfg.despeckle_px)
         wide = remove_specks(chan, wide_px) if wide_px else None
     bright = None
     if wide is not None:  # the bright structures between the two widths: the sunlight, if any

@@ -58,6 +58,11 @@ def template_channel(image: np.ndarray, channel: str) -> np.ndarray:
     -------
     ``(H, W) float32`` on the 8-bit scale 0..255 (a new array).
     """
+    return template_channel_u8(image, channel).astype(np.float32)
+
+
+def template_channel_u8(image: np.ndarray, channel: str) -> np.ndarray:
+    """:func:`template_channel` before its conversion: ``(H, W) uint8``, a view of ``image`` or a new array."""
     if channel not in CHANNELS:
         raise InvalidArgumentError(
             f"template channel must be one of {', '.join(CHANNELS)}, got {channel!r}"
@@ -70,14 +75,14 @@ def template_channel(image: np.ndarray, channel: str) -> np.ndarray:
             "convert with np.clip(x, 0, 255).astype(np.uint8)"
         )
     if img.ndim == 2:
-        return img.astype(np.float32)
+        return img
     if img.ndim != 3 or img.shape[2] != 3:
         raise InvalidArgumentError(
             f"template_channel needs an (H, W) grey or (H, W, 3) RGB image, got shape {img.shape}"
         )
     if channel == "grey":
-        return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY).astype(np.float32)
-    return img[:, :, _CHANNEL_INDEX[channel]].astype(np.float32)
+        return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+    return img[:, :, _CHANNEL_INDEX[channel]]
 
 
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))

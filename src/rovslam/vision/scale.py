@@ -115,6 +115,34 @@ class ProcessingScale:
             )
         return cv2.resize(img, (self.camera.width_px, self.camera.height_px), interpolation=cv2.INTER_AREA)
 
+    def reduce_channel(self, channel: np.ndarray) -> np.ndarray:
+        """``(H', W') float32``: an ``(H, W) uint8`` channel reduced as :meth:`reduce` reduces its float32 copy, bit for bit.
+
+        When the frame is a whole number ``k`` of processed pixels on both axes (1920x1080 at
+        480x270: 4), the ``k x k`` blocks are summed in float32 (whole numbers: exact) and scaled
+        by ``1 / k^2``, which is what OpenCV's area average computes on float32; the full-size
+        float32 copy is never made (about 1 ms of a 1920x1080 frame). Other sizes: :meth:`reduce`.
+        """
+        ch = np.asarray(channel)
+        k = self.full.width_px // self.camera.width_px
+        whole = (
+            not self.identity
+            and k >= 2
+            and self.camera.width_px * k == self.full.width_px
+            and self.camera.height_px * k == self.full.height_px
+        )
+        if not whole or ch.dtype != np.uint8 or ch.shape != self.full.shape:
+            return self.reduce(ch.astype(np.float32))
+        ch = np.ascontiguousarray(ch)
+        rows = cv2.add(ch[0::k], ch[1::k], dtype=cv2.CV_32F)  # (H', W) the sums of k rows
+        for j in range(2, k):
+            rows = cv2.add(rows, ch[j::k], dtype=cv2.CV_32F)
+        cols = rows.reshape(self.camera.height_px, self.camera.width_px, k)
+        out = cv2.add(cols[:, :, 0], cols[:, :, 1])
+        for j in range(2, k):
+            out = cv2.add(out, cols[:, :, j])
+        return np.multiply(out, np.float32(1.0 / (k * k)), out=np.asarray(out, dtype=np.float32))
+
     def to_full_px(self, uv_px: np.ndarray) -> np.ndarray:
         """``(N, 2)`` or ``(2,)`` processed pixels (u, v) -> the same points in full-resolution pixels."""
         uv = np.asarray(uv_px, dtype=np.float64)

@@ -94,24 +94,10 @@ def _spot_candidates(
         close = np.any(dist <= config.search_radius_px, axis=1)
         ids, cents, weights = ids[close], cents[close], weights[close]
     if config.spot_skirt_px > 0 and len(ids):
-        # each blob's bounding box (its thresholded pixels) in the label image's pixels
-        lo_u, lo_v = np.full(n, mask.shape[1]), np.full(n, mask.shape[0])
-        hi_u, hi_v = np.full(n, -1), np.full(n, -1)
-        np.minimum.at(lo_u, lab, pix[:, 0])
-        np.minimum.at(lo_v, lab, pix[:, 1])
-        np.maximum.at(hi_u, lab, pix[:, 0])
-        np.maximum.at(hi_v, lab, pix[:, 1])
         cents = np.array(
             [
                 _skirt_centre(
-                    excess,
-                    labels,
-                    mask,
-                    (bu0, bv0),
-                    int(i),
-                    int(area[i]),
-                    config.spot_skirt_px,
-                    (int(lo_u[i]), int(lo_v[i]), int(hi_u[i]) + 1, int(hi_v[i]) + 1),
+                    excess, labels, mask, (bu0, bv0), int(i), int(area[i]), config.spot_skirt_px, _box(pix[lab == i])
                 )
                 for i in ids
             ]
@@ -120,6 +106,12 @@ def _spot_candidates(
     # right: OpenCV's labels follow its block scan, whose order changes with the crop's offset.
     order = np.lexsort((cents[:, 0], cents[:, 1], -weights)) if len(cents) else np.zeros(0, dtype=np.intp)
     return cents[order], weights[order]
+
+
+def _box(pix: np.ndarray) -> tuple[int, int, int, int]:
+    """``(u0, v0, u1, v1)`` the bounding box (end exclusive) of ``(N, 2)`` integer pixels (u, v), N >= 1."""
+    lo, hi = pix.min(axis=0).tolist(), pix.max(axis=0).tolist()
+    return lo[0], lo[1], hi[0] + 1, hi[1] + 1
 
 
 def _skirt_centre(
