@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from rovslam.averages import median0
 from rovslam.config import LaserConfig
 from rovslam.io.sequence import decode_image, to_rgb
-from rovslam.runner import keep_freed_memory
+from rovslam.process import keep_freed_memory
 from rovslam.vision import spots
 from rovslam.vision.filters import bandpass, gaussian_kernel, local_variance
 

@@ -51,6 +51,7 @@ from rovslam.io.results import GalleryWriter, ResultWriter, describe_os_error, p
 from rovslam.io.sequence import Sequence, open_sequence
 from rovslam.io.source import InputOptions, SourceDescription, option_flag
 from rovslam.pipeline import FrameResult, SlamPipeline
+from rovslam.process import keep_freed_memory, opencv_threads
 from rovslam.tallies import MapTally, SourceTally, TimeGaps
 from rovslam.vision.scale import processing_scale
 
@@ -315,53 +316,6 @@ def implausible_result(res: FrameResult, max_distance_m: float) -> str | None:
             f"the estimate says nothing (a time gap of {res.dt_s:.4g} s before this frame?)"
         )
     return None
-
-
-FREED_MEMORY_KEPT_BYTES = 64 * 2**20
-
-
-def keep_freed_memory(pad_bytes: int = FREED_MEMORY_KEPT_BYTES) -> bool:
-    """Ask the C allocator (glibc) to keep ``pad_bytes`` of freed memory for reuse; False where it cannot.
-
-    Every frame allocates and frees a few image-sized arrays (OpenCV and NumPy results: 0.4 MB
-    each at 360x272, 8 MB at 1920x1080). By default glibc gives freed memory at the top of its
-    heap back to the system as soon as 128 KiB of it is free, so the next frame's arrays are
-    fresh pages and every first touch is a page fault: about 330 faults per 360x272 frame, a
-    tenth of them once the memory is kept (``M_TOP_PAD``). The peak memory of a run does not
-    change; between frames up to ``pad_bytes`` stay resident. A no-op off glibc.
-    """
-    import ctypes
-    import sys
-
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):
-        return False
-    m_top_pad = -2  # <malloc.h> M_TOP_PAD
-    return bool(mallopt(ctypes.c_int(m_top_pad), ctypes.c_int(int(pad_bytes))))
-
-
-@contextlib.contextmanager
-def opencv_threads(n: int = 1):
-    """OpenCV's thread count set to ``n`` while the block runs, then set back.
-
-    The loop's images are small (360x272 to 480x270 at the processing scale) or, at full
-    resolution, cut to a few windows: OpenCV's thread pool wakes its workers for each call and
-    costs more than it splits. With one thread, a 360x272 frame needs about 20 % less CPU on two
-    cores (and as much wall time or less), a 1920x1080 frame at its processing scale as much less
-    (docs/performance.md), leaving the other cores to the decoder and, on a vehicle, to the rest of
-    the companion computer. The results do not depend on it.
-    """
-    import cv2
-
-    before = cv2.getNumThreads()
-    cv2.setNumThreads(int(n))
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(before)
 
 
 def run_sequence(

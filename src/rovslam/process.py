@@ -1,0 +1,50 @@
+"""What a run sets in its process: freed memory kept for reuse, OpenCV on one thread.
+
+Both are process-wide (the C allocator's and OpenCV's settings); :func:`rovslam.runner.run_sequence`
+applies them around every run (``rovslam run``, ``live``, a matrix cell).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+
+FREED_MEMORY_KEPT_BYTES = 64 * 2**20
+
+
+def keep_freed_memory(pad_bytes: int = FREED_MEMORY_KEPT_BYTES) -> bool:
+    """Ask the C allocator (glibc) to keep ``pad_bytes`` of freed memory for reuse; False where it cannot.
+
+    Every frame allocates and frees a few image-sized arrays (OpenCV and NumPy results: 0.4 MB
+    each at 360x272, 8 MB at 1920x1080). By default glibc gives freed memory at the top of its
+    heap back to the system as soon as 128 KiB of it is free, so the next frame's arrays are
+    fresh pages and every first touch is a page fault: about 330 faults per 360x272 frame, a
+    tenth of them once the memory is kept (``M_TOP_PAD``). The peak memory of a run does not
+    change; between frames up to ``pad_bytes`` stay resident. A no-op off glibc.
+    """
+    import ctypes
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return False
+    m_top_pad = -2  # <malloc.h> M_TOP_PAD
+    return bool(mallopt(ctypes.c_int(m_top_pad), ctypes.c_int(int(pad_bytes))))
+
+
+@contextlib.contextmanager
+def opencv_threads(n: int = 1) -> Iterator[None]:
+    """OpenCV's thread count set to ``n`` while the block runs, then set back. Its pool costs more than it
+    splits on the loop's small images (a third more CPU a frame on two cores, docs/performance.md); the
+    results do not depend on it."""
+    import cv2
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(int(n))
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
