@@ -71,6 +71,7 @@ def test_live_finds_the_vehicle_and_processes_every_frame(run):
     assert s["status"] == "complete"
     assert live["frames_received"] == live["frames_processed"] == 40 and live["frames_dropped"] == 0
     assert live["latency_ms"]["count"] == 40 - live["frames_refused"] and live["latency_ms"]["p50"] > 0
+    assert 0 < live["cpu_ms_per_frame"] < 1000  # the process's CPU a frame while it streamed
     assert live["messages_in"]["ATTITUDE"] > 40 and live["messages_in"]["DISTANCE_SENSOR"] > 20
     assert live["frames_without_attitude"] == 0 and live["frames_without_altitude"] == 0
     assert live["video_gaps"] == [] and live["reset_counter"] == 0

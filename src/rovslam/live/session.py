@@ -220,6 +220,8 @@ class LiveOutput:
         self.positions_sent = 0
         self._t0_wall = time.time()
         self._t0_mono = time.monotonic()
+        self.cpu_first_s: float | None = None  # the process's CPU time (every thread) at the first frame
+        self.cpu_last_s: float | None = None  # ... and at the newest
 
     def on_frame(self, res: Any) -> None:
         cur = self.source.current
@@ -227,6 +229,9 @@ class LiveOutput:
             return
         frame, sf, t_local = cur
         self.processed += 1
+        self.cpu_last_s = time.process_time()
+        if self.cpu_first_s is None:
+            self.cpu_first_s = self.cpu_last_s
         self._record(frame)
         gap_s = None if self.prev_t_s is None else frame.t_s - self.prev_t_s
         self.prev_t_s = frame.t_s
@@ -261,6 +266,13 @@ class LiveOutput:
             )
         self.prev = e
         self.latencies_s.append(time.monotonic() - sf.arrival_s)
+
+    def cpu_ms_per_frame(self) -> float | None:
+        """The process's CPU time (every thread: decoding, the loop, the links) from the first processed
+        frame to the newest, per frame processed in between; None before two frames."""
+        if self.cpu_first_s is None or self.cpu_last_s is None or self.processed < 2:
+            return None
+        return 1e3 * (self.cpu_last_s - self.cpu_first_s) / (self.processed - 1)
 
     def _estimate(self, res: Any, frame: Frame) -> msgs.Estimate:
         od = self.config.odometry
@@ -334,6 +346,7 @@ def live_block(source: LiveSource, output: LiveOutput, link: Any, opts: LiveOpti
         "frames_without_attitude": source.no_attitude,
         "frames_without_altitude": source.no_altitude,
         "latency_ms": percentiles_ms(output.latencies_s),
+        "cpu_ms_per_frame": output.cpu_ms_per_frame(),
         **link.summary(),
         **source.telemetry.summary(time.monotonic()),
         "video_gaps": gaps,
