@@ -28,7 +28,8 @@ STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
         "channel and despeckle",
         (
             "rovslam.pipeline.image:despeckled_channels",
-            "rovslam.pipeline.image:template_channel",
+            "rovslam.pipeline.image:template_channel_u8",
+            "rovslam.vision.scale:ProcessingScale.reduce_channel",
             "rovslam.pipeline.image:remove_specks",
         ),
     ),
@@ -105,7 +106,8 @@ GLUE = "loop and glue"
 MAY_BE_UNCALLED = {
     "rovslam.pipeline:SlamPipeline._skip",
     "rovslam.pipeline:SlamPipeline._start_filter",
-    "rovslam.pipeline.image:template_channel",
+    "rovslam.pipeline.image:template_channel_u8",
+    "rovslam.vision.scale:ProcessingScale.reduce_channel",
     "rovslam.pipeline.image:remove_specks",
     "rovslam.io.results:ResultWriter.write_landmark_template",
 }
