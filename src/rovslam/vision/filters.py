@@ -172,16 +172,7 @@ def despeckled_channels(
     :mod:`rovslam.sensor.sunlight` tracks on under sunlight caustics, and the difference of the two
     is the bright structures between the two widths. Returns ``((H, W) float32, (H, W) float32 or None)``.
     """
-    if channel not in CHANNELS or np.asarray(image).dtype != np.uint8:
-        narrow = remove_specks(template_channel(image, channel), despeckle_px)  # its errors, its messages
-        return narrow, (remove_specks(narrow, wide_px) if wide_px >= 2 else None)
-    img = np.asarray(image)
-    if img.ndim == 3 and img.shape[2] == 3:
-        chan = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if channel == "grey" else img[:, :, _CHANNEL_INDEX[channel]]
-    elif img.ndim == 2:
-        chan = img
-    else:
-        return template_channel(img, channel), None  # raises with the shape
+    chan = template_channel_u8(image, channel)  # its checks, its messages
     if despeckle_px >= 2:
         chan = _open(np.ascontiguousarray(chan), int(despeckle_px))
     wide = _open(np.ascontiguousarray(chan), int(wide_px)).astype(np.float32) if wide_px >= 2 else None
