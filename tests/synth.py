@@ -185,6 +185,7 @@ class Survey:
     heading_rad: np.ndarray  # (K,) true headings
     landmarks_xy_m: np.ndarray  # (M, 2) true position of landmark id i (in order of creation)
     frames: list  # K FrameMeasurements
+    order: list | None = None  # index in the field of landmark id i
 
 
 def lawnmower_track(n_legs=5, leg_steps=70, cross_steps=15, psi0=0.4, speed_mps=0.1, dt_s=0.2):
@@ -242,6 +243,7 @@ def survey_measurements(
     dt_s=0.2,
     spacing_m=0.15,
     max_observations=8,
+    heights_m=None,
 ):
     """Noisy per-frame records of a true track over a landmark field (seeded).
 
@@ -250,7 +252,9 @@ def survey_measurements(
     and no mapped landmark lies within ``spacing_m`` of the vehicle, the unmapped one nearest
     the image centre is initialised. Speed, compass (white + Ornstein-Uhlenbeck drift), token
     turn and pixels get the noise of ``noise``; ``heading_rad`` of a record is the pipeline's
-    heading input (heading.HeadingFilter of the compass and the turns).
+    heading input (heading.HeadingFilter of the compass and the turns). ``heights_m`` (M,): each
+    landmark's height above the seabed the altitude refers to (its image depth is the altitude
+    minus it; default 0, a flat seabed).
     """
     from rovslam.sensor.heading import HeadingFilter
     from rovslam.slam.measurements import FrameMeasurements, LandmarkMeasurement
@@ -282,6 +286,8 @@ def survey_measurements(
             step, step_sigma = float(steps[k - 1]), noise.step_sigma_rad
             psi = heading_filter.update(compass[k], step, step_sigma)
         mn_all = observe_mn(landmarks_xy_m, xy_m[k], heading_rad[k], z, f)
+        if heights_m is not None:  # (3) at the landmark's own depth
+            mn_all = mn_all * (z / (z - np.asarray(heights_m)))[:, None]
         inside = np.flatnonzero(np.all(np.abs(mn_all) < lim, axis=1))
         inside = inside[np.argsort(np.sum(mn_all[inside] ** 2, axis=1))]
         obs = []
@@ -321,7 +327,7 @@ def survey_measurements(
                 landmarks=tuple(obs),
             )
         )
-    return Survey(np.asarray(xy_m), np.asarray(heading_rad), landmarks_xy_m[order].reshape(-1, 2), frames)
+    return Survey(np.asarray(xy_m), np.asarray(heading_rad), landmarks_xy_m[order].reshape(-1, 2), frames, order)
 
 
 def landmark_field(seed, xy_m, density_per_m2=30.0, margin_m=0.4):

@@ -462,6 +462,22 @@ class SmootherConfig(_Checked):
         bias_block_s: duration over which the drift is held constant (one variable per block).
         final_max_iterations: Levenberg-Marquardt iterations of the final smoothing
             (0: the iSAM2 estimate as it is).
+        relief_rounds: rounds of the relief step in the final smoothing (0: the paper's flat
+            seabed, every landmark at the laser altitude's depth): each round solves the landmarks'
+            heights and the seabed under the spots given the poses (:mod:`rovslam.slam.heights`),
+            then smooths again with those depths; the rounds stop early once no depth moves by
+            more than 0.01 mm.
+        relief_min_gain: the relief rounds' result is kept when it takes at least this share of
+            the landmark factors' misfit (squared whitened residuals) away, else the flat seabed's
+            is: with their priors the heights and the seabed offset also fit the pixel noise of a
+            flat seabed (18 to 23 % of the misfit on the synthetic surveys of tests/test_smoother.py,
+            whose path they then make 14 % worse), while relief gives 46 to 85 % (49 to 84 % on the
+            simulated relief dives).
+        landmark_height_sigma_m: a landmark's height off the seabed under the camera at its first
+            frame (the relief rounds' prior; the EKF's ``[slam]`` figure and default).
+        seabed_offset_sigma_m: the stationary sigma of the seabed under the spots relative to the
+            start's (the relief rounds' prior; the EKF's ``[slam]`` figure and default).
+        seabed_offset_tau_s: its correlation time (the EKF's ``[slam]`` figure and default).
     """
 
     TABLE: ClassVar[str] = "smoother"
@@ -479,6 +495,11 @@ class SmootherConfig(_Checked):
     heading_bias_tau_s: float = _num(120.0, gt=0)
     bias_block_s: float = _num(5.0, gt=0)
     final_max_iterations: int = _num(10, ge=0)
+    relief_rounds: int = _num(8, ge=0)
+    relief_min_gain: float = _num(0.3, ge=0, le=1)
+    landmark_height_sigma_m: float = _num(0.03, gt=0)  # the EKF's [slam] defaults
+    seabed_offset_sigma_m: float = _num(0.02, gt=0)
+    seabed_offset_tau_s: float = _num(5.0, gt=0)
 
 
 @dataclass(frozen=True)

@@ -649,6 +649,7 @@ class SmoothSummary:
     online_s: float  # the incremental (iSAM2) pass over every frame
     final_s: float  # the final polish and the marginal covariances
     out_dir: Path
+    relief_gain: float = float("nan")  # SmoothedResult.relief_gain
 
 
 def write_smoothed_result(out_dir: Path, res, config=None) -> None:
@@ -687,14 +688,16 @@ def write_smoothed_result(out_dir: Path, res, config=None) -> None:
             "first_t_s": float(t),
             "observations": int(n),
             "downweighted": int(d),
+            "height_m": float(h),
         }
-        for i, xy, c, t, n, d in zip(
+        for i, xy, c, t, n, d, h in zip(
             res.landmark_ids,
             res.landmarks_xy_m,
             lcov,
             res.landmark_first_t_s,
             res.landmark_observations,
             res.landmark_downweighted,
+            np.zeros(len(res.landmark_ids)) if res.landmark_height_m is None else res.landmark_height_m,
         )
     ]
     write_smoothed(out_dir, res.t_s, res.xy_m, cov, res.heading_rad, res.altitude_m, rows)
@@ -759,4 +762,5 @@ def smooth_run(
         online_s=t1 - t0,
         final_s=t2 - t1,
         out_dir=out,
+        relief_gain=res.relief_gain,
     )

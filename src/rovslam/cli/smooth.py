@@ -35,6 +35,12 @@ def smooth(
     except KeyboardInterrupt:
         typer.echo("interrupted: nothing written (the measurement files are untouched)", err=True)
         raise typer.Exit(130) from None
+    if summary.relief_gain == summary.relief_gain:  # not NaN: the relief rounds were tried
+        kept = summary.relief_gain >= cfg.relief_min_gain
+        typer.echo(
+            f"relief: the landmarks' heights took {100 * summary.relief_gain:.0f} % of their misfit away; "
+            + ("kept" if kept else f"under {100 * cfg.relief_min_gain:.0f} %, the flat seabed's result kept")
+        )
     typer.echo(
         f"{summary.frames} frames, {summary.landmarks} landmarks, {summary.observations} observations "
         f"({summary.downweighted} down-weighted); incremental pass {summary.online_s:.1f} s, "

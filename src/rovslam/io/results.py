@@ -478,7 +478,7 @@ def _json_default(o: Any) -> Any:
 # dive given all of it, beside the online (causal) trajectory.
 
 SMOOTHED_TRAJECTORY_COLUMNS = ("t_s", "x_m", "y_m", "var_x_m2", "cov_xy_m2", "var_y_m2", "heading_rad")
-SMOOTHED_LANDMARK_COLUMNS = LANDMARK_COLUMNS[:-1] + ("downweighted",)
+SMOOTHED_LANDMARK_COLUMNS = LANDMARK_COLUMNS[:-1] + ("downweighted", "height_m")
 
 
 def write_smoothed(

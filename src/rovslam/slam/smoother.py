@@ -67,6 +67,7 @@ import numpy as np
 from rovslam.camera import rot2, wrap_angle
 from rovslam.config import ROBUST_LOSSES, SmootherConfig
 from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError
+from rovslam.slam.heights import ReliefObservations, ReliefPriors, observation_depths, solve_relief
 from rovslam.slam.measurements import FrameMeasurements
 
 __all__ = ["SmootherConfig", "Isam2Smoother", "OnlineEstimate", "SmoothedResult", "ROBUST_LOSSES"]
@@ -78,6 +79,8 @@ _TINY_SIGMA = 1e-6
 _FREE_SIGMA = 1e4
 # Sigma of the prior holding a compass frame's translation at the origin, metres.
 _FRAME_SIGMA_M = 1.0
+# The relief rounds stop once no observation's depth moves by more than this (metres).
+_RELIEF_TOL_M = 1e-5
 
 
 @dataclass(frozen=True)
@@ -116,6 +119,10 @@ class SmoothedResult:
         iterations: Levenberg-Marquardt iterations of the final polish.
         attitude_sigma_rad: (N,) each frame's ``FrameMeasurements.attitude_sigma_rad``.
         has_compass: (N,) whether each frame had a compass reading.
+        landmark_height_m: (M,) the landmarks' heights above the start's seabed (zeros without
+            the relief rounds); seabed_m: (N,) the seabed under the spots, relative to the start's.
+        relief_gain: the share of the landmark factors' misfit the relief rounds took away (NaN:
+            not tried); below ``relief_min_gain`` their result is set aside for the flat seabed's.
     """
 
     index: np.ndarray
@@ -133,15 +140,19 @@ class SmoothedResult:
     iterations: int = 0
     attitude_sigma_rad: np.ndarray | None = None
     has_compass: np.ndarray | None = None
+    landmark_height_m: np.ndarray | None = None
+    seabed_m: np.ndarray | None = None
+    relief_gain: float = math.nan
 
 
 @dataclass
 class _Landmark:
     first_t_s: float
-    # Per observation: pose number, measured R^T (X - x) in metres (2,), whitening W (2, 2).
+    # Per observation: pose number, [m, n] / f (2,) and R_m / f^2 (2, 2); times the image depth,
+    # they are the measured R^T (X - x) in metres and its noise.
     poses: list = field(default_factory=list)
-    p_m: list = field(default_factory=list)
-    whiten: list = field(default_factory=list)
+    ray: list = field(default_factory=list)
+    noise: list = field(default_factory=list)
 
 
 class Isam2Smoother:
@@ -395,7 +406,6 @@ class Isam2Smoother:
         return tail_position
 
     def _add_landmarks(self, graph, values, k: int, pose, meas: FrameMeasurements) -> None:
-        g = self._g
         scale = meas.altitude_m / meas.focal_px  # metres per pixel of (3)
         for ob in meas.landmarks:
             lm = self._landmarks.get(ob.landmark_id)
@@ -405,18 +415,26 @@ class Isam2Smoother:
                 values.insert(self._l(ob.landmark_id), xy)
             elif not ob.accepted_by_online and not self.config.use_rejected:
                 continue
-            p_m = scale * ob.mn_px
-            cov = scale * scale * ob.noise_px2
-            gauss = g.noiseModel.Gaussian.Covariance(cov)
-            model = gauss if self._robust is None else g.noiseModel.Robust.Create(self._robust, gauss)
-            graph.add(self._delta_factor(self._x(k), self._l(ob.landmark_id), p_m, model))
+            graph.add(self._landmark_factor(k, ob.landmark_id, scale * ob.mn_px, scale * scale * ob.noise_px2))
             lm.poses.append(k)
-            lm.p_m.append(p_m)
-            lm.whiten.append(np.linalg.cholesky(np.linalg.inv(cov)).T)
+            lm.ray.append(ob.mn_px / meas.focal_px)
+            lm.noise.append(ob.noise_px2 / meas.focal_px**2)
+
+    def _landmark_factor(self, k: int, landmark_id: int, p_m: np.ndarray, cov_m2: np.ndarray):
+        """(3) as a factor: R(psi_k)^T (X - x_k) = p_m (metres) with noise cov_m2 (2, 2), under the robust loss."""
+        g = self._g
+        gauss = g.noiseModel.Gaussian.Covariance(cov_m2)
+        model = gauss if self._robust is None else g.noiseModel.Robust.Create(self._robust, gauss)
+        return self._delta_factor(self._x(k), self._l(landmark_id), p_m, model)
 
     # ------------------------------------------------------------------ the whole path
     def smoothed(self) -> SmoothedResult:
-        """Every pose and landmark with its marginal covariance, given all frames so far."""
+        """Every pose and landmark with its marginal covariance, given all frames so far.
+
+        Levenberg-Marquardt from the iSAM2 estimate, then (``relief_rounds``) the relief rounds:
+        the landmarks' heights and the seabed under the spots given the poses, the graph again
+        with those depths (:mod:`rovslam.slam.heights`).
+        """
         g = self._g
         n = len(self._index)
         if n == 0:
@@ -426,45 +444,34 @@ class Isam2Smoother:
         for i in range(factors.size()):  # iSAM2 leaves empty slots where factors were removed
             if factors.exists(i):
                 graph.add(factors.at(i))
-        estimate = self._isam.calculateEstimate()
-        iterations = 0
+        obs = _stacked_observations([self._landmarks[i] for i in self.landmark_ids])
+        depth = np.asarray(self._altitude_m)[obs.pose]  # the flat seabed: the laser altitude
+        relief = None
         try:
-            if self.config.final_max_iterations > 0:
-                params = g.LevenbergMarquardtParams()
-                params.setMaxIterations(self.config.final_max_iterations)
-                params.setRelativeErrorTol(1e-6)
-                params.setAbsoluteErrorTol(1e-9)
-                opt = g.LevenbergMarquardtOptimizer(graph, estimate, params)
-                estimate = opt.optimize()
-                iterations = int(opt.iterations())
+            estimate, iterations = self._polish(graph, self._isam.calculateEstimate())
+            gain = math.nan
+            if self.config.relief_rounds > 0 and self.config.final_max_iterations > 0 and len(obs.pose):
+                flat_cost = self._landmark_cost(estimate, obs, depth)
+                trial = self._relief(graph, estimate, obs, depth)
+                gain = 1.0 - self._landmark_cost(trial[1], obs, trial[3]) / max(flat_cost, 1e-300)
+                if gain >= self.config.relief_min_gain:  # else the seabed is flat as far as the images tell
+                    graph, estimate, relief, depth, more = trial
+                    iterations += more
             marginals = g.Marginals(graph, estimate)
         except RuntimeError as exc:
             raise _solver_error("the final smoothing", exc) from None
-        xy = np.empty((n, 2))
-        psi = np.empty(n)
+        xy, psi, lxy = self._read(estimate)
         cov = np.empty((n, 2, 2))
         for k in range(n):
-            key = self._x(k)
-            pose = estimate.atPose2(key)
-            xy[k] = pose.x(), pose.y()
-            psi[k] = pose.theta()
             r = rot2(psi[k])
-            cov[k] = r @ np.asarray(marginals.marginalCovariance(key))[:2, :2] @ r.T
+            cov[k] = r @ np.asarray(marginals.marginalCovariance(self._x(k)))[:2, :2] @ r.T
         ids = np.array(self.landmark_ids, dtype=np.int64)
         m = len(ids)
-        lxy = np.empty((m, 2))
         lcov = np.empty((m, 2, 2))
-        first = np.empty(m)
-        nobs = np.empty(m, dtype=np.int64)
-        down = np.zeros(m, dtype=np.int64)
         for j, i in enumerate(ids):
-            rec = self._landmarks[int(i)]
-            key = self._l(int(i))
-            lxy[j] = estimate.atPoint2(key)
-            lcov[j] = marginals.marginalCovariance(key)
-            first[j] = rec.first_t_s
-            nobs[j] = len(rec.poses)
-            down[j] = int(np.sum(self._whitened_norms(rec, xy, psi, lxy[j]) > self.config.robust_k))
+            lcov[j] = marginals.marginalCovariance(self._l(int(i)))
+        norms = _whitened_norms(xy, psi, lxy, obs, depth)
+        down = np.bincount(obs.landmark[norms > self.config.robust_k], minlength=m).astype(np.int64)
         return SmoothedResult(
             index=np.array(self._index, dtype=np.int64),
             t_s=np.array(self._t_s),
@@ -475,27 +482,102 @@ class Isam2Smoother:
             landmark_ids=ids,
             landmarks_xy_m=lxy,
             landmarks_cov_m2=lcov,
-            landmark_first_t_s=first,
-            landmark_observations=nobs,
+            landmark_first_t_s=np.array([self._landmarks[int(i)].first_t_s for i in ids]),
+            landmark_observations=np.bincount(obs.landmark, minlength=m).astype(np.int64),
             landmark_downweighted=down,
             iterations=iterations,
             attitude_sigma_rad=np.array(self._attitude_sigma_rad),
             has_compass=np.array(self._has_compass, dtype=bool),
+            landmark_height_m=np.zeros(m) if relief is None else relief.height_m,
+            seabed_m=np.zeros(n) if relief is None else relief.seabed_m,
+            relief_gain=gain,
         )
 
-    @staticmethod
-    def _whitened_norms(rec: _Landmark, xy: np.ndarray, psi: np.ndarray, landmark_xy: np.ndarray) -> np.ndarray:
-        """(n_obs,) whitened residual norms of a landmark's observations, (3) at the estimate."""
-        k = np.asarray(rec.poses)
-        d = landmark_xy - xy[k]  # (n, 2) X - x
-        c, s = np.cos(psi[k]), np.sin(psi[k])
-        h = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])  # R^T (X - x)
-        e = h - np.asarray(rec.p_m)
-        w = np.einsum("nij,nj->ni", np.asarray(rec.whiten), e)
-        return np.linalg.norm(w, axis=1)
+    def _polish(self, graph, estimate) -> tuple[Any, int]:
+        """Levenberg-Marquardt from ``estimate`` (``final_max_iterations``; 0: as it is): the estimate and its iterations."""
+        if self.config.final_max_iterations == 0:
+            return estimate, 0
+        params = self._g.LevenbergMarquardtParams()
+        params.setMaxIterations(self.config.final_max_iterations)
+        params.setRelativeErrorTol(1e-6)
+        params.setAbsoluteErrorTol(1e-9)
+        opt = self._g.LevenbergMarquardtOptimizer(graph, estimate, params)
+        return opt.optimize(), int(opt.iterations())
+
+    def _landmark_cost(self, estimate, obs: ReliefObservations, depth: np.ndarray) -> float:
+        """Sum of the landmark factors' squared whitened residuals at an estimate, each observation at its depth."""
+        xy, psi, lxy = self._read(estimate)
+        return float(np.sum(_whitened_norms(xy, psi, lxy, obs, depth) ** 2))
+
+    def _read(self, estimate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(N, 2) positions, (N,) headings and (M, 2) landmark positions (in id order) of an estimate."""
+        poses = [estimate.atPose2(self._x(k)) for k in range(len(self._index))]
+        xy = np.array([[p.x(), p.y()] for p in poses]).reshape(-1, 2)
+        psi = np.array([p.theta() for p in poses])
+        lxy = np.array([estimate.atPoint2(self._l(i)) for i in self.landmark_ids], dtype=np.float64).reshape(-1, 2)
+        return xy, psi, lxy
+
+    def _relief(self, graph, estimate, obs: ReliefObservations, depth: np.ndarray):
+        """The relief rounds: heights and seabed given the poses, then the graph with their depths.
+
+        Returns the last graph, its estimate, the last :class:`ReliefSolution`, the (K,) depths
+        and the Levenberg-Marquardt iterations spent.
+        """
+        g, cfg, ids = self._g, self.config, self.landmark_ids
+        kept = [graph.at(i) for i in range(graph.size())]
+        kept = [f for f in kept if not any(g.Symbol(key).chr() == ord("l") for key in f.keys())]
+        priors = ReliefPriors(cfg.landmark_height_sigma_m, cfg.seabed_offset_sigma_m, cfg.seabed_offset_tau_s)
+        t_s, z_m = np.array(self._t_s), np.array(self._altitude_m)
+        iterations = 0
+        for _ in range(cfg.relief_rounds):
+            xy, psi, lxy = self._read(estimate)
+            sol = solve_relief(xy, psi, t_s, z_m, lxy, depth, obs, priors, cfg.robust, cfg.robust_k)
+            new_depth = observation_depths(z_m, sol.seabed_m, sol.height_m, obs)
+            moved_m = float(np.max(np.abs(new_depth - depth)))
+            depth = new_depth
+            graph = g.NonlinearFactorGraph()
+            for f in kept:
+                graph.add(f)
+            for j in range(len(obs.pose)):
+                d = float(depth[j])
+                graph.add(
+                    self._landmark_factor(int(obs.pose[j]), ids[obs.landmark[j]], obs.ray[j] * d, d * d * obs.noise[j])
+                )
+            values = g.Values(estimate)
+            for j, i in enumerate(ids):
+                values.update(self._l(i), sol.landmarks_xy_m[j])
+            estimate, more = self._polish(graph, values)
+            iterations += more
+            if moved_m < _RELIEF_TOL_M:
+                break
+        return graph, estimate, sol, depth, iterations
 
     def __repr__(self) -> str:
         return f"Isam2Smoother(poses={self.n_poses}, landmarks={self.n_landmarks}, robust={self.config.robust!r})"
+
+
+def _stacked_observations(recs: list[_Landmark]) -> ReliefObservations:
+    """Every landmark observation in the graph, stacked in the order of ``recs`` (landmark-id order)."""
+    return ReliefObservations(
+        pose=np.array([k for r in recs for k in r.poses], dtype=np.int64),
+        landmark=np.repeat(np.arange(len(recs)), [len(r.poses) for r in recs]).astype(np.int64),
+        ray=np.array([x for r in recs for x in r.ray], dtype=np.float64).reshape(-1, 2),
+        noise=np.array([x for r in recs for x in r.noise], dtype=np.float64).reshape(-1, 2, 2),
+        first_pose=np.array([r.poses[0] for r in recs], dtype=np.int64),
+    )
+
+
+def _whitened_norms(
+    xy: np.ndarray, psi: np.ndarray, landmarks_xy: np.ndarray, obs: ReliefObservations, depth_m: np.ndarray
+) -> np.ndarray:
+    """(K,) whitened residual norms of (3) at the estimate, every observation at its depth (K,)."""
+    k = obs.pose
+    d = landmarks_xy[obs.landmark] - xy[k]  # (K, 2) X - x
+    c, s = np.cos(psi[k]), np.sin(psi[k])
+    h = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])  # R^T (X - x)
+    e = h - obs.ray * depth_m[:, None]
+    cov = depth_m[:, None, None] ** 2 * obs.noise
+    return np.sqrt(np.einsum("ki,kij,kj->k", e, np.linalg.inv(cov), e))
 
 
 def _solver_error(what: str, exc: RuntimeError) -> FilterInconsistencyError:
