@@ -98,6 +98,7 @@ def _with_glitches(seq, rows, glitches) -> None:
         w.writerows(out)
 
 
+@pytest.mark.slow  # three 300-frame runs, about 26 s of CPU: the gate itself is checked above, in make test
 def test_a_dive_with_compass_glitches_keeps_its_clean_estimate(tmp_path):
     """60 s of the relief preset (seed 6), three readings 1 to 2.5 rad off. Measured: clean 3.86 mm
     ATE, 90.3 % inside 2-sigma; with the glitches 3.87 mm, 90.3 %, 3 refused; the gate off 7.8 mm,

@@ -326,6 +326,7 @@ def test_the_real_photo_survey_with_turns_stays_inside_its_bounds(tmp_path, seed
     assert np.mean(nees < TWO_SIGMA_NEES) >= 0.95
 
 
+@pytest.mark.slow  # two 600-frame runs, about 26 s of CPU: the term itself is checked in tests/test_apparent.py, in make test
 def test_a_compass_deviation_stays_inside_the_bounds_it_is_given(tmp_path):
     """2 minutes of ``photo-survey`` under a compass that reads 1 degree high all dive (its
     deviation: the vehicle's own magnetism, a declination error). No image can see it: the whole

@@ -545,6 +545,7 @@ def test_long_run_stays_symmetric_and_positive():
     assert report.min_eigenvalue > 0.0
 
 
+@pytest.mark.slow  # 60 filter runs, about 27 s of CPU: the eps state itself is checked against a dense EKF below, in make test
 def test_monte_carlo_drifting_compass_needs_the_heading_bias_state():
     # A compass error drifting by 0.5 degree (correlation 60 s): the paper's filter, told only
     # of the white heading noise, is over-confident; with the heading-bias state eps it is not.
