@@ -550,3 +550,18 @@ def test_the_relief_step_recovers_heights_and_seabed_exactly_from_exact_views():
     assert np.median(err_m) < 1e-4 and err_m.max() < 2e-3, (np.median(err_m), err_m.max())
     np.testing.assert_allclose(sol.height_m - sol.height_m.mean(), heights - heights.mean(), atol=1.5e-3)
     np.testing.assert_allclose(sol.landmarks_xy_m, lxy, atol=2e-5)
+
+
+def test_a_wrong_association_over_relief_leaves_the_heights_in_and_the_path_close():
+    """The relief's gain is counted over the observations it explains, so one wrong association (60-110 cm
+    off), which neither model can fit, neither hides the relief nor is fitted by it. Measured (seeds
+    2000-2003): gains unchanged (0.46-0.92), ATE 3.30 -> 3.67, 2.88 -> 3.23, 4.78 -> 5.26, 4.55 -> 2.71 mm."""
+    for seed in (2000, 2001, 2002, 2003):
+        sv, _ = relief_survey(seed)
+        k, frames, _ = inject_wrong_association(sv.frames, sv.landmarks_xy_m)
+        _, _, clean = smooth(sv.frames, smoother_config())
+        _, _, res = smooth(frames, smoother_config())
+        assert res.relief_gain >= SmootherConfig().relief_min_gain
+        assert abs(res.relief_gain - clean.relief_gain) < 0.02, (res.relief_gain, clean.relief_gain)
+        assert ate_m(res.xy_m, sv.xy_m) < 1.2 * ate_m(clean.xy_m, sv.xy_m)
+        assert res.landmark_downweighted.sum() >= 1  # the wrong one is flagged

@@ -468,11 +468,11 @@ class SmootherConfig(_Checked):
             then smooths again with those depths; the rounds stop early once no depth moves by
             more than 0.01 mm.
         relief_min_gain: the relief rounds' result is kept when it takes at least this share of
-            the landmark factors' misfit (squared whitened residuals) away, else the flat seabed's
-            is: with their priors the heights and the seabed offset also fit the pixel noise of a
-            flat seabed (18 to 23 % of the misfit on the synthetic surveys of tests/test_smoother.py,
-            whose path they then make 14 % worse), while relief gives 46 to 85 % (49 to 84 % on the
-            simulated relief dives).
+            the landmark factors' misfit (squared whitened residuals, over the observations it
+            explains) away, else the flat seabed's is: with their priors the heights and the seabed
+            offset also fit the pixel noise of a flat seabed (18 to 23 % of the misfit on the
+            synthetic surveys of tests/test_smoother.py, whose path they then make 14 % worse),
+            while relief gives 46 to 92 % (46 to 84 % on the simulated dives).
         landmark_height_sigma_m: a landmark's height off the seabed under the camera at its first
             frame (the relief rounds' prior; the EKF's ``[slam]`` figure and default).
         seabed_offset_sigma_m: the stationary sigma of the seabed under the spots relative to the

@@ -150,8 +150,7 @@ def solve_relief(
     col_h, col_s = 2 * m, 3 * m
     rows_o = 2 * np.arange(k_obs)[:, None] + np.arange(2)[None, :]  # (K, 2)
     r_list = [rows_o, rows_o, rows_o, rows_o]
-    c_list = [2 * i[:, None] + 0 * rows_o, 2 * i[:, None] + 1 + 0 * rows_o, col_h + i[:, None] + 0 * rows_o]
-    c_list.append(col_s + k[:, None] + 0 * rows_o)
+    c_list = [np.broadcast_to(col[:, None], rows_o.shape) for col in (2 * i, 2 * i + 1, col_h + i, col_s + k)]
     v_list = [w_rt[:, :, 0], w_rt[:, :, 1], w_ray, -w_ray]
     # Priors, one row each: s_0 at the datum; the Ornstein-Uhlenbeck links s_j - a s_{j-1};
     # each height about the seabed under the camera at its first frame.

@@ -451,9 +451,9 @@ class Isam2Smoother:
             estimate, iterations = self._polish(graph, self._isam.calculateEstimate())
             gain = math.nan
             if self.config.relief_rounds > 0 and self.config.final_max_iterations > 0 and len(obs.pose):
-                flat_cost = self._landmark_cost(estimate, obs, depth)
                 trial = self._relief(graph, estimate, obs, depth)
-                gain = 1.0 - self._landmark_cost(trial[1], obs, trial[3]) / max(flat_cost, 1e-300)
+                before = _whitened_norms(*self._read(estimate), obs, depth)
+                gain = _relief_gain(before, _whitened_norms(*self._read(trial[1]), obs, trial[3]), self.config)
                 if gain >= self.config.relief_min_gain:  # else the seabed is flat as far as the images tell
                     graph, estimate, relief, depth, more = trial
                     iterations += more
@@ -504,11 +504,6 @@ class Isam2Smoother:
         opt = self._g.LevenbergMarquardtOptimizer(graph, estimate, params)
         return opt.optimize(), int(opt.iterations())
 
-    def _landmark_cost(self, estimate, obs: ReliefObservations, depth: np.ndarray) -> float:
-        """Sum of the landmark factors' squared whitened residuals at an estimate, each observation at its depth."""
-        xy, psi, lxy = self._read(estimate)
-        return float(np.sum(_whitened_norms(xy, psi, lxy, obs, depth) ** 2))
-
     def _read(self, estimate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(N, 2) positions, (N,) headings and (M, 2) landmark positions (in id order) of an estimate."""
         poses = [estimate.atPose2(self._x(k)) for k in range(len(self._index))]
@@ -554,6 +549,15 @@ class Isam2Smoother:
 
     def __repr__(self) -> str:
         return f"Isam2Smoother(poses={self.n_poses}, landmarks={self.n_landmarks}, robust={self.config.robust!r})"
+
+
+def _relief_gain(before: np.ndarray, after: np.ndarray, config: SmootherConfig) -> float:
+    """The share of the landmark factors' misfit (squared whitened residuals, (K,) norms before and after
+    the relief rounds) they took away, over the observations the relief explains (within ``robust_k``
+    after; all without a robust loss): a wrong association, unexplained either way, would otherwise
+    swamp the sum with a cost neither model can lower."""
+    used = after <= config.robust_k if config.robust != "none" else np.ones(len(after), dtype=bool)
+    return 1.0 - float(np.sum(after[used] ** 2)) / max(float(np.sum(before[used] ** 2)), 1e-300)
 
 
 def _stacked_observations(recs: list[_Landmark]) -> ReliefObservations:
