@@ -181,7 +181,11 @@ class Vehicle:
             ):
                 self.attitude_stopped_at_s = t
             if self.heartbeat and t < self.attitude_until_s and self.attitude_stopped_at_s is None:
-                mav.attitude_send(int(t * 1000), 0.01, -0.02, math.remainder(self.yaw_rad(t), 2 * math.pi), 0, 0, 0)
+                # the body rates with the angles, as an autopilot's gyros give them (live moves a sample on by them)
+                yaw_rate = (self.yaw_rad(t + 1e-3) - self.yaw_rad(t - 1e-3)) / 2e-3
+                mav.attitude_send(
+                    int(t * 1000), 0.01, -0.02, math.remainder(self.yaw_rad(t), 2 * math.pi), 0.0, 0.0, yaw_rate
+                )
                 self.sent_attitude += 1
                 if k % 2 == 0:
                     mav.distance_sensor_send(int(t * 1000), 20, 5000, int(round(self.altitude_m * 100)), 1, 0, 25, 4)
