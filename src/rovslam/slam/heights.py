@@ -31,6 +31,8 @@ __all__ = [
     "solve_relief",
     "observation_depths",
     "robust_weight",
+    "landmark_residuals",
+    "whitened_norms",
 ]
 
 # Sigma of the prior holding s_0 at the start's seabed (metres): the datum, as the EKF's zero variance.
@@ -95,6 +97,36 @@ def _whitening(cov: np.ndarray) -> np.ndarray:
     return np.linalg.cholesky(np.linalg.inv(cov)).transpose(0, 2, 1)
 
 
+def landmark_residuals(
+    xy_m: np.ndarray, heading_rad: np.ndarray, landmarks_xy_m: np.ndarray, depth_m: np.ndarray, obs: ReliefObservations
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The whitened residuals of (3) at an estimate, every observation at its depth.
+
+    Args:
+        xy_m: (N, 2) positions; heading_rad: (N,) headings; landmarks_xy_m: (M, 2) landmarks;
+        depth_m: (K,) each observation's image depth (its noise is ``depth^2 R_m / f^2``).
+
+    Returns:
+        ``(residual (K, 2), W (K, 2, 2), R^T (K, 2, 2))``: ``W [R(psi_k)^T (X_i - x_k) - ray depth]``,
+        the whitening ``W`` (``W^T W = cov^-1``) and each observation's ``R(psi_k)^T``.
+    """
+    k, i = obs.pose, obs.landmark
+    c, s = np.cos(heading_rad[k]), np.sin(heading_rad[k])
+    rt = np.stack([np.stack([c, s], 1), np.stack([-s, c], 1)], 1)  # (K, 2, 2) R(psi_k)^T
+    w = _whitening(depth_m[:, None, None] ** 2 * obs.noise)
+    residual = np.einsum(
+        "kij,kj->ki", w, np.einsum("kij,kj->ki", rt, landmarks_xy_m[i] - xy_m[k]) - obs.ray * depth_m[:, None]
+    )
+    return residual, w, rt
+
+
+def whitened_norms(
+    xy_m: np.ndarray, heading_rad: np.ndarray, landmarks_xy_m: np.ndarray, obs: ReliefObservations, depth_m: np.ndarray
+) -> np.ndarray:
+    """(K,) the whitened residual norms of (3) at an estimate (:func:`landmark_residuals`)."""
+    return np.linalg.norm(landmark_residuals(xy_m, heading_rad, landmarks_xy_m, depth_m, obs)[0], axis=1)
+
+
 def robust_weight(norm: np.ndarray, robust: str, robust_k: float) -> np.ndarray:
     """(K,) the weight of a robust loss at whitened residual norms (K,): GTSAM's ``mEstimator`` weights."""
     if robust == "huber":
@@ -134,13 +166,8 @@ def solve_relief(
 
     n, m, k_obs = len(t_s), len(landmarks_xy_m), len(obs.pose)
     k, i = obs.pose, obs.landmark
-    c, s = np.cos(heading_rad[k]), np.sin(heading_rad[k])
-    rt = np.stack([np.stack([c, s], 1), np.stack([-s, c], 1)], 1)  # (K, 2, 2) R(psi_k)^T
-    w = _whitening(depth_m[:, None, None] ** 2 * obs.noise)
     # Residual of (3), whitened: W [R^T X_i - R^T x_k - ray (Z_k + s_k - h_i)].
-    residual = np.einsum(
-        "kij,kj->ki", w, np.einsum("kij,kj->ki", rt, landmarks_xy_m[i] - xy_m[k]) - obs.ray * depth_m[:, None]
-    )
+    residual, w, rt = landmark_residuals(xy_m, heading_rad, landmarks_xy_m, depth_m, obs)
     norm = np.linalg.norm(residual, axis=1)
     weight = np.sqrt(robust_weight(norm, robust, robust_k))  # on the rows: its square root
     w_rt = np.einsum("kij,kjl->kil", w, rt) * weight[:, None, None]  # (K, 2, 2) on X_i

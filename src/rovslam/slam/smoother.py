@@ -67,7 +67,13 @@ import numpy as np
 from rovslam.camera import rot2, wrap_angle
 from rovslam.config import ROBUST_LOSSES, SmootherConfig
 from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError
-from rovslam.slam.heights import ReliefObservations, ReliefPriors, observation_depths, solve_relief
+from rovslam.slam.heights import (
+    ReliefObservations,
+    ReliefPriors,
+    observation_depths,
+    solve_relief,
+    whitened_norms,
+)
 from rovslam.slam.measurements import FrameMeasurements
 
 __all__ = ["SmootherConfig", "Isam2Smoother", "OnlineEstimate", "SmoothedResult", "ROBUST_LOSSES"]
@@ -452,8 +458,8 @@ class Isam2Smoother:
             gain = math.nan
             if self.config.relief_rounds > 0 and self.config.final_max_iterations > 0 and len(obs.pose):
                 trial = self._relief(graph, estimate, obs, depth)
-                before = _whitened_norms(*self._read(estimate), obs, depth)
-                gain = _relief_gain(before, _whitened_norms(*self._read(trial[1]), obs, trial[3]), self.config)
+                before = whitened_norms(*self._read(estimate), obs, depth)
+                gain = _relief_gain(before, whitened_norms(*self._read(trial[1]), obs, trial[3]), self.config)
                 if gain >= self.config.relief_min_gain:  # else the seabed is flat as far as the images tell
                     graph, estimate, relief, depth, more = trial
                     iterations += more
@@ -470,7 +476,7 @@ class Isam2Smoother:
         lcov = np.empty((m, 2, 2))
         for j, i in enumerate(ids):
             lcov[j] = marginals.marginalCovariance(self._l(int(i)))
-        norms = _whitened_norms(xy, psi, lxy, obs, depth)
+        norms = whitened_norms(xy, psi, lxy, obs, depth)
         down = np.bincount(obs.landmark[norms > self.config.robust_k], minlength=m).astype(np.int64)
         return SmoothedResult(
             index=np.array(self._index, dtype=np.int64),
@@ -569,19 +575,6 @@ def _stacked_observations(recs: list[_Landmark]) -> ReliefObservations:
         noise=np.array([x for r in recs for x in r.noise], dtype=np.float64).reshape(-1, 2, 2),
         first_pose=np.array([r.poses[0] for r in recs], dtype=np.int64),
     )
-
-
-def _whitened_norms(
-    xy: np.ndarray, psi: np.ndarray, landmarks_xy: np.ndarray, obs: ReliefObservations, depth_m: np.ndarray
-) -> np.ndarray:
-    """(K,) whitened residual norms of (3) at the estimate, every observation at its depth (K,)."""
-    k = obs.pose
-    d = landmarks_xy[obs.landmark] - xy[k]  # (K, 2) X - x
-    c, s = np.cos(psi[k]), np.sin(psi[k])
-    h = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])  # R^T (X - x)
-    e = h - obs.ray * depth_m[:, None]
-    cov = depth_m[:, None, None] ** 2 * obs.noise
-    return np.sqrt(np.einsum("ki,kij,kj->k", e, np.linalg.inv(cov), e))
 
 
 def _solver_error(what: str, exc: RuntimeError) -> FilterInconsistencyError:
