@@ -130,6 +130,27 @@ def test_trajectory_errors_of_a_standing_vehicle_are_none_not_nan():
     assert e.ate_rmse_m == 0.0 and e.distance_m == 0.0
 
 
+def test_heading_alignment_takes_out_the_turn_about_the_start_and_leaves_the_shape():
+    """A survey turned about its start by a compass error (0.6 deg) with a 1 mm shape error on top: the turn is
+    found to 0.01 deg and the ATE with it taken out is the shape error, while the plain ATE carries the turn."""
+    from rovslam.camera import rot2
+
+    rng = np.random.default_rng(7)
+    for seed_turn_deg in (0.6, -1.3):
+        t = np.linspace(0.0, 300.0, 1500)
+        truth = np.column_stack([0.4 * np.sin(0.05 * t), 0.4 * np.cos(0.031 * t) - 0.4])  # a 0.8 m wide survey
+        shape = rng.normal(scale=1e-3 / np.sqrt(2), size=truth.shape)
+        shape[0] = 0.0
+        est = (truth + shape) @ rot2(np.radians(seed_turn_deg)).T
+        e = trajectory_errors(est, truth)
+        assert np.degrees(e.heading_offset_rad) == pytest.approx(seed_turn_deg, abs=0.01)
+        shape_rms = float(np.sqrt(np.mean(np.sum(shape**2, axis=1))))
+        assert e.ate_heading_aligned_rmse_m == pytest.approx(shape_rms, rel=0.02)
+        assert e.ate_rmse_m > 3 * e.ate_heading_aligned_rmse_m
+    still = trajectory_errors(np.zeros((4, 2)), np.zeros((4, 2)))
+    assert still.heading_offset_rad == 0.0 and still.ate_heading_aligned_rmse_m == 0.0
+
+
 def test_trajectory_errors_refuse_mismatched_or_empty_paths():
     from rovslam.errors import InvalidArgumentError
 

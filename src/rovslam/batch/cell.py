@@ -193,12 +193,14 @@ def cell_figures(ev) -> dict[str, Any]:
         "max_error_jump_t_s": ev.consistency.max_error_jump_t_s,
         "max_error_jump_before_sigma": ev.consistency.max_error_jump_before_sigma,
         "max_error_jump_before_t_s": ev.consistency.max_error_jump_before_t_s,
+        "ate_heading_aligned_rmse_m": ev.slam.ate_heading_aligned_rmse_m,
+        "heading_offset_rad": ev.slam.heading_offset_rad,
     }
     for prefix, e in (("", ev.slam), ("dr_", ev.dead_reckoning), ("pc_", ev.phase_correlation)):
         for key in ("ate_rmse_m", "ate_max_m", "final_error_m", "final_error_pct"):
             row[prefix + key] = None if e is None else getattr(e, key)
     sm, smc = ev.smoothed, ev.smoothed_consistency
-    for key in ("ate_rmse_m", "ate_max_m", "final_error_m"):
+    for key in ("ate_rmse_m", "ate_max_m", "final_error_m", "ate_heading_aligned_rmse_m", "heading_offset_rad"):
         row["sm_" + key] = None if sm is None else getattr(sm, key)
     row["sm_coverage_2sigma"] = None if smc is None else smc.coverage_2sigma
     row["sm_nees_mean"] = None if smc is None else smc.nees_mean

@@ -180,6 +180,8 @@ def print_eval(f) -> None:
         ("final_error_m", "final error", 100, "cm"),
         ("relative_error_m_per_m", f"drift per {f.slam.segment_m:g} m", 100, "cm/m"),
         ("final_error_pct", "final error / distance", 1, "%"),
+        ("ate_heading_aligned_rmse_m", "ATE RMSE, heading aligned", 100, "cm"),
+        ("heading_offset_rad", "... the turn taken out", 180 / math.pi, "deg"),
     ]:
         t.add_row(label, *(_fig(getattr(e, key), scale, unit, 3) for _, e in runs))
     cons = [f.consistency] + ([f.smoothed_consistency] if f.smoothed is not None else [])

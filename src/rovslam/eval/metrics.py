@@ -41,12 +41,29 @@ class TrajectoryErrors:
     relative_error_m_per_m: float | None  # RMS drift per metre over segments of `segment_m`; None: path shorter
     relative_error_pct: float | None
     segment_m: float
+    heading_offset_rad: float = 0.0  # the turn about the start that best fits the path to the truth
+    ate_heading_aligned_rmse_m: float = 0.0  # the ATE RMSE with that turn taken out: the path's shape
 
 
 def path_length_m(xy_m: np.ndarray) -> np.ndarray:
     """(N,) cumulative distance along an (N, 2) path."""
     steps = np.linalg.norm(np.diff(xy_m, axis=0), axis=1)
     return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def heading_alignment(est_xy_m: np.ndarray, gt_xy_m: np.ndarray) -> tuple[float, np.ndarray]:
+    """The turn about the start that lays an (N, 2) path best onto the (N, 2) truth, and the path so turned.
+
+    Both paths start at the origin. Returns ``(theta_rad, (N, 2) est turned by -theta)`` with theta
+    minimising ``sum |R(-theta) est_k - gt_k|^2`` (the estimate's heading minus the truth's, over the
+    whole path). Only a compass fixes this turn: with a drifting one, a map right in its shape is still
+    turned by the compass's error averaged over the dive, and the ATE carries it at every distance from
+    the start. The error left after it, the ATE of the turned path, is the map's shape (0 for a path
+    that did not move).
+    """
+    e, g = np.asarray(est_xy_m, dtype=np.float64), np.asarray(gt_xy_m, dtype=np.float64)
+    theta = math.atan2(float(np.sum(g[:, 0] * e[:, 1] - g[:, 1] * e[:, 0])), float(np.sum(g * e)))
+    return theta, e @ rot2(theta)  # row-wise R(-theta) e
 
 
 def trajectory_errors(est_xy_m: np.ndarray, gt_xy_m: np.ndarray, segment_m: float = 1.0) -> TrajectoryErrors:
@@ -69,6 +86,7 @@ def trajectory_errors(est_xy_m: np.ndarray, gt_xy_m: np.ndarray, segment_m: floa
         rel = np.linalg.norm(d_est - d_gt, axis=1) / seg_len
     rel_rms = float(np.sqrt(np.mean(np.square(rel)))) if len(rel) else None
     final = float(err[-1])
+    theta, turned = heading_alignment(est_xy_m, gt_xy_m)
     return TrajectoryErrors(
         ate_rmse_m=float(np.sqrt(np.mean(err**2))),
         ate_mean_m=float(np.mean(err)),
@@ -80,6 +98,8 @@ def trajectory_errors(est_xy_m: np.ndarray, gt_xy_m: np.ndarray, segment_m: floa
         relative_error_m_per_m=rel_rms,
         relative_error_pct=None if rel_rms is None else 100.0 * rel_rms,
         segment_m=segment_m,
+        heading_offset_rad=theta,
+        ate_heading_aligned_rmse_m=float(np.sqrt(np.mean(np.sum((turned - gt_xy_m) ** 2, axis=1)))),
     )
 
 
