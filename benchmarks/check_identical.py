@@ -6,9 +6,16 @@ the build to compare with, e.g.::
     git archive <before> src | tar -x -C /tmp/before
     python -m benchmarks.check_identical --against /tmp/before/src
 
-Both builds run the same simulated sequence (``portofino-short``, 600 frames, seed 0, PNG; add
-``--texture photo`` for the real seabed photo) and every result file is compared byte for byte
-(``summary.json`` without its timing fields, and it and ``config.toml`` on the keys both builds write). Exits 1 and names the files that differ.
+Both builds run the same simulated sequence (seed 0) and every result file is compared byte for
+byte (``summary.json`` without its timing fields, and it and ``config.toml`` on the keys both
+builds write). Exits 1 and names the files that differ. The sequence is a case of
+:mod:`benchmarks._harness`:
+
+* ``--resolution 360x272`` (default): ``portofino-short``, 600 frames, PNG;
+* ``--resolution 1920x1080``: the same survey through the HD camera, 120 frames, JPEG (the vision
+  runs at the processing scale, the laser spots in the full frame);
+
+``--frames`` sets another length, ``--texture photo`` uses the real seabed photo.
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ if __package__ in (None, ""):
 from benchmarks._harness import Case, sequence_folder  # noqa: E402
 
 TIMING_KEYS = {"wall_time_s", "frames_per_second"}
+CASES = {"360x272": ("png", 600), "1920x1080": ("jpg", 120)}  # resolution: image files, frames
 
 
 def _run(seq: Path, out: Path, src: Path | None) -> None:
@@ -77,10 +85,13 @@ def compare(a: Path, b: Path) -> list[str]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--against", type=Path, required=True, metavar="SRC")
-    ap.add_argument("--frames", type=int, default=600)
+    ap.add_argument("--resolution", choices=tuple(CASES), default="360x272")
+    ap.add_argument("--frames", type=int, default=None, help="default: 600 at 360x272, 120 at 1920x1080")
     ap.add_argument("--texture", choices=("sim", "photo"), default="sim")
     args = ap.parse_args()
-    seq = sequence_folder(Case("360x272", args.texture, "png", args.frames))
+    image_format, default_frames = CASES[args.resolution]
+    frames = default_frames if args.frames is None else args.frames
+    seq = sequence_folder(Case(args.resolution, args.texture, image_format, frames))
     with tempfile.TemporaryDirectory() as tmp:
         this, other = Path(tmp) / "this", Path(tmp) / "against"
         _run(seq, this, None)
@@ -91,7 +102,8 @@ def main() -> int:
         print(f"results differ from {args.against}: {', '.join(bad)}")
         return 1
     print(
-        f"all {n} result files bit-identical to those of {args.against} ({args.frames} frames, {args.texture} seabed)"
+        f"all {n} result files bit-identical to those of {args.against} "
+        f"({args.resolution}, {frames} frames, {args.texture} seabed)"
     )
     return 0
 

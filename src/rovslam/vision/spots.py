@@ -148,14 +148,17 @@ def _skirt_centre(
     lu0, lv0 = max(u0, ou), max(v0, ov)
     lu1, lv1 = min(u1, ou + labels.shape[1]), min(v1, ov + labels.shape[0])
     lab = labels[lv0 - ov : lv1 - ov, lu0 - ou : lu1 - ou]
-    own = np.zeros((v1 - v0, u1 - u0), np.uint8)
+    # The blob is dilated in rows widened with zeros to a multiple of 16 px: OpenCV's dilation by
+    # a disc is fastest on rows of whole 16-byte blocks (a 42 px wide window costs twice a 48 px
+    # one), and zeros beyond the window are what the dilation takes there anyway.
+    own = np.zeros((v1 - v0, -(-(u1 - u0) // 16) * 16), np.uint8)
     others = np.zeros((v1 - v0, u1 - u0), bool)
     own[lv0 - v0 : lv1 - v0, lu0 - u0 : lu1 - u0] = (lab == label) & (
         mask[lv0 - ov : lv1 - ov, lu0 - ou : lu1 - ou] > 0
     )
     others[lv0 - v0 : lv1 - v0, lu0 - u0 : lu1 - u0] = (lab != label) & (lab != 0)
-    grown = cv2.dilate(own, _disc(r)) > 0
-    ring = cv2.dilate(own, _disc(reach)) > 0
+    grown = cv2.dilate(own, _disc(r))[:, : u1 - u0] > 0
+    ring = cv2.dilate(own, _disc(reach))[:, : u1 - u0] > 0
     exu8 = excess[v0:v1, u0:u1]
     ex = exu8.astype(np.float64)
     outside = exu8[ring & ~grown & ~others]
