@@ -116,8 +116,10 @@ def true_speed(groundtruth: Path) -> Iterator[None]:
     """Inside this block, the speed the odometry hands the filter is the true body speed of each step.
 
     :class:`rovslam.sensor.odometry.SpeedEstimator` measures step k (frame k-1 to frame k) while
-    :meth:`rovslam.pipeline.SlamPipeline.process` runs frame k; its result keeps everything the
-    tokens reported (Q, turn, inliers, ok) but the surge and sway.
+    :meth:`rovslam.pipeline.SlamPipeline.process` runs frame k; every speed it hands on passes
+    through :meth:`~rovslam.sensor.odometry.SpeedEstimator.accept` (the tokens', the feature
+    motion's, or the held one), whose result keeps everything reported (Q, turn, inliers, ok) but
+    the surge and sway.
     """
     import rovslam.pipeline as pipeline
     import rovslam.sensor.odometry as odometry
@@ -126,25 +128,25 @@ def true_speed(groundtruth: Path) -> Iterator[None]:
 
     gt = read_groundtruth(groundtruth)
     speed = true_body_speed_mps(gt.xy_m, gt.heading_rad, gt.t_s)
-    process, measure = pipeline.SlamPipeline.process, odometry.SpeedEstimator.measure
+    process, accept = pipeline.SlamPipeline.process, odometry.SpeedEstimator.accept
     frame_index = [0]
 
     def process_frame(self, frame):
         frame_index[0] = frame.index
         return process(self, frame)
 
-    def measure_true(self, *args, **kwargs):
-        m = measure(self, *args, **kwargs)
+    def accept_true(self, *args, **kwargs):
+        m = accept(self, *args, **kwargs)
         k = frame_index[0]
         if 1 <= k <= len(speed):
             m = dataclasses.replace(m, surge_mps=float(speed[k - 1, 0]), sway_mps=float(speed[k - 1, 1]))
         return m
 
-    pipeline.SlamPipeline.process, odometry.SpeedEstimator.measure = process_frame, measure_true
+    pipeline.SlamPipeline.process, odometry.SpeedEstimator.accept = process_frame, accept_true
     try:
         yield
     finally:
-        pipeline.SlamPipeline.process, odometry.SpeedEstimator.measure = process, measure
+        pipeline.SlamPipeline.process, odometry.SpeedEstimator.accept = process, accept
 
 
 def run_one(out: Path, seq: Path, dive: str, odometry: str) -> dict:
@@ -163,6 +165,12 @@ def run_one(out: Path, seq: Path, dive: str, odometry: str) -> dict:
     else:
         run_sequence(source, run_dir, cfg, overwrite=True)
     ev = evaluate_run(run_dir, seq / "groundtruth.csv", sequence_dir=seq if odometry == "as is" else None)
+    if odometry == "both" and ev.dead_reckoning.final_error_m > 1e-3:
+        raise SystemExit(
+            f"{name}: dead reckoning with the true speed and heading ends "
+            f"{100.0 * ev.dead_reckoning.final_error_m:.2f} cm off: the true speed did not reach the "
+            "filter (has the speed's path through the loop changed? see true_speed())"
+        )
     pc = ev.phase_correlation
     return {
         "dive": dive,
