@@ -72,6 +72,13 @@ def test_live_finds_the_vehicle_and_processes_every_frame(run):
     assert live["frames_received"] == live["frames_processed"] == 40 and live["frames_dropped"] == 0
     assert live["latency_ms"]["count"] == 40 - live["frames_refused"] and live["latency_ms"]["p50"] > 0
     assert 0 < live["cpu_ms_per_frame"] < 1000  # the process's CPU a frame while it streamed
+    stages = live["latency_stages_ms"]  # arrival -> decoded -> taken by the loop -> sent
+    assert sorted(stages) == ["decoding", "processing", "waiting"]
+    assert all(stages[n]["count"] == live["latency_ms"]["count"] for n in stages)
+    assert stages["decoding"]["p50"] >= 0 and stages["waiting"]["p50"] >= 0 and stages["processing"]["p50"] > 0
+    # each frame's stages add up to its latency: the largest of each is at most the largest latency
+    assert max(stages[n]["max"] for n in stages) <= live["latency_ms"]["max"] + 1e-6
+    assert stages["processing"]["p50"] <= live["latency_ms"]["p50"] + 1e-6
     assert live["messages_in"]["ATTITUDE"] > 40 and live["messages_in"]["DISTANCE_SENSOR"] > 20
     assert live["frames_without_attitude"] == 0 and live["frames_without_altitude"] == 0
     assert live["video_gaps"] == [] and live["reset_counter"] == 0

@@ -29,6 +29,9 @@ from rovslam.live.telemetry import Telemetry
 
 BRIDGE_S = 1.0  # a video gap longer than this (stream time) is not bridged: the estimate's reset_counter goes up
 STATUS_EVERY_S = 10.0
+# The latency of a frame sent, in three stages (summary.json's live block, latency_stages_ms):
+# arrival -> decoded, decoded -> taken by the loop, taken -> its messages sent.
+LATENCY_STAGES = ("decoding", "waiting", "processing")
 SETTLE_WAIT_S = 3.0  # at most this long for the first frames' burst to end
 
 
@@ -96,6 +99,7 @@ class LiveSource:
         self.left_out = 0
         self.groundtruth_path = None
         self.current: tuple[Frame, StreamFrame, float] | None = None  # (frame, stream frame, local time)
+        self.taken_s: float | None = None  # when the loop took the newest frame from the stream (monotonic)
         self.offset_s: float | None = None  # local clock - stream time (its smallest: the delay's floor)
         self.blind: list[dict[str, float]] = []
         self.no_attitude = 0
@@ -140,6 +144,7 @@ class LiveSource:
             sf = self.stream.take(0.1)
             now = time.monotonic()
             if sf is not None:
+                self.taken_s = now
                 prev = self.current[1].delivered_s if self.current is not None else None
                 if prev is not None and sf.delivered_s - prev > BLIND_S:  # said as it began, or only now (a late loop)
                     self.blind.append({"after_t_s": self._last_t_s(), "blind_s": sf.delivered_s - prev})
@@ -215,6 +220,9 @@ class LiveOutput:
         self.reset_counter = 0
         self.resets: list[dict[str, Any]] = []
         self.latencies_s: list[float] = []
+        # Per frame sent: arrival -> decoded (the decoder's hand-over), decoded -> taken by the loop
+        # (waiting for the frame before it), taken -> messages sent (telemetry, the loop, the messages).
+        self.stages_s: dict[str, list[float]] = {name: [] for name in LATENCY_STAGES}
         self.processed = 0
         self.refused = 0
         self.positions_sent = 0
@@ -265,7 +273,11 @@ class LiveOutput:
                 "DISTANCE_SENSOR", msgs.distance_sensor(e, self.link.time_boot_ms, lc.min_altitude_m, lc.max_altitude_m)
             )
         self.prev = e
-        self.latencies_s.append(time.monotonic() - sf.arrival_s)
+        now = time.monotonic()
+        self.latencies_s.append(now - sf.arrival_s)
+        taken = self.source.taken_s if self.source.taken_s is not None else sf.delivered_s
+        for name, seconds in zip(LATENCY_STAGES, (sf.delivered_s - sf.arrival_s, taken - sf.delivered_s, now - taken)):
+            self.stages_s[name].append(seconds)
 
     def cpu_ms_per_frame(self) -> float | None:
         """The process's CPU time (every thread: decoding, the loop, the links) from the first processed
@@ -346,6 +358,7 @@ def live_block(source: LiveSource, output: LiveOutput, link: Any, opts: LiveOpti
         "frames_without_attitude": source.no_attitude,
         "frames_without_altitude": source.no_altitude,
         "latency_ms": percentiles_ms(output.latencies_s),
+        "latency_stages_ms": {name: percentiles_ms(v) for name, v in output.stages_s.items()},
         "cpu_ms_per_frame": output.cpu_ms_per_frame(),
         **link.summary(),
         **source.telemetry.summary(time.monotonic()),
