@@ -631,3 +631,61 @@ def test_without_an_altitude_sigma_the_fit_stays_rigid():
             config=OdometryConfig(token_scale=True),
         )
         assert not np.allclose(c.speed_mps, b.speed_mps, atol=2e-4)
+
+
+def _sloped_tokens(rng, n, d_body_m, slope):
+    """Token pixels before and after a level move ``d_body_m`` over a seabed rising to starboard by ``slope``."""
+    uv0 = rng.uniform([30.0, 30.0], [CAM.width_px - 30.0, CAM.height_px - 30.0], size=(n, 2))
+    g0 = pixels_to_ground(CAM, uv0, Z)
+    depth = Z - slope * g0[:, 1]  # nearer on the starboard side
+    g0 = g0 * (depth / Z)[:, None]  # the same rays, on the slope
+    g1 = g0 - np.asarray(d_body_m)
+    uv0 = np.vstack([ground_to_pixels(CAM, g0[i : i + 1], depth[i]) for i in range(n)])
+    uv1 = np.vstack([ground_to_pixels(CAM, g1[i : i + 1], depth[i]) for i in range(n)])
+    return uv0, uv1
+
+
+def test_the_turn_fit_discounts_the_relief_parallax_along_the_motion():
+    # 3 cm forward over a seabed rising 2 % to starboard: the starboard tokens, nearer, move further, which a
+    # rigid fit reads as a turn. The parallax moves a token along the motion only; weighing that axis by the
+    # relief's share leaves the turn to the displacements across it.
+    rng = np.random.default_rng(5)
+    turns = {0.0: [], 2.5: []}
+    for _ in range(100):
+        uv0, uv1 = _sloped_tokens(rng, 10, [0.03, 0.0], 0.02)
+        for gain, out in turns.items():
+            cfg = OdometryConfig(relief_turn_gain=gain)
+            m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, 0.0, dpsi_sigma_rad=0.02, config=cfg, relief_var=0.02**2)
+            assert m.ok and m.surge_mps == pytest.approx(0.15, rel=2e-3)
+            out.append((m.dpsi_rad, m.dpsi_sigma_rad))
+    rigid, weighted = np.array(turns[0.0]), np.array(turns[2.5])
+    assert rigid[:, 0].mean() < -2e-4  # about 0.017 degree a step: 1 degree a minute at 5 Hz
+    assert abs(weighted[:, 0].mean()) < 0.1 * abs(rigid[:, 0].mean())
+    # the turn is told with the information left across the motion: a larger sigma
+    assert weighted[:, 1].mean() > 1.3 * rigid[:, 1].mean()
+
+
+def test_over_a_flat_seabed_the_relief_turn_gain_changes_nothing():
+    rng = np.random.default_rng(8)
+    uv0, uv1 = make_tokens(CAM, rng, 9, [0.03, 0.004], 0.002)
+    uv1 = uv1 + rng.normal(0.0, 0.1, uv1.shape)
+    a = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, 0.0, dpsi_sigma_rad=0.02, config=OdometryConfig())
+    b = speed_from_tokens(
+        CAM,
+        uv0,
+        uv1,
+        Z,
+        Z,
+        DT,
+        0.0,
+        dpsi_sigma_rad=0.02,
+        config=OdometryConfig(relief_turn_gain=2.5),
+        relief_var=0.0,
+    )
+    assert (a.dpsi_rad, a.dpsi_sigma_rad, a.surge_mps, a.sway_mps) == (
+        b.dpsi_rad,
+        b.dpsi_sigma_rad,
+        b.surge_mps,
+        b.sway_mps,
+    )
+    np.testing.assert_array_equal(a.cov_mps2, b.cov_mps2)

@@ -172,7 +172,9 @@ def speed_from_tokens(
         relief_var: relative variance of the seabed heights under the tokens (``sigma_s^2``
             of :func:`relief_sample`), as averaged over recent frames by
             :class:`SpeedEstimator`; 0 for a flat seabed. One frame's tokens are too few to
-            estimate it alone; the measurement returns this frame's sample.
+            estimate it alone; the measurement returns this frame's sample. It widens the speed's
+            covariance and, with ``config.relief_turn_gain``, sets how much the turn fit
+            discounts the tokens' displacements along the motion.
         attitude_noise_rad: reading-to-reading noise of the roll and pitch given: an error
             ``e`` in one frame's attitude moves all its seabed points by ``Z e``, the same for
             every token (so their scatter cannot show it).
@@ -203,7 +205,7 @@ def speed_from_tokens(
         attitude_noise_rad,
     )
     n_tokens = step.uv_prev_px.shape[0]
-    found = _token_consensus(camera, step, dpsi_sigma_rad, config)
+    found = _token_consensus(camera, step, dpsi_sigma_rad, config, relief_var)
     if isinstance(found, str):
         return _failure(n_tokens, found, config)
     # d is in the previous frame's scale (its altitude); the fitted zoom splits the ratio's error between both
@@ -288,10 +290,16 @@ class _FitScales:
     pool_var_m2: float  # the dive's pooled token noise (0: each step alone)
     threshold_m: float  # the outlier threshold
     scale_var: float  # the zoom prior's variance (0: a rigid fit)
+    along_rel: float = 0.0  # the relief's parallax spread per metre of motion the turn fit discounts (0: none)
 
 
 def _fit_scales(
-    camera: Camera, step: _Step, n_valid: int, dpsi_sigma_rad: float | None, config: OdometryConfig
+    camera: Camera,
+    step: _Step,
+    n_valid: int,
+    dpsi_sigma_rad: float | None,
+    config: OdometryConfig,
+    relief_var: float = 0.0,
 ) -> _FitScales:
     """The pixel quantities of ``config`` at this step's altitude, and whether the turn is fitted."""
     px_per_m = camera.focal_px / (0.5 * (step.z_prev_m + step.z_curr_m))
@@ -307,7 +315,8 @@ def _fit_scales(
     # times their sigma). The tokens see that zoom far better than the lasers: a similarity fit, the
     # measured ratio its prior.
     scale_var = 2.0 * (step.sigma_z_m / (0.5 * (step.z_prev_m + step.z_curr_m))) ** 2 if config.token_scale else 0.0
-    return _FitScales(px_per_m, joint, prior_var, sigma0, pool_var, thr, scale_var)
+    along_rel = config.relief_turn_gain * math.sqrt(max(relief_var, 0.0)) if joint else 0.0
+    return _FitScales(px_per_m, joint, prior_var, sigma0, pool_var, thr, scale_var, along_rel)
 
 
 def _consensus(
@@ -339,6 +348,7 @@ def _consensus(
             sc.pool_var_m2,
             config.token_noise_prior_dof,
             sc.scale_var,
+            sc.along_rel,
         )
         theta, d = fit.theta_rad, fit.d_m
         res = a - fit.scale * (b @ rot2(theta).T) - d
@@ -381,7 +391,7 @@ class _Consensus:
 
 
 def _token_consensus(
-    camera: Camera, step: _Step, dpsi_sigma_rad: float | None, config: OdometryConfig
+    camera: Camera, step: _Step, dpsi_sigma_rad: float | None, config: OdometryConfig, relief_var: float = 0.0
 ) -> _Consensus | str:
     """The tokens' consensus on the step's motion (:func:`_consensus`), or why there is none."""
     if step.uv_prev_px.shape[0] == 0:
@@ -392,7 +402,7 @@ def _token_consensus(
     if n_valid < config.min_inliers:
         return "too few tokens" if n_valid else "no tokens"
     a, b = a_all[valid], b_all[valid]
-    sc = _fit_scales(camera, step, n_valid, dpsi_sigma_rad, config)
+    sc = _fit_scales(camera, step, n_valid, dpsi_sigma_rad, config, relief_var)
     theta, d, inl, fit = _consensus(a, b, step.dpsi_rad, sc, config)
     n_inl = int(inl.sum())
     if fit is None or n_inl < config.min_inliers:

@@ -71,6 +71,7 @@ def _rigid_fit(
     noise_prior_var_m2: float = 0.0,
     noise_prior_dof: float = 0.0,
     scale_var: float = 0.0,
+    along_rel: float = 0.0,
 ) -> _RigidFit:
     """Rotation and translation from (M, 2) matched points, the rotation fixed when not ``joint``.
 
@@ -91,14 +92,23 @@ def _rigid_fit(
     centred points (the rotation is the same as the rigid one's), fused with the prior ``s = 1``
     of variance ``scale_var`` by precision. Its variance moves ``d`` along ``R mean(b)``, and the
     share of it the tokens decided costs half a degree of freedom per axis.
+
+    With ``along_rel > 0`` (the relief's parallax spread per metre of motion, relative) the turn
+    weighs each token's residual along the motion ``d`` by ``w = 1 / (1 + (along_rel |d| /
+    sigma0_m)^2)`` and across it by 1 (:func:`_parallax_weight`): relief moves a token along the
+    motion only, a turn across it too. The turn's information is then the weighted spread.
     """
     m = len(a)
     theta = float(theta0)
     a_bar = a.mean(axis=0)
     b_bar = b.mean(axis=0)
     ac, bc = a - a_bar, b - b_bar
+    weight = None
     if joint:
         theta = _least_squares_turn(ac, bc, theta)
+        if along_rel > 0.0:
+            weight = _parallax_weight(a_bar - rot2(theta) @ b_bar, along_rel, sigma0_m)
+            theta = _least_squares_turn(ac, bc, theta, weight)
     p = 1.5 if joint else 1.0  # parameters per axis: (d, theta) or d
 
     dof_axis = max(m - p, 0.5)
@@ -129,7 +139,7 @@ def _rigid_fit(
     d, scatter, resid_var = residuals(theta, zoom)
     theta_var = 0.0
     if joint:
-        info_theta = spread / max(pooled(scatter, resid_var)[1], sigma0_m**2)
+        info_theta = _turn_spread(bc, theta, weight) / max(pooled(scatter, resid_var)[1], sigma0_m**2)
         if prior_var > 0.0:
             w = info_theta / (info_theta + 1.0 / prior_var)
             theta = prior_rad + wrap_angle(theta - prior_rad) * w
@@ -147,20 +157,48 @@ def _rigid_fit(
     return _RigidFit(theta, d, theta_var, cov_d, resid_var, 2.0 * dof_axis, zoom)
 
 
-def _least_squares_turn(ac: np.ndarray, bc: np.ndarray, theta_rad: float) -> float:
-    """The rotation best taking the centred ``bc`` onto the centred ``ac`` ((M, 2) each): Gauss-Newton from ``theta_rad``."""
+def _least_squares_turn(ac: np.ndarray, bc: np.ndarray, theta_rad: float, weight: np.ndarray | None = None) -> float:
+    """The rotation best taking the centred ``bc`` onto the centred ``ac`` ((M, 2) each): Gauss-Newton from ``theta_rad``.
+
+    ``weight``: a (2, 2) weight on every residual (:func:`_parallax_weight`); None: the plain sum of squares.
+    """
     theta = theta_rad
     for _ in range(3):
         c = bc @ rot2(theta).T  # R b (centred)
         jb = np.column_stack([-c[:, 1], c[:, 0]])  # d(R b)/d theta = J R b
-        den = float(np.sum(jb * jb))
+        wjb = jb if weight is None else jb @ weight
+        den = float(np.sum(wjb * jb))
         if den <= 0.0:
             break
-        step = float(np.sum(jb * (ac - c))) / den
+        step = float(np.sum(wjb * (ac - c))) / den
         theta += step
         if abs(step) < 1e-12:
             break
     return theta
+
+
+def _parallax_weight(d_m: np.ndarray, along_rel: float, sigma0_m: float) -> np.ndarray | None:
+    """(2, 2) weight ``n n^T + w u u^T`` of a token's residual, ``u`` along the motion ``d_m`` (2,), ``n`` across it.
+
+    ``w = 1 / (1 + (along_rel |d| / sigma0_m)^2)``: the relief's parallax (a spread ``along_rel |d|`` along
+    the motion) against one token's noise. None when the step does not move.
+    """
+    norm = math.hypot(float(d_m[0]), float(d_m[1]))
+    if norm <= 0.0 or sigma0_m <= 0.0:
+        return None
+    u = np.asarray(d_m, dtype=np.float64) / norm
+    w = 1.0 / (1.0 + (along_rel * norm / sigma0_m) ** 2)
+    return np.eye(2) - (1.0 - w) * np.outer(u, u)
+
+
+def _turn_spread(bc: np.ndarray, theta_rad: float, weight: np.ndarray | None) -> float:
+    """The turn's information times the noise variance: ``sum jb^T W jb`` over the centred (M, 2) ``bc``
+    (``W = I``: their spread ``sum |b|^2``)."""
+    if weight is None:
+        return float(np.sum(bc * bc))
+    c = bc @ rot2(theta_rad).T
+    jb = np.column_stack([-c[:, 1], c[:, 0]])
+    return float(np.sum((jb @ weight) * jb))
 
 
 @lru_cache(maxsize=64)
