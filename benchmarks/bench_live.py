@@ -11,7 +11,8 @@ cached, as the other benchmarks' sequences) is streamed by ``rovslam sitl --from
 MAVLink (``udpin:127.0.0.1:PORT``), pinned to one core (``sitl`` on another), and runs for the
 dive plus a margin. Printed per case, from live's ``OUT/summary.json`` ``live`` block and the
 process's own CPU time (``os.wait4``): frames sent / received / processed / dropped, latency
-from a frame's arrival to its messages sent (p50, p99, max, ms), CPU seconds of ``live`` (with its
+from a frame's arrival to its messages sent (p50, p99, max, ms) and its three stages (decoding,
+waiting for the loop, processing: p50 and p99), CPU seconds of ``live`` (with its
 start-up) and per frame, the CPU a frame while it streamed (``live``'s ``cpu_ms_per_frame``: every
 thread, from the first processed frame to the last), and the targets: p99 below one frame period, no frame dropped; and the frames ``sitl``
 sent late (over half a period: its reading, decoding and encoding did not keep up, so the figures
@@ -178,6 +179,8 @@ def _figures(row: dict, out: Path, truth: Path, live_stderr: str, rate_hz: float
         latency_p99_ms=lat.get("p99"),
         latency_max_ms=lat.get("max"),
     )
+    for stage, figures in block.get("latency_stages_ms", {}).items():  # arrival -> decoded -> taken -> sent
+        row[f"{stage}_p50_ms"], row[f"{stage}_p99_ms"] = figures.get("p50"), figures.get("p99")
     processed = row["frames_processed"] or 0
     row["live_cpu_ms_per_frame"] = 1e3 * row["live_cpu_s"] / processed if processed else None
     row["streaming_cpu_ms_per_frame"] = block.get("cpu_ms_per_frame")  # first to last frame: no start-up, no wait
@@ -243,6 +246,15 @@ def main() -> None:
                 ]
             )
         )
+    print(
+        "latency by stage, p50 / p99 ms: decoding (arrival -> decoded), waiting (-> the loop takes it), processing (-> sent)"
+    )
+    for r in rows:
+        stages = [
+            f"{s} {_fmt(r.get(f'{s}_p50_ms'))} / {_fmt(r.get(f'{s}_p99_ms'))}"
+            for s in ("decoding", "waiting", "processing")
+        ]
+        print(f"{r['case']}: " + ", ".join(stages))
     print(f"results: {write_json('live', {'machine': machine(), 'rows': rows})}")
 
 
