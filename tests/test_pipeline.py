@@ -56,6 +56,7 @@ def test_portofino_short_meets_the_papers_accuracy(short_dive):
     assert len(f.table1_landmark0) >= 2
 
 
+@pytest.mark.slow  # 27 s of CPU; turns and tilt stay in make test through tests/test_consistency.py's photo survey with turns
 def test_rough_preset_with_turns_swings_and_tilt(rough_dive):
     f = _figures(rough_dive)
     print(json.dumps({k: f.to_dict()[k] for k in ("slam", "dead_reckoning", "consistency", "landmarks")}, indent=1))

@@ -214,6 +214,7 @@ def swell_runs(tmp_path_factory):
     return runs
 
 
+@pytest.mark.slow  # two runs of a swell dive (24 s of CPU); test_the_swell_at_10_hz_is_seen_too keeps the watch in make test
 def test_the_sunlight_is_taken_out_early_and_the_dive_keeps_its_accuracy(swell_runs):
     out_summary, out_eval = swell_runs["out"]
     in_summary, in_eval = swell_runs["in"]
@@ -235,6 +236,7 @@ def test_the_sunlight_is_taken_out_early_and_the_dive_keeps_its_accuracy(swell_r
     assert out_eval.slam.ate_rmse_m < 0.5 * in_eval.slam.ate_rmse_m
 
 
+@pytest.mark.slow  # the same two runs
 def test_a_dive_without_sunlight_keeps_the_narrow_opening(swell_runs):
     summary, _ = swell_runs["control"]
     assert summary["sunlight"] == {"opening_px": 31, "frames_removed": 0, "changes": [], "warnings": []}
