@@ -249,11 +249,10 @@ def main() -> None:
     print(
         "latency by stage, p50 / p99 ms: decoding (arrival -> decoded), waiting (-> the loop takes it), processing (-> sent)"
     )
+    from rovslam.live.session import LATENCY_STAGES
+
     for r in rows:
-        stages = [
-            f"{s} {_fmt(r.get(f'{s}_p50_ms'))} / {_fmt(r.get(f'{s}_p99_ms'))}"
-            for s in ("decoding", "waiting", "processing")
-        ]
+        stages = [f"{s} {_fmt(r.get(f'{s}_p50_ms'))} / {_fmt(r.get(f'{s}_p99_ms'))}" for s in LATENCY_STAGES]
         print(f"{r['case']}: " + ", ".join(stages))
     print(f"results: {write_json('live', {'machine': machine(), 'rows': rows})}")
 

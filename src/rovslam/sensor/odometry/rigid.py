@@ -139,7 +139,8 @@ def _rigid_fit(
     d, scatter, resid_var = residuals(theta, zoom)
     theta_var = 0.0
     if joint:
-        info_theta = _turn_spread(bc, theta, weight) / max(pooled(scatter, resid_var)[1], sigma0_m**2)
+        turn_spread = spread if weight is None else _weighted_spread(bc, theta, weight)
+        info_theta = turn_spread / max(pooled(scatter, resid_var)[1], sigma0_m**2)
         if prior_var > 0.0:
             w = info_theta / (info_theta + 1.0 / prior_var)
             theta = prior_rad + wrap_angle(theta - prior_rad) * w
@@ -164,8 +165,7 @@ def _least_squares_turn(ac: np.ndarray, bc: np.ndarray, theta_rad: float, weight
     """
     theta = theta_rad
     for _ in range(3):
-        c = bc @ rot2(theta).T  # R b (centred)
-        jb = np.column_stack([-c[:, 1], c[:, 0]])  # d(R b)/d theta = J R b
+        c, jb = _turn_jacobian(bc, theta)
         wjb = jb if weight is None else jb @ weight
         den = float(np.sum(wjb * jb))
         if den <= 0.0:
@@ -191,13 +191,16 @@ def _parallax_weight(d_m: np.ndarray, along_rel: float, sigma0_m: float) -> np.n
     return np.eye(2) - (1.0 - w) * np.outer(u, u)
 
 
-def _turn_spread(bc: np.ndarray, theta_rad: float, weight: np.ndarray | None) -> float:
-    """The turn's information times the noise variance: ``sum jb^T W jb`` over the centred (M, 2) ``bc``
-    (``W = I``: their spread ``sum |b|^2``)."""
-    if weight is None:
-        return float(np.sum(bc * bc))
-    c = bc @ rot2(theta_rad).T
-    jb = np.column_stack([-c[:, 1], c[:, 0]])
+def _turn_jacobian(bc: np.ndarray, theta_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(R b, d(R b)/d theta)``, (M, 2) each, of the centred (M, 2) ``bc``."""
+    c = bc @ rot2(theta_rad).T  # R b (centred)
+    return c, np.column_stack([-c[:, 1], c[:, 0]])  # d(R b)/d theta = J R b
+
+
+def _weighted_spread(bc: np.ndarray, theta_rad: float, weight: np.ndarray) -> float:
+    """The turn's information times the noise variance under a (2, 2) ``weight``: ``sum jb^T W jb`` over the
+    centred (M, 2) ``bc`` (with ``W = I`` it is their spread ``sum |b|^2``)."""
+    jb = _turn_jacobian(bc, theta_rad)[1]
     return float(np.sum((jb @ weight) * jb))
 
 
