@@ -689,3 +689,43 @@ def test_over_a_flat_seabed_the_relief_turn_gain_changes_nothing():
         b.sway_mps,
     )
     np.testing.assert_array_equal(a.cov_mps2, b.cov_mps2)
+
+
+def test_under_the_relief_weight_a_zoom_does_not_read_as_a_turn():
+    # Tokens along the image's diagonal, 3 cm forward with the camera 1.3 % higher than the altitudes say: a zoom
+    # of 0.987 and no turn. Unweighted, a zoom is orthogonal to the turn; weighed along the motion it is not, and a
+    # turn fitted alone read it as one (on the real Sparus video, 0.76 degree, and the consensus broke).
+    rng = np.random.default_rng(3)
+    t = rng.uniform(0.1, 0.9, 8)
+    uv0 = np.column_stack([30.0 + 300.0 * t, 30.0 + 212.0 * t]) + rng.normal(0.0, 4.0, (8, 2))
+    uv1 = ground_to_pixels(CAM, pixels_to_ground(CAM, uv0, Z) - [0.03, 0.0], Z * 1.013)
+    out = {}
+    for gain in (0.0, 2.5):
+        cfg = OdometryConfig(relief_turn_gain=gain)
+        out[gain] = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, 0.0, dpsi_sigma_rad=0.02, config=cfg, relief_var=0.02**2)
+    assert out[0.0].ok and out[2.5].ok
+    assert abs(out[2.5].dpsi_rad) < 1e-9
+    assert out[2.5].surge_mps == pytest.approx(out[0.0].surge_mps, rel=1e-9)
+    # what the weight discounts along the motion, the turn's sigma says
+    assert out[2.5].dpsi_sigma_rad > out[0.0].dpsi_sigma_rad
+
+
+def test_the_turn_fit_discounts_the_relief_measured_not_the_prior():
+    """Before any frame has measured the relief, Q carries the prior; the turn fit does not discount it."""
+    rng = np.random.default_rng(9)
+    uv0, uv1 = make_tokens(CAM, rng, 8, [0.03, 0.004], 0.004)
+    on = SpeedEstimator(OdometryConfig(relief_turn_gain=2.5))
+    off = SpeedEstimator(OdometryConfig())
+    assert on.measured_relief_var == 0.0 and on.relief_var == pytest.approx(OdometryConfig().relief_prior_sigma ** 2)
+    a = on.measure(CAM, uv0, uv1, Z, Z, DT, 0.004, dpsi_sigma_rad=0.02)
+    b = off.measure(CAM, uv0, uv1, Z, Z, DT, 0.004, dpsi_sigma_rad=0.02)
+    assert (a.dpsi_rad, a.dpsi_sigma_rad, a.surge_mps, a.sway_mps) == (
+        b.dpsi_rad,
+        b.dpsi_sigma_rad,
+        b.surge_mps,
+        b.sway_mps,
+    )
+    # a relief measured over 2 s: its share of relief_var is what the turn fit discounts
+    for _ in range(10):
+        on.measure(CAM, uv0, uv1 + rng.normal(0.0, 0.3, uv1.shape), Z, Z, DT, 0.004, dpsi_sigma_rad=0.02)
+    assert 0.0 < on.measured_relief_var < on.relief_var

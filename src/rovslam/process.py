@@ -10,6 +10,7 @@ import contextlib
 from collections.abc import Iterator
 
 FREED_MEMORY_KEPT_BYTES = 64 * 2**20
+MMAP_THRESHOLD_BYTES = 32 * 2**20  # the largest glibc takes on 64 bits: blocks below it come from its heaps
 
 
 def keep_freed_memory(pad_bytes: int = FREED_MEMORY_KEPT_BYTES) -> bool:
@@ -31,8 +32,12 @@ def keep_freed_memory(pad_bytes: int = FREED_MEMORY_KEPT_BYTES) -> bool:
         mallopt = ctypes.CDLL(None).mallopt
     except (OSError, AttributeError):
         return False
-    m_top_pad = -2  # <malloc.h> M_TOP_PAD
-    return bool(mallopt(ctypes.c_int(m_top_pad), ctypes.c_int(int(pad_bytes))))
+    m_top_pad, m_mmap_threshold = -2, -3  # <malloc.h>
+    kept = bool(mallopt(ctypes.c_int(m_top_pad), ctypes.c_int(int(pad_bytes))))
+    # Setting M_TOP_PAD freezes glibc's mmap threshold (otherwise raised to the largest block freed): without
+    # this, every allocation above 128 KiB (a 1920x1080 frame decoded in the reader's thread) is a fresh mmap
+    # and its first touch faults every page.
+    return kept and bool(mallopt(ctypes.c_int(m_mmap_threshold), ctypes.c_int(MMAP_THRESHOLD_BYTES)))
 
 
 @contextlib.contextmanager

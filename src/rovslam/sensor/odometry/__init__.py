@@ -148,6 +148,7 @@ def speed_from_tokens(
     relief_var: float = 0.0,
     attitude_noise_rad: float = 0.0,
     token_var_px2: float = 0.0,
+    turn_relief_var: float | None = None,
 ) -> SpeedMeasurement:
     """Surge and sway (and the turn) from token displacements between two consecutive frames.
 
@@ -182,6 +183,9 @@ def speed_from_tokens(
             pooled by :class:`SpeedEstimator`; it counts as ``config.token_noise_prior_dof``
             degrees of freedom in this step's noise when larger than what this step's tokens
             show (0: each step alone).
+        turn_relief_var: the relief the turn fit discounts (``config.relief_turn_gain``), when not
+            ``relief_var``: :class:`SpeedEstimator` gives the share of it its frames measured, not its
+            prior (None: ``relief_var``).
 
     Returns:
         A :class:`SpeedMeasurement`; ``ok=False`` (zero speed, covariance
@@ -205,7 +209,8 @@ def speed_from_tokens(
         attitude_noise_rad,
     )
     n_tokens = step.uv_prev_px.shape[0]
-    found = _token_consensus(camera, step, dpsi_sigma_rad, config, relief_var)
+    turn_relief = relief_var if turn_relief_var is None else turn_relief_var
+    found = _token_consensus(camera, step, dpsi_sigma_rad, config, turn_relief)
     if isinstance(found, str):
         return _failure(n_tokens, found, config)
     # d is in the previous frame's scale (its altitude); the fitted zoom splits the ratio's error between both
@@ -501,12 +506,28 @@ class SpeedEstimator:
     @property
     def relief_var(self) -> float:
         """The relief's relative height variance under the tokens, averaged over the last seconds (>= 0)."""
+        prior_share, data = self._relief_shares()
+        return prior_share * self.config.relief_prior_sigma**2 + (1.0 - prior_share) * data
+
+    @property
+    def measured_relief_var(self) -> float:
+        """:attr:`relief_var` without its prior's share: the relief the frames measured (0 before any).
+
+        The prior keeps the first steps' Q from calling an unseen seabed flat; the turn fit discounts only
+        this (``relief_turn_gain``): a relief assumed, not seen, would throw away most of the turn's
+        information along the motion (a weight of 0.02 on the real Sparus video's first step decimated
+        by 3, whose tokens then lost their consensus to the compass's turn).
+        """
+        prior_share, data = self._relief_shares()
+        return (1.0 - prior_share) * data
+
+    def _relief_shares(self) -> tuple[float, float]:
+        """``(the prior's share, the frames' average)`` of :attr:`relief_var`."""
         data = max(self._relief.mean(), 0.0)
         cfg = self.config
         if cfg.relief_prior_s <= 0.0 or cfg.relief_prior_sigma <= 0.0:
-            return data
-        prior = math.exp(-self._relief_seen_s / cfg.relief_prior_s)  # the prior's share: 1 at the start
-        return prior * cfg.relief_prior_sigma**2 + (1.0 - prior) * data
+            return 0.0, data
+        return math.exp(-self._relief_seen_s / cfg.relief_prior_s), data  # the prior's share: 1 at the start
 
     def _learn_relief(self, sample: float, dt_s: float, step_m2: float) -> None:
         """Exponential average of :func:`relief_sample` over ``RELIEF_TAU_S`` seconds (bias-corrected at the start).
@@ -614,6 +635,7 @@ class SpeedEstimator:
             self.relief_var,
             attitude_noise_rad,
             self.token_var_px2,
+            self.measured_relief_var,
         )
         return self.take(m, dt_s)
 
@@ -636,6 +658,7 @@ class SpeedEstimator:
             config=self.config,
             relief_var=self.relief_var,
             token_var_px2=self.token_var_px2,
+            turn_relief_var=self.measured_relief_var,
             **step,
         )
 

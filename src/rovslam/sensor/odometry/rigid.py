@@ -96,7 +96,9 @@ def _rigid_fit(
     With ``along_rel > 0`` (the relief's parallax spread per metre of motion, relative) the turn
     weighs each token's residual along the motion ``d`` by ``w = 1 / (1 + (along_rel |d| /
     sigma0_m)^2)`` and across it by 1 (:func:`_parallax_weight`): relief moves a token along the
-    motion only, a turn across it too. The turn's information is then the weighted spread.
+    motion only, a turn across it too (:func:`_fit_turn`). The turn's information is then the weighted
+    spread less what the zoom takes of it (:func:`_weighted_spread`), over the residual variance in
+    the same metric (the along-motion residuals it discounts are the relief's, not token noise).
     """
     m = len(a)
     theta = float(theta0)
@@ -105,10 +107,7 @@ def _rigid_fit(
     ac, bc = a - a_bar, b - b_bar
     weight = None
     if joint:
-        theta = _least_squares_turn(ac, bc, theta)
-        if along_rel > 0.0:
-            weight = _parallax_weight(a_bar - rot2(theta) @ b_bar, along_rel, sigma0_m)
-            theta = _least_squares_turn(ac, bc, theta, weight)
+        theta, weight = _fit_turn(ac, bc, a_bar, b_bar, theta, along_rel, sigma0_m)
     p = 1.5 if joint else 1.0  # parameters per axis: (d, theta) or d
 
     dof_axis = max(m - p, 0.5)
@@ -139,8 +138,11 @@ def _rigid_fit(
     d, scatter, resid_var = residuals(theta, zoom)
     theta_var = 0.0
     if joint:
-        turn_spread = spread if weight is None else _weighted_spread(bc, theta, weight)
-        info_theta = turn_spread / max(pooled(scatter, resid_var)[1], sigma0_m**2)
+        turn_spread, turn_var = spread, resid_var
+        if weight is not None:
+            # the residual variance in the weighted metric: trace(W scatter) / 2 (resid_var when W = I)
+            turn_spread, turn_var = _weighted_spread(bc, theta, weight), 0.5 * float(np.sum(weight * scatter))
+        info_theta = turn_spread / max(pooled(scatter, turn_var)[1], sigma0_m**2)
         if prior_var > 0.0:
             w = info_theta / (info_theta + 1.0 / prior_var)
             theta = prior_rad + wrap_angle(theta - prior_rad) * w
@@ -158,19 +160,41 @@ def _rigid_fit(
     return _RigidFit(theta, d, theta_var, cov_d, resid_var, 2.0 * dof_axis, zoom)
 
 
-def _least_squares_turn(ac: np.ndarray, bc: np.ndarray, theta_rad: float, weight: np.ndarray | None = None) -> float:
-    """The rotation best taking the centred ``bc`` onto the centred ``ac`` ((M, 2) each): Gauss-Newton from ``theta_rad``.
+def _fit_turn(
+    ac: np.ndarray,
+    bc: np.ndarray,
+    a_bar: np.ndarray,
+    b_bar: np.ndarray,
+    theta0: float,
+    along_rel: float,
+    sigma0_m: float,
+) -> tuple[float, np.ndarray | None]:
+    """The turn of the centred (M, 2) ``bc`` onto ``ac`` and the (2, 2) weight it was fitted under (None: unweighted).
 
-    ``weight``: a (2, 2) weight on every residual (:func:`_parallax_weight`); None: the plain sum of squares.
+    The least-squares rotation from ``theta0``; with ``along_rel > 0`` and a step that moves, the turn
+    of the weighted similarity under :func:`_parallax_weight` of the step ``a_bar - R b_bar``, the zoom
+    free (:func:`_weighted_similarity_turn`): under that weight the turn and the zoom are no longer
+    orthogonal (a zoom moves a token across the motion by its position across it), and a turn fitted
+    alone would read a zoom as a turn.
     """
+    theta = _least_squares_turn(ac, bc, theta0)
+    weight = None
+    if along_rel > 0.0:
+        weight = _parallax_weight(a_bar - rot2(theta) @ b_bar, along_rel, sigma0_m)
+        if weight is not None:
+            theta = _weighted_similarity_turn(ac, bc, weight)
+    return theta, weight
+
+
+def _least_squares_turn(ac: np.ndarray, bc: np.ndarray, theta_rad: float) -> float:
+    """The rotation best taking the centred ``bc`` onto the centred ``ac`` ((M, 2) each): Gauss-Newton from ``theta_rad``."""
     theta = theta_rad
     for _ in range(3):
         c, jb = _turn_jacobian(bc, theta)
-        wjb = jb if weight is None else jb @ weight
-        den = float(np.sum(wjb * jb))
+        den = float(np.sum(jb * jb))
         if den <= 0.0:
             break
-        step = float(np.sum(wjb * (ac - c))) / den
+        step = float(np.sum(jb * (ac - c))) / den
         theta += step
         if abs(step) < 1e-12:
             break
@@ -198,10 +222,35 @@ def _turn_jacobian(bc: np.ndarray, theta_rad: float) -> tuple[np.ndarray, np.nda
 
 
 def _weighted_spread(bc: np.ndarray, theta_rad: float, weight: np.ndarray) -> float:
-    """The turn's information times the noise variance under a (2, 2) ``weight``: ``sum jb^T W jb`` over the
-    centred (M, 2) ``bc`` (with ``W = I`` it is their spread ``sum |b|^2``)."""
-    jb = _turn_jacobian(bc, theta_rad)[1]
-    return float(np.sum((jb @ weight) * jb))
+    """The turn's information times the noise variance under a (2, 2) ``weight``, the zoom free: ``sum jb^T W jb``
+    over the centred (M, 2) ``bc``, less ``(sum jb^T W c)^2 / sum c^T W c`` (``c = R b``, the zoom's Jacobian);
+    with ``W = I`` the two are orthogonal and it is their spread ``sum |b|^2``."""
+    c, jb = _turn_jacobian(bc, theta_rad)
+    wjb = jb @ weight
+    info = float(np.sum(wjb * jb))
+    zoom_info = float(np.sum((c @ weight) * c))
+    if zoom_info > 0.0:
+        info -= float(np.sum(wjb * c)) ** 2 / zoom_info
+    return max(info, 0.0)
+
+
+def _weighted_similarity_turn(ac: np.ndarray, bc: np.ndarray, weight: np.ndarray) -> float:
+    """The turn of the weighted least-squares similarity ``ac ~ s R(theta) bc`` of the centred (M, 2) points, the
+    zoom ``s`` free: linear in ``x = (s cos theta, s sin theta)``, ``sum B^T W B x = sum B^T W a`` with
+    ``B = [[bx, -by], [by, bx]]`` each token's. A turn fitted alone under a weight that is not isotropic reads
+    a zoom as a turn wherever the tokens' positions along and across the motion are correlated."""
+    bx, by = bc[:, 0], bc[:, 1]
+    wxx, wxy, wyy = float(weight[0, 0]), float(weight[0, 1]), float(weight[1, 1])
+    m00 = float(np.sum(wxx * bx * bx + 2.0 * wxy * bx * by + wyy * by * by))
+    m11 = float(np.sum(wxx * by * by - 2.0 * wxy * bx * by + wyy * bx * bx))
+    m01 = float(np.sum((wyy - wxx) * bx * by + wxy * (bx * bx - by * by)))
+    wa = ac @ weight
+    v0 = float(np.sum(bx * wa[:, 0] + by * wa[:, 1]))
+    v1 = float(np.sum(bx * wa[:, 1] - by * wa[:, 0]))
+    det = m00 * m11 - m01 * m01
+    if not det > 0.0:
+        return math.atan2(v1, v0)  # too few points to tell the turn from the zoom: the plain rotation
+    return math.atan2(m00 * v1 - m01 * v0, m11 * v0 - m01 * v1)
 
 
 @lru_cache(maxsize=64)
