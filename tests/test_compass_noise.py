@@ -45,10 +45,14 @@ def noisy_compass_runs(tmp_path_factory):
         landmark_relief_gain=0.0,
         seabed_offset_sigma_m=0.0,
     )
+    # And the rigid token fit ([odometry] token_scale = false, relief_turn_gain = 0): with the zoom and the
+    # relief's parallax discounted in the turn, the tokens' turns hold this dive inside its bounds either way
+    # (97.3 % inside 2-sigma learned, 97.7 % fixed).
     laser = dataclasses.replace(RunConfig().laser, relief_altitude_gain=0.0)
+    rigid = OdometryConfig(token_scale=False, relief_turn_gain=0.0)
     for key, cfg in (
-        ("learned", RunConfig(slam=slam, laser=laser)),
-        ("fixed", RunConfig(odometry=OdometryConfig(compass_sigma_learned=False), slam=slam, laser=laser)),
+        ("learned", RunConfig(odometry=rigid, slam=slam, laser=laser)),
+        ("fixed", RunConfig(odometry=dataclasses.replace(rigid, compass_sigma_learned=False), slam=slam, laser=laser)),
     ):
         run_sequence(root / "seq", root / key, cfg)
         runs[key] = (

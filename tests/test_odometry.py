@@ -16,6 +16,7 @@ from rovslam.sensor.odometry import SpeedEstimator, SpeedMeasurement, speed_from
 CAM = Camera(360, 272, 1075.0, 1075.0, 179.5, 135.5)
 Z = 1.31
 DT = 0.2
+RIGID = OdometryConfig(token_scale=False, relief_turn_gain=0.0)  # the paper's rigid fit, nothing discounted
 
 
 def make_tokens(camera, rng, n, d_body_m, dpsi_rad=0.0, z_prev=Z, z_curr=Z, att_prev=(0.0, 0.0), att_curr=(0.0, 0.0)):
@@ -176,7 +177,7 @@ def test_dropped_frames_use_the_real_time_step():
 def test_covariance_floors_and_altitude_scale_term():
     rng = np.random.default_rng(11)
     uv0, uv1 = make_tokens(CAM, rng, 8, [0.02, 0.0])
-    cfg = OdometryConfig()  # the rigid fit (the default): the similarity's own term is tested below
+    cfg = RIGID  # the similarity's own term is tested below
     m = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, config=cfg)
     # Perfect tokens: each token's variance floored at (0.15 px * Z/f / dt)^2, /8, plus the error all
     # tokens share (common_sigma_px, 0.15 px, not divided): Q = 1.125 (0.15 Z/f/dt)^2 I, above the floor.
@@ -594,7 +595,7 @@ def test_the_tokens_measure_the_zoom_the_altitudes_ratio_gets_wrong(dpsi_sigma):
     between both frames: 0.5 % of the speed)."""
     rms = lambda e: float(np.sqrt(np.mean(np.sum(e**2, axis=1))))  # noqa: E731
     errs_sim, nees_sim, out_sim, refused_sim = _zoomed_steps(OdometryConfig(token_scale=True), dpsi_sigma)
-    errs_rigid, nees_rigid, out_rigid, refused_rigid = _zoomed_steps(OdometryConfig(), dpsi_sigma)
+    errs_rigid, nees_rigid, out_rigid, refused_rigid = _zoomed_steps(RIGID, dpsi_sigma)
     # Measured (300 steps, either turn): similarity 0.60 mm/s RMS, no step with a token refused, NEES
     # 0.33; rigid 4.9 mm/s, 254 to 264 steps with a good token refused and 36 to 46 steps refused whole
     # ("ambiguous consensus"), NEES 3.4 to 4.9.
@@ -615,7 +616,7 @@ def test_without_an_altitude_sigma_the_fit_stays_rigid():
         a = speed_from_tokens(
             CAM, uv0, uv1, Z, Z * 1.01, DT, 0.003, dpsi_sigma_rad=dpsi_sigma, config=OdometryConfig(token_scale=True)
         )
-        b = speed_from_tokens(CAM, uv0, uv1, Z, Z * 1.01, DT, 0.003, dpsi_sigma_rad=dpsi_sigma)
+        b = speed_from_tokens(CAM, uv0, uv1, Z, Z * 1.01, DT, 0.003, dpsi_sigma_rad=dpsi_sigma, config=RIGID)
         assert np.array_equal(a.speed_mps, b.speed_mps) and np.array_equal(a.cov_mps2, b.cov_mps2)
         # given a sigma, the zoom is fitted (the same tokens: 1 % of zoom moves the speed)
         c = speed_from_tokens(
@@ -669,7 +670,9 @@ def test_over_a_flat_seabed_the_relief_turn_gain_changes_nothing():
     rng = np.random.default_rng(8)
     uv0, uv1 = make_tokens(CAM, rng, 9, [0.03, 0.004], 0.002)
     uv1 = uv1 + rng.normal(0.0, 0.1, uv1.shape)
-    a = speed_from_tokens(CAM, uv0, uv1, Z, Z, DT, 0.0, dpsi_sigma_rad=0.02, config=OdometryConfig())
+    a = speed_from_tokens(
+        CAM, uv0, uv1, Z, Z, DT, 0.0, dpsi_sigma_rad=0.02, config=OdometryConfig(relief_turn_gain=0.0)
+    )
     b = speed_from_tokens(
         CAM,
         uv0,
@@ -715,7 +718,7 @@ def test_the_turn_fit_discounts_the_relief_measured_not_the_prior():
     rng = np.random.default_rng(9)
     uv0, uv1 = make_tokens(CAM, rng, 8, [0.03, 0.004], 0.004)
     on = SpeedEstimator(OdometryConfig(relief_turn_gain=2.5))
-    off = SpeedEstimator(OdometryConfig())
+    off = SpeedEstimator(OdometryConfig(relief_turn_gain=0.0))
     assert on.measured_relief_var == 0.0 and on.relief_var == pytest.approx(OdometryConfig().relief_prior_sigma ** 2)
     a = on.measure(CAM, uv0, uv1, Z, Z, DT, 0.004, dpsi_sigma_rad=0.02)
     b = off.measure(CAM, uv0, uv1, Z, Z, DT, 0.004, dpsi_sigma_rad=0.02)

@@ -329,14 +329,14 @@ class OdometryConfig(_Checked):
     # alone)
     token_noise_prior_dof: float = _num(4.0, ge=0)
     # true: the zoom between the two frames from the tokens (a similarity fit), the measured altitudes'
-    # ratio its prior (the lasers' step-to-step noise over relief zooms one frame against the next).
-    # Off: with relief_turn_gain below, better on the check matrix, but the real Sparus video decimated
-    # strays (docs/consistency.md, "The zoom between frames", "The relief's parallax in the turn fit")
-    token_scale: bool = False
+    # ratio its prior (the lasers' step-to-step noise over relief zooms one frame against the next); false:
+    # the rigid fit. With relief_turn_gain below (docs/consistency.md, "The zoom between frames")
+    token_scale: bool = True
     # the turn fit discounts each token's displacement along the motion, where the relief's parallax moves it
     # (the seabed nearer on one side of the image reads as a turn): that axis weighs
-    # 1 / (1 + (gain sigma_s |d| / sigma_token)^2), sigma_s the relief's spread under the tokens (0: both axes alike)
-    relief_turn_gain: float = _num(0.0, ge=0)
+    # 1 / (1 + (gain sigma_s |d| / sigma_token)^2), sigma_s the relief's spread the frames measured under the
+    # tokens (0: both axes alike; docs/consistency.md, "The relief's parallax in the turn fit")
+    relief_turn_gain: float = _num(2.5, ge=0)
     common_sigma_px: float = _num(0.15, ge=0)  # an error all tokens of a step share (compression, lighting): not / n
     gap_speed_sigma_mps: float = _num(0.02, ge=0)  # landmark search: the speed may change by this per second
     # a held speed's error grows by at least this per second (a manoeuvre), by more when the dive's
