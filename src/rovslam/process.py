@@ -34,9 +34,9 @@ def keep_freed_memory(pad_bytes: int = FREED_MEMORY_KEPT_BYTES) -> bool:
         return False
     m_top_pad, m_mmap_threshold = -2, -3  # <malloc.h>
     kept = bool(mallopt(ctypes.c_int(m_top_pad), ctypes.c_int(int(pad_bytes))))
-    # Setting M_TOP_PAD freezes glibc's mmap threshold (otherwise raised to the largest block freed): without
-    # this, every allocation above 128 KiB (a 1920x1080 frame decoded in the reader's thread) is a fresh mmap
-    # and its first touch faults every page.
+    # Setting M_TOP_PAD also freezes glibc's mmap threshold where it stands (otherwise raised to the largest
+    # block freed). Below this one, live's decoder thread got each 1920x1080 frame as fresh pages, faulting
+    # every one on first touch (about 1,600 faults a frame, docs/performance.md).
     return kept and bool(mallopt(ctypes.c_int(m_mmap_threshold), ctypes.c_int(MMAP_THRESHOLD_BYTES)))
 
 
