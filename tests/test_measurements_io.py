@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -42,7 +40,7 @@ def frame(index=1, **changes):
         focal_px=1075.0,
         landmarks=(
             LandmarkMeasurement(3, "track", [12.5, -40.25], [[0.25, 0.01], [0.01, 0.3]], accepted_by_online=False),
-            LandmarkMeasurement(4, "init", [-3.0, 7.0], np.eye(2) * 0.25, depth_m=1.2875),
+            LandmarkMeasurement(4, "init", [-3.0, 7.0], np.eye(2) * 0.25),
         ),
     )
     fields.update(changes)
@@ -109,10 +107,6 @@ def test_bad_frame_values_raise_a_typed_error_naming_the_field(changes, needle):
         ((1, "track", [1.0, np.nan], np.eye(2)), "mn_px"),
         ((1, "track", [1.0, 2.0], np.zeros((2, 2))), "positive definite"),
         ((1, "track", [1.0, 2.0], np.eye(3)), "(2, 2)"),
-        ((1, "track", [1.0, 2.0], np.eye(2), True, 0.0), "depth_m must be > 0"),
-        ((1, "track", [1.0, 2.0], np.eye(2), True, -1.3), "depth_m must be > 0"),
-        ((1, "track", [1.0, 2.0], np.eye(2), True, np.inf), "depth_m must be > 0"),
-        ((1, "track", [1.0, 2.0], np.eye(2), True, "1.3"), "depth_m must be a number"),
     ],
 )
 def test_bad_observations_raise_a_typed_error(args, needle):
@@ -163,23 +157,6 @@ def test_the_ahrs_accuracy_round_trips_and_an_earlier_run_without_it_reads_as_no
     old = read_measurements(tmp_path)
     assert [f.attitude_sigma_rad for f in old] == [0.0] * 4
     assert [f.t_s for f in old] == [f.t_s for f in frames]
-
-
-def test_the_filters_depth_round_trips_and_an_earlier_run_without_it_reads_as_the_flat_seabed(tmp_path):
-    """An observation's depth (the online filter's ``Z + s - h``) is written to the bit; a run by an earlier
-    rovslam, whose [m, n] were scaled to the frame's altitude, has no such column: NaN, the frame's altitude."""
-    frames = [frame(index=k, t_s=0.2 * k) for k in range(1, 4)]
-    write_measurements(tmp_path, frames)
-    back = read_measurements(tmp_path)
-    assert [[ob.depth_m for ob in f.landmarks] for f in back] == [[pytest.approx(np.nan, nan_ok=True), 1.2875]] * 3
-    assert back == frames
-    path = tmp_path / LANDMARK_MEASUREMENTS_FILE
-    lines = path.read_text().splitlines()
-    assert lines[0].endswith(",accepted_by_online,depth_m")
-    path.write_text("\n".join(line.rsplit(",", 1)[0] for line in lines) + "\n")
-    old = read_measurements(tmp_path)
-    assert all(math.isnan(ob.depth_m) for f in old for ob in f.landmarks)
-    assert [[ob.mn_px.tolist() for ob in f.landmarks] for f in old] == [[[12.5, -40.25], [-3.0, 7.0]]] * 3
 
 
 @settings(max_examples=40, deadline=None)

@@ -80,10 +80,7 @@ LANDMARK_MEASUREMENT_COLUMNS = (
     "cov_mn_px2",
     "var_n_px2",
     "accepted_by_online",
-    "depth_m",
 )
-# Observation columns an earlier rovslam did not write (its [m, n] were scaled to the frame's altitude).
-_OPTIONAL_OBSERVATION_COLUMNS = {"depth_m": math.nan}
 
 _NO_MEASUREMENTS_HINT = (
     "this run was made by a rovslam version that does not write measurements; "
@@ -137,7 +134,6 @@ class MeasurementWriter:
                     _num(r[0, 1]),
                     _num(r[1, 1]),
                     int(ob.accepted_by_online),
-                    _num(ob.depth_m),
                 ]
             )
         q = meas.speed_cov_mps2
@@ -299,7 +295,6 @@ def _read_observations(table: _Table) -> dict[int, list[tuple[int, LandmarkMeasu
                 mn_px=np.array([f["m_px"], f["n_px"]]),
                 noise_px2=np.array([[f["var_m_px2"], f["cov_mn_px2"]], [f["cov_mn_px2"], f["var_n_px2"]]]),
                 accepted_by_online=table.flag(line, cells, "accepted_by_online"),
-                depth_m=table.number(line, cells, "depth_m"),
             )
         except InvalidMeasurementError as exc:
             raise ResultsFormatError(f"{table.where(line)}: {exc}") from None
@@ -348,7 +343,7 @@ def read_measurements(out_dir: str | Path) -> list[FrameMeasurements]:
     if not out.is_dir():
         raise ResultsFormatError(f"{out}: not a folder. Give the --out folder of a `rovslam run`.")
     frames_table = _Table(out / MEASUREMENTS_FILE, MEASUREMENT_COLUMNS, _OPTIONAL_COLUMNS)
-    obs_table = _Table(out / LANDMARK_MEASUREMENTS_FILE, LANDMARK_MEASUREMENT_COLUMNS, _OPTIONAL_OBSERVATION_COLUMNS)
+    obs_table = _Table(out / LANDMARK_MEASUREMENTS_FILE, LANDMARK_MEASUREMENT_COLUMNS)
     by_frame = _read_observations(obs_table)
     last_obs_frame = max(by_frame, default=-1)
     frames: list[FrameMeasurements] = []

@@ -190,15 +190,16 @@ class FrameRecords:
         return meas
 
     def _landmark_measurement(self, o: Observation, altitude_m: float, sigma_z: float) -> LandmarkMeasurement:
-        """An observation for the smoother: its [m, n] as seen, with the image depth the filter gives it now.
+        """An observation as the flat-seabed model (3) at the frame's altitude sees it (for the smoother).
 
         A landmark ``h`` above the seabed is seen at depth ``Z - h`` (``Z + s - h`` with the seabed offset
-        s). The filter's depth is where the smoother starts; its relief rounds estimate every landmark's
-        height again from all its views, from the pixels as they were seen.
+        s): its [m, n] scaled by ``depth / Z`` is what a flat seabed at Z would show (the filter's current
+        estimates).
         """
         depth = altitude_m + self.ekf.seabed_offset_m - self.ekf.landmark_height_m(o.landmark_id)
+        scale = depth / altitude_m
         noise = observation_noise_px2(o.mn_px, self.config.slam.pixel_sigma_px * self.scale.focal_ratio, depth, sigma_z)
-        return LandmarkMeasurement(o.landmark_id, o.kind, o.mn_px, noise, o.accepted, depth)
+        return LandmarkMeasurement(o.landmark_id, o.kind, o.mn_px * scale, noise * scale**2, o.accepted)
 
     def result(self, step: FrameStep, meas: FrameMeasurements, estimate: Estimate) -> FrameResult:
         """The one place a :class:`FrameResult` is built (processed and skipped frames alike).

@@ -25,22 +25,18 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = [
-    "PathSteps",
     "ReliefPriors",
     "ReliefObservations",
     "ReliefSolution",
     "solve_relief",
     "observation_depths",
     "robust_weight",
-    "gross_outliers",
     "landmark_residuals",
     "whitened_norms",
 ]
 
 # Sigma of the prior holding s_0 at the start's seabed (metres): the datum, as the EKF's zero variance.
 _DATUM_SIGMA_M = 1e-4
-# Under a robust loss, an observation this many times the loss's threshold off is a wrong association.
-GROSS_OUTLIER_FACTOR = 10.0
 
 
 @dataclass(frozen=True)
@@ -77,19 +73,6 @@ class ReliefObservations:
 
 
 @dataclass(frozen=True)
-class PathSteps:
-    """The translation part of the odometry (1) as the smoother's graph holds it (N frames).
-
-    Attributes:
-        step_m: (N-1, 2) ``[u, v] dt`` of each step, in the frame of the pose before it.
-        cov_m2: (N-1, 2, 2) its covariance ``dt^2 Q`` (positive definite).
-    """
-
-    step_m: np.ndarray
-    cov_m2: np.ndarray
-
-
-@dataclass(frozen=True)
 class ReliefSolution:
     """What :func:`solve_relief` found.
 
@@ -97,14 +80,11 @@ class ReliefSolution:
         landmarks_xy_m: (M, 2) landmark positions, world frame.
         height_m: (M,) the landmarks' heights above the start's seabed.
         seabed_m: (N,) s at every frame.
-        xy_m: (N, 2) the positions: solved with the rest when the path's steps were given, else
-            the ones held.
     """
 
     landmarks_xy_m: np.ndarray
     height_m: np.ndarray
     seabed_m: np.ndarray
-    xy_m: np.ndarray
 
 
 def observation_depths(altitude_m: np.ndarray, seabed_m: np.ndarray, height_m: np.ndarray, obs: ReliefObservations):
@@ -156,23 +136,6 @@ def robust_weight(norm: np.ndarray, robust: str, robust_k: float) -> np.ndarray:
     return np.ones_like(norm)
 
 
-def gross_outliers(norm: np.ndarray, robust: str, robust_k: float, landmark: np.ndarray) -> np.ndarray:
-    """(K,) bool: the observations whose whitened residual norms (K,) are ``GROSS_OUTLIER_FACTOR`` times
-    the robust loss's threshold or more (none under least squares), of landmarks (K,) that keep another
-    view (a landmark whose every view is that far off keeps them, under the loss: else nothing holds it).
-
-    A bounded-influence loss (Huber) still pulls with ``robust_k`` sigmas however wrong the
-    association: with the path's scale and the heights free together, one association 60 cm off
-    moved the seabed offset at its frame by centimetres and the path by up to 3.7 mm (a survey
-    smoothed to 1 mm). The relief step leaves these out of its solve and of the graph it rebuilds.
-    """
-    if robust == "none":
-        return np.zeros(norm.shape, bool)
-    gross = norm >= GROSS_OUTLIER_FACTOR * robust_k
-    kept_views = np.bincount(landmark[~gross], minlength=int(landmark.max(initial=-1)) + 1)
-    return gross & (kept_views[landmark] > 0)
-
-
 def solve_relief(
     xy_m: np.ndarray,
     heading_rad: np.ndarray,
@@ -184,14 +147,8 @@ def solve_relief(
     priors: ReliefPriors,
     robust: str,
     robust_k: float,
-    path: PathSteps | None = None,
 ) -> ReliefSolution:
-    """Landmark positions, heights and the seabed offset that best explain (3), the headings held.
-
-    Without ``path`` the positions are held too. With it, every position but the first is solved
-    together with the rest, under the odometry's translation (``R(psi_{k-1})^T (x_k - x_{k-1})
-    = [u, v] dt``, covariance ``dt^2 Q``), still linear once the headings are given: the path's
-    scale and the heights, which trade along the motion, are found together rather than in turn.
+    """Landmark positions, heights and the seabed offset that best explain (3) with the poses held.
 
     Args:
         xy_m: (N, 2) positions; heading_rad: (N,) headings; t_s: (N,) times; altitude_m: (N,) Z.
@@ -200,7 +157,6 @@ def solve_relief(
         obs: the observations; priors: the relief priors.
         robust, robust_k: the graph's loss on the landmark factors ("huber", "cauchy" or "none")
             and its threshold in whitened sigmas.
-        path: the odometry's steps (N-1 of them), or None to hold the positions.
 
     Returns:
         The solution; every landmark is determined (its height prior makes a single view enough).
@@ -213,14 +169,12 @@ def solve_relief(
     # Residual of (3), whitened: W [R^T X_i - R^T x_k - ray (Z_k + s_k - h_i)].
     residual, w, rt = landmark_residuals(xy_m, heading_rad, landmarks_xy_m, depth_m, obs)
     norm = np.linalg.norm(residual, axis=1)
-    weight = np.sqrt(robust_weight(norm, robust, robust_k)) * ~gross_outliers(norm, robust, robust_k, obs.landmark)
+    weight = np.sqrt(robust_weight(norm, robust, robust_k))  # on the rows: its square root
     w_rt = np.einsum("kij,kjl->kil", w, rt) * weight[:, None, None]  # (K, 2, 2) on X_i
     w_ray = np.einsum("kij,kj->ki", w, obs.ray) * weight[:, None]  # (K, 2) on h_i (+), s_k (-)
-    held = np.ones(k_obs, bool) if path is None else k == 0  # the observations whose pose is held
-    rhs_obs = w_ray * altitude_m[k][:, None]
-    rhs_obs[held] += np.einsum("kij,kj->ki", w_rt[held], xy_m[k[held]])
-    # Unknowns: X (2M), then h (M), then s (N), then (with the path) x_1 .. x_{N-1} (2 (N-1)).
-    col_h, col_s, col_x = 2 * m, 3 * m, 3 * m + n
+    rhs_obs = np.einsum("kij,kj->ki", w_rt, xy_m[k]) + w_ray * altitude_m[k][:, None]
+    # Unknowns: X (2M), then h (M), then s (N).
+    col_h, col_s = 2 * m, 3 * m
     rows_o = 2 * np.arange(k_obs)[:, None] + np.arange(2)[None, :]  # (K, 2)
     r_list = [rows_o, rows_o, rows_o, rows_o]
     c_list = [np.broadcast_to(col[:, None], rows_o.shape) for col in (2 * i, 2 * i + 1, col_h + i, col_s + k)]
@@ -238,19 +192,6 @@ def solve_relief(
     c_list.append(col_s + obs.first_pose)
     v_list += [np.array([1.0 / _DATUM_SIGMA_M]), 1.0 / sq, -a / sq, np.full(m, 1.0 / sig_h), np.full(m, -1.0 / sig_h)]
     n_rows, n_cols = r0 + n + m, 3 * m + n
-    b_parts = [rhs_obs.ravel(), np.zeros(n + m)]
-    if path is not None:
-        free = ~held  # observations of x_1 .. x_{N-1}: -W R^T on their pose
-        r_list += [rows_o[free], rows_o[free]]
-        col_free = np.broadcast_to((col_x + 2 * (k[free] - 1))[:, None], (int(free.sum()), 2))
-        c_list += [col_free, col_free + 1]
-        v_list += [-w_rt[free][:, :, 0], -w_rt[free][:, :, 1]]
-        rows, cols, vals, rhs = _odometry_rows(xy_m[0], heading_rad, path, n_rows, col_x)
-        r_list += rows
-        c_list += cols
-        v_list += vals
-        b_parts.append(rhs)
-        n_rows, n_cols = n_rows + 2 * (n - 1), n_cols + 2 * (n - 1)
     a_mat = sp.csr_matrix(
         (
             np.concatenate([v.ravel() for v in v_list]),
@@ -258,53 +199,7 @@ def solve_relief(
         ),
         shape=(n_rows, n_cols),
     )
-    # Eliminated frame by frame (each frame's position and seabed offset, a band), the landmarks last: the
-    # fill stays in the band and the landmarks' border (a 3,000-frame dive: 0.1 s a solve, against 6 s
-    # for SuperLU's own ordering).
-    order = _frames_then_landmarks(n, m, col_h, col_s, col_x, path is not None)
-    normal = (a_mat.T @ a_mat)[order][:, order].tocsc()
-    sol = np.empty(n_cols)
-    sol[order] = spl.splu(normal, permc_spec="NATURAL", diag_pivot_thresh=0.0).solve(
-        (a_mat.T @ np.concatenate(b_parts))[order]
-    )
-    xy = xy_m.copy()
-    if path is not None:
-        xy[1:] = sol[col_x:].reshape(n - 1, 2)
-    return ReliefSolution(
-        landmarks_xy_m=sol[: 2 * m].reshape(m, 2), height_m=sol[col_h:col_s], seabed_m=sol[col_s:col_x], xy_m=xy
-    )
-
-
-def _frames_then_landmarks(n: int, m: int, col_h: int, col_s: int, col_x: int, with_path: bool) -> np.ndarray:
-    """(n_cols,) the unknowns' elimination order: per frame its position (from x_1) and seabed offset, then per
-    landmark its position and height."""
-    frames = [col_s + np.arange(n)[:, None]]
-    if with_path:
-        x = col_x + 2 * (np.arange(n) - 1)[:, None] + np.arange(2)[None, :]
-        frames.insert(0, np.where(np.arange(n)[:, None] > 0, x, -1))
-    per_frame = np.concatenate(frames, axis=1).ravel()
-    landmarks = np.column_stack([2 * np.arange(m), 2 * np.arange(m) + 1, col_h + np.arange(m)]).ravel()
-    return np.concatenate([per_frame[per_frame >= 0], landmarks])
-
-
-def _odometry_rows(xy0_m: np.ndarray, heading_rad: np.ndarray, path: PathSteps, row0: int, col_x: int):
-    """The whitened rows ``W R(psi_{k-1})^T (x_k - x_{k-1}) = W [u, v] dt`` of the N-1 steps, x_0 held.
-
-    Returns (rows, columns, values) lists for the sparse matrix (from row ``row0``; ``x_k`` at
-    column ``col_x + 2 (k - 1)``) and the (2 (N-1),) right-hand side.
-    """
-    n1 = len(path.step_m)
-    c, s = np.cos(heading_rad[:-1]), np.sin(heading_rad[:-1])
-    rt = np.stack([np.stack([c, s], 1), np.stack([-s, c], 1)], 1)  # (N-1, 2, 2) R(psi_{k-1})^T
-    b = np.einsum("kij,kjl->kil", _whitening(path.cov_m2), rt)  # (N-1, 2, 2) on x_k (+), x_{k-1} (-)
-    rhs = np.einsum("kij,kj->ki", _whitening(path.cov_m2), path.step_m)
-    rhs[0] += b[0] @ xy0_m  # the first step starts from the held x_0
-    rows = 2 * np.arange(n1)[:, None, None] + np.arange(2)[None, :, None] + row0  # (N-1, 2, 1)
-    rows = np.broadcast_to(rows, (n1, 2, 2))
-    cols_k = np.broadcast_to(col_x + 2 * np.arange(n1)[:, None, None] + np.arange(2)[None, None, :], (n1, 2, 2))
-    out_r, out_c, out_v = [rows], [cols_k], [b]
-    if n1 > 1:  # x_{k-1} of steps 2 .. N-1
-        out_r.append(rows[1:])
-        out_c.append(cols_k[:-1])
-        out_v.append(-b[1:])
-    return out_r, out_c, out_v, rhs.ravel()
+    b = np.zeros(n_rows)
+    b[:r0] = rhs_obs.ravel()
+    sol = spl.spsolve((a_mat.T @ a_mat).tocsc(), a_mat.T @ b)
+    return ReliefSolution(landmarks_xy_m=sol[: 2 * m].reshape(m, 2), height_m=sol[col_h:col_s], seabed_m=sol[col_s:])

@@ -146,8 +146,6 @@ class LandmarkMeasurement(_RecordEq):
             the heading term: each back end adds the heading uncertainty in its own way.
         accepted_by_online: False when the online back end (the EKF's innovation test)
             rejected it; the smoother may still use it, under its robust loss.
-        depth_m: the image depth the online filter gave the landmark when it was seen (``Z + s -
-            h``, metres), where the smoother starts; NaN: the frame's altitude (a flat seabed).
     """
 
     landmark_id: int
@@ -155,7 +153,6 @@ class LandmarkMeasurement(_RecordEq):
     mn_px: np.ndarray
     noise_px2: np.ndarray
     accepted_by_online: bool = True
-    depth_m: float = math.nan
 
     def __post_init__(self) -> None:
         where = f"landmark observation {self.landmark_id!r}"
@@ -172,12 +169,6 @@ class LandmarkMeasurement(_RecordEq):
                 f"{where}: accepted_by_online must be True or False, got {self.accepted_by_online!r}"
             )
         object.__setattr__(self, "accepted_by_online", bool(self.accepted_by_online))
-        d = self.depth_m
-        if isinstance(d, (bool, np.bool_)) or not isinstance(d, (int, float, np.integer, np.floating)):
-            raise InvalidMeasurementError(f"{where}: depth_m must be a number, got {d!r}")
-        if not (math.isnan(d) or (math.isfinite(d) and d > 0.0)):
-            raise InvalidMeasurementError(f"{where}: depth_m must be > 0 (or NaN: the frame's altitude), got {d!r}")
-        object.__setattr__(self, "depth_m", float(d))
 
 
 @dataclass(frozen=True, eq=False)

@@ -68,10 +68,8 @@ from rovslam.camera import rot2, wrap_angle
 from rovslam.config import ROBUST_LOSSES, SmootherConfig
 from rovslam.errors import ConfigError, FilterInconsistencyError, InvalidMeasurementError
 from rovslam.slam.heights import (
-    PathSteps,
     ReliefObservations,
     ReliefPriors,
-    gross_outliers,
     observation_depths,
     solve_relief,
     whitened_norms,
@@ -89,8 +87,6 @@ _FREE_SIGMA = 1e4
 _FRAME_SIGMA_M = 1.0
 # The relief rounds stop once no observation's depth moves by more than this (metres).
 _RELIEF_TOL_M = 1e-5
-# The relief rounds give up when an observation's depth strays from the altitude by this share or more.
-MAX_RELIEF_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -159,11 +155,10 @@ class SmoothedResult:
 class _Landmark:
     first_t_s: float
     # Per observation: pose number, [m, n] / f (2,) and R_m / f^2 (2, 2); times the image depth,
-    # they are the measured R^T (X - x) in metres and its noise; the depth the graph gives it.
+    # they are the measured R^T (X - x) in metres and its noise.
     poses: list = field(default_factory=list)
     ray: list = field(default_factory=list)
     noise: list = field(default_factory=list)
-    depth: list = field(default_factory=list)
 
 
 class Isam2Smoother:
@@ -197,7 +192,6 @@ class Isam2Smoother:
         self._attitude_sigma_rad: list[float] = []
         self._has_compass: list[bool] = []
         self._landmarks: dict[int, _Landmark] = {}
-        self._steps: list[tuple[np.ndarray, np.ndarray]] = []  # (1)'s translations and covariances, for the relief
         self._prev: FrameMeasurements | None = None
         self._pose: Any = None  # latest gtsam.Pose2 estimate
         self._t0_s = 0.0
@@ -307,7 +301,7 @@ class Isam2Smoother:
             s_psi = _FREE_SIGMA if meas.has_compass else (self.config.initial_heading_sigma_rad or _TINY_SIGMA)
             graph.add(g.PriorFactorPose2(xk, guess, self._sigmas(s_xy, s_xy, s_psi)))
         else:
-            step, noise, translation = self._odometry(prev, meas)
+            step, noise = self._odometry(prev, meas)
             graph.add(g.BetweenFactorPose2(self._x(k - 1), xk, step, noise))
             guess = self._pose.compose(step)
         values.insert(xk, guess)
@@ -322,8 +316,6 @@ class Isam2Smoother:
             raise _solver_error(f"the iSAM2 update of frame {meas.index}", exc) from None
         if tail_position is not None:
             self._tail_prior_slot = int(result.getNewFactorsIndices()[tail_position])
-        if prev is not None:
-            self._steps.append(translation)
         self._index.append(meas.index)
         self._t_s.append(meas.t_s)
         self._altitude_m.append(meas.altitude_m)
@@ -366,7 +358,7 @@ class Isam2Smoother:
         return -float(self._recent_pose(self._m(self._block))[0].theta())
 
     def _odometry(self, prev: FrameMeasurements, meas: FrameMeasurements):
-        """(1) as a relative pose in the frame of the previous pose, with its 3x3 covariance; and its translation alone, (2,) and (2, 2)."""
+        """(1) as a relative pose in the frame of the previous pose, with its 3x3 covariance."""
         g = self._g
         dt = meas.dt_s
         if meas.has_heading_step:
@@ -377,11 +369,7 @@ class Isam2Smoother:
         cov[:2, :2] = dt * dt * meas.speed_cov_mps2
         cov[2, 2] = s_turn**2
         u, v = meas.speed_mps * dt
-        return (
-            g.Pose2(float(u), float(v), float(turn)),
-            g.noiseModel.Gaussian.Covariance(cov),
-            (np.array([u, v]), cov[:2, :2]),
-        )
+        return g.Pose2(float(u), float(v), float(turn)), g.noiseModel.Gaussian.Covariance(cov)
 
     def _bias_prior(self, j: int, last: bool):
         """Zero-mean prior on block j's drift: the node share of the OU chain's information."""
@@ -424,9 +412,8 @@ class Isam2Smoother:
         return tail_position
 
     def _add_landmarks(self, graph, values, k: int, pose, meas: FrameMeasurements) -> None:
+        scale = meas.altitude_m / meas.focal_px  # metres per pixel of (3)
         for ob in meas.landmarks:
-            depth = ob.depth_m if math.isfinite(ob.depth_m) else meas.altitude_m  # the online filter's, or flat
-            scale = depth / meas.focal_px  # metres per pixel of (3)
             lm = self._landmarks.get(ob.landmark_id)
             if lm is None:  # (4): X = x + Z/f R(psi) [m, n]
                 lm = self._landmarks[ob.landmark_id] = _Landmark(first_t_s=meas.t_s)
@@ -438,7 +425,6 @@ class Isam2Smoother:
             lm.poses.append(k)
             lm.ray.append(ob.mn_px / meas.focal_px)
             lm.noise.append(ob.noise_px2 / meas.focal_px**2)
-            lm.depth.append(depth)
 
     def _landmark_factor(self, k: int, landmark_id: int, p_m: np.ndarray, cov_m2: np.ndarray):
         """(3) as a factor: R(psi_k)^T (X - x_k) = p_m (metres) with noise cov_m2 (2, 2), under the robust loss."""
@@ -465,17 +451,16 @@ class Isam2Smoother:
             if factors.exists(i):
                 graph.add(factors.at(i))
         obs = _stacked_observations([self._landmarks[i] for i in self.landmark_ids])
-        depth = np.array([d for i in self.landmark_ids for d in self._landmarks[i].depth])  # as the graph has them
+        depth = np.asarray(self._altitude_m)[obs.pose]  # the flat seabed: the laser altitude
         relief = None
         try:
             estimate, iterations = self._polish(graph, self._isam.calculateEstimate())
             gain = math.nan
             if self.config.relief_rounds > 0 and self.config.final_max_iterations > 0 and len(obs.pose):
-                trial = _relief_rounds(self, graph, estimate, obs, depth)
-                if trial is not None:  # else the depths left the relief model's range: nothing to compare
-                    before = whitened_norms(*self._read(estimate), obs, depth)
-                    gain = _relief_gain(before, whitened_norms(*self._read(trial[1]), obs, trial[3]), self.config)
-                if trial is not None and gain >= self.config.relief_min_gain:  # else the seabed is flat to the images
+                trial = self._relief(graph, estimate, obs, depth)
+                before = whitened_norms(*self._read(estimate), obs, depth)
+                gain = _relief_gain(before, whitened_norms(*self._read(trial[1]), obs, trial[3]), self.config)
+                if gain >= self.config.relief_min_gain:  # else the seabed is flat as far as the images tell
                     graph, estimate, relief, depth, more = trial
                     iterations += more
             marginals = g.Marginals(graph, estimate)
@@ -516,7 +501,14 @@ class Isam2Smoother:
 
     def _polish(self, graph, estimate) -> tuple[Any, int]:
         """Levenberg-Marquardt from ``estimate`` (``final_max_iterations``; 0: as it is): the estimate and its iterations."""
-        return _levenberg_marquardt(self._g, graph, estimate, self.config.final_max_iterations)
+        if self.config.final_max_iterations == 0:
+            return estimate, 0
+        params = self._g.LevenbergMarquardtParams()
+        params.setMaxIterations(self.config.final_max_iterations)
+        params.setRelativeErrorTol(1e-6)
+        params.setAbsoluteErrorTol(1e-9)
+        opt = self._g.LevenbergMarquardtOptimizer(graph, estimate, params)
+        return opt.optimize(), int(opt.iterations())
 
     def _read(self, estimate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(N, 2) positions, (N,) headings and (M, 2) landmark positions (in id order) of an estimate."""
@@ -526,69 +518,43 @@ class Isam2Smoother:
         lxy = np.array([estimate.atPoint2(self._l(i)) for i in self.landmark_ids], dtype=np.float64).reshape(-1, 2)
         return xy, psi, lxy
 
+    def _relief(self, graph, estimate, obs: ReliefObservations, depth: np.ndarray):
+        """The relief rounds: heights and seabed given the poses, then the graph with their depths.
+
+        Returns the last graph, its estimate, the last :class:`ReliefSolution`, the (K,) depths
+        and the Levenberg-Marquardt iterations spent.
+        """
+        g, cfg, ids = self._g, self.config, self.landmark_ids
+        kept = [graph.at(i) for i in range(graph.size())]
+        kept = [f for f in kept if not any(g.Symbol(key).chr() == ord("l") for key in f.keys())]
+        priors = ReliefPriors(cfg.landmark_height_sigma_m, cfg.seabed_offset_sigma_m, cfg.seabed_offset_tau_s)
+        t_s, z_m = np.array(self._t_s), np.array(self._altitude_m)
+        iterations = 0
+        for _ in range(cfg.relief_rounds):
+            xy, psi, lxy = self._read(estimate)
+            sol = solve_relief(xy, psi, t_s, z_m, lxy, depth, obs, priors, cfg.robust, cfg.robust_k)
+            new_depth = observation_depths(z_m, sol.seabed_m, sol.height_m, obs)
+            moved_m = float(np.max(np.abs(new_depth - depth)))
+            depth = new_depth
+            graph = g.NonlinearFactorGraph()
+            for f in kept:
+                graph.add(f)
+            for j in range(len(obs.pose)):
+                d = float(depth[j])
+                graph.add(
+                    self._landmark_factor(int(obs.pose[j]), ids[obs.landmark[j]], obs.ray[j] * d, d * d * obs.noise[j])
+                )
+            values = g.Values(estimate)
+            for j, i in enumerate(ids):
+                values.update(self._l(i), sol.landmarks_xy_m[j])
+            estimate, more = self._polish(graph, values)
+            iterations += more
+            if moved_m < _RELIEF_TOL_M:
+                break
+        return graph, estimate, sol, depth, iterations
+
     def __repr__(self) -> str:
         return f"Isam2Smoother(poses={self.n_poses}, landmarks={self.n_landmarks}, robust={self.config.robust!r})"
-
-
-def _relief_rounds(sm: Isam2Smoother, graph, estimate, obs: ReliefObservations, depth: np.ndarray):
-    """The relief rounds: positions, landmarks, heights and seabed given the headings, then the graph with their depths.
-
-    Returns the last graph, its estimate, the last :class:`ReliefSolution`, the (K,) depths and the
-    Levenberg-Marquardt iterations spent; None when a depth leaves ``(1 - MAX_RELIEF_SHARE) Z`` to
-    ``(1 + MAX_RELIEF_SHARE) Z``: the heights then explain what is no relief (least squares over a wrong
-    association fitted heights of a metre and negative depths).
-    """
-    g, cfg, ids = sm._g, sm.config, sm.landmark_ids
-    kept = [graph.at(i) for i in range(graph.size())]
-    kept = [f for f in kept if not any(g.Symbol(key).chr() == ord("l") for key in f.keys())]
-    priors = ReliefPriors(cfg.landmark_height_sigma_m, cfg.seabed_offset_sigma_m, cfg.seabed_offset_tau_s)
-    t_s, z_m = np.array(sm._t_s), np.array(sm._altitude_m)
-    path = _path_steps(sm._steps)
-    iterations = 0
-    for _ in range(cfg.relief_rounds):
-        xy, psi, lxy = sm._read(estimate)
-        sol = solve_relief(xy, psi, t_s, z_m, lxy, depth, obs, priors, cfg.robust, cfg.robust_k, path)
-        new_depth = observation_depths(z_m, sol.seabed_m, sol.height_m, obs)
-        if np.any(np.abs(new_depth / z_m[obs.pose] - 1.0) >= MAX_RELIEF_SHARE):
-            return None
-        moved_m = float(np.max(np.abs(new_depth - depth)))
-        depth = new_depth
-        graph = g.NonlinearFactorGraph()
-        for f in kept:
-            graph.add(f)
-        wrong = gross_outliers(whitened_norms(xy, psi, lxy, obs, depth), cfg.robust, cfg.robust_k, obs.landmark)
-        for j in np.flatnonzero(~wrong).tolist():
-            d = float(depth[j])
-            graph.add(sm._landmark_factor(int(obs.pose[j]), ids[obs.landmark[j]], obs.ray[j] * d, d * d * obs.noise[j]))
-        values = g.Values(estimate)
-        for j, i in enumerate(ids):
-            values.update(sm._l(i), sol.landmarks_xy_m[j])
-        for k, (x_m, y_m) in enumerate(sol.xy_m):
-            values.update(sm._x(k), g.Pose2(float(x_m), float(y_m), float(psi[k])))
-        estimate, more = sm._polish(graph, values)
-        iterations += more
-        if moved_m < _RELIEF_TOL_M:
-            break
-    return graph, estimate, sol, depth, iterations
-
-
-def _levenberg_marquardt(g, graph, estimate, max_iterations: int) -> tuple[Any, int]:
-    """Levenberg-Marquardt from ``estimate``, at most ``max_iterations`` (0: as it is): the estimate and its iterations."""
-    if max_iterations == 0:
-        return estimate, 0
-    params = g.LevenbergMarquardtParams()
-    params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(1e-6)
-    params.setAbsoluteErrorTol(1e-9)
-    opt = g.LevenbergMarquardtOptimizer(graph, estimate, params)
-    return opt.optimize(), int(opt.iterations())
-
-
-def _path_steps(steps: list[tuple[np.ndarray, np.ndarray]]) -> PathSteps | None:
-    """The odometry's translations and covariances as :class:`PathSteps`; None before a second frame."""
-    if not steps:
-        return None
-    return PathSteps(np.array([st for st, _ in steps]), np.array([c for _, c in steps]))
 
 
 def _relief_gain(before: np.ndarray, after: np.ndarray, config: SmootherConfig) -> float:
