@@ -1,4 +1,4 @@
-"""What a run sets in its process: freed memory kept for reuse, OpenCV on one thread.
+"""What a run sets in its process: freed memory kept for reuse, OpenCV on one thread; the cores it may use.
 
 Both are process-wide (the C allocator's and OpenCV's settings); :func:`rovslam.runner.run_sequence`
 applies them around every run (``rovslam run``, ``live``, a matrix cell).
@@ -7,6 +7,7 @@ applies them around every run (``rovslam run``, ``live``, a matrix cell).
 from __future__ import annotations
 
 import contextlib
+import os
 from collections.abc import Iterator
 
 FREED_MEMORY_KEPT_BYTES = 64 * 2**20
@@ -53,3 +54,11 @@ def opencv_threads(n: int = 1) -> Iterator[None]:
         yield
     finally:
         cv2.setNumThreads(before)
+
+
+def usable_cores() -> int:
+    """The cores this process may use (its CPU affinity on Linux)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)

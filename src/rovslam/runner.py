@@ -51,7 +51,8 @@ from rovslam.io.results import GalleryWriter, ResultWriter, describe_os_error, p
 from rovslam.io.sequence import Sequence, open_sequence
 from rovslam.io.source import InputOptions, SourceDescription, option_flag
 from rovslam.pipeline import FrameResult, SlamPipeline
-from rovslam.process import keep_freed_memory, opencv_threads
+from rovslam.pipeline.prepare import prepared_frames
+from rovslam.process import keep_freed_memory, opencv_threads, usable_cores
 from rovslam.tallies import MapTally, SourceTally, TimeGaps
 from rovslam.vision.scale import processing_scale
 
@@ -332,6 +333,7 @@ def run_sequence(
     min_usable_fraction: float | None = None,
     max_distance_m: float | None = None,
     inputs: InputOptions | None = None,
+    read_ahead: bool | None = None,
 ) -> RunSummary:
     """Run SLAM on a sequence folder (or video) and write ``out_dir``; see the module notes for how it ends.
 
@@ -341,6 +343,10 @@ def run_sequence(
     returning the current map as landmarks.csv rows (the live viewer; called only when given).
     ``overwrite``: replace an earlier run's results in ``out_dir`` (never files rovslam did not write).
     ``inputs``: how to open an input that is not a sequence folder (camera file, NAV.csv, topics, times).
+    ``read_ahead``: prepare the frames on a second thread, ahead of the loop
+    (:func:`rovslam.pipeline.prepare.prepared_frames`; the same results, sooner); None: when the
+    process may use two cores or more and the source allows it (a live stream does not: its newest
+    frame is the one to process).
     """
     min_usable_fraction = config.run.min_usable_fraction if min_usable_fraction is None else min_usable_fraction
     max_distance_m = config.run.max_distance_m if max_distance_m is None else max_distance_m
@@ -370,6 +376,9 @@ def run_sequence(
         run.summary_base["inputs"] = opts.to_dict()
         run.fallback_detail = _fallback_detail(seq.info, where, pipe.altimeter_fallback)
         run.rig_note = _rig_note(seq.info, config, where)
+        if read_ahead is None:
+            read_ahead = usable_cores() >= 2 and getattr(seq, "read_ahead", True)
+        run.read_ahead = bool(read_ahead)
         return run.execute(max_frames, on_frame, on_start, on_frame_image)
 
 
@@ -419,6 +428,7 @@ class _Run:
         self.max_distance_m = float(max_distance_m)
         self.n = 0
         self.total = len(seq)
+        self.read_ahead = False  # frames prepared on a second thread (rovslam.pipeline.prepare)
         self.sonar_rejected: list[tuple[int, float, str]] = []
         self.status = "running"
         self.reason: str | None = None
@@ -452,11 +462,11 @@ class _Run:
             self.total = len(seq) if max_frames is None else (min(len(seq), max_frames) if len(seq) else max_frames)
             if on_start is not None:
                 on_start(self.total)
-            frames = seq.frames(stop=max_frames)
-            for frame in frames:
+            frames = prepared_frames(seq.frames(stop=max_frames), pipe.preparer(), self.read_ahead)
+            for frame, prepared in frames:
                 if self.stop.signum is not None:
                     break
-                res = pipe.process(frame)
+                res = pipe.process(frame, prepared)
                 problem = implausible_result(res, self.max_distance_m)
                 if problem is not None:
                     self.status, self.reason = "unusable", f"frame {res.index} (t={res.t_s:g} s): {problem}"

@@ -11,7 +11,6 @@ output folder (and any sequence folders of the matrix) on a file system they sha
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -65,10 +64,9 @@ class BatchReport:
 
 def default_workers() -> int:
     """One worker per core this process may use."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
+    from rovslam.process import usable_cores
+
+    return usable_cores()
 
 
 def worker_environ() -> dict:

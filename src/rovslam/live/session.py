@@ -82,6 +82,10 @@ class LiveSource:
     filled in place as the run goes and when the frames end.
     """
 
+    # Not read ahead of the loop: the newest frame is the one to process (its latency), and
+    # ``current`` must stay the frame being processed.
+    read_ahead = False
+
     def __init__(
         self,
         stream: VideoStream,

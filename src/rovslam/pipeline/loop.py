@@ -39,6 +39,7 @@ from rovslam.pipeline.depth import DepthModel
 from rovslam.pipeline.geometry import consensus_tokens, landmark_mn_at_frame_time
 from rovslam.pipeline.image import SunlightWatch, tracking_image
 from rovslam.pipeline.prediction import Prediction
+from rovslam.pipeline.prepare import FramePreparer, PreparedFrame
 from rovslam.pipeline.records import Estimate, FrameRecords, FrameResult, FrameStep, Observation, TrackedLandmark
 from rovslam.pipeline.search import LandmarkSearch
 from rovslam.pipeline.speed import PreviousFrame, SpeedStep
@@ -102,6 +103,7 @@ class SlamPipeline:
         self.skipped: list[tuple[int, float, str]] = []
         self._prev = PreviousFrame()  # what step 5 measures against
         self._n = 0  # frames processed (not skipped)
+        self._prepared: PreparedFrame | None = None  # this frame's work done ahead (rovslam.pipeline.prepare)
 
     @property
     def altimeter_fallback(self) -> float:
@@ -113,6 +115,11 @@ class SlamPipeline:
         """Process frames in order, yielding one result per frame."""
         for frame in frames:
             yield self.process(frame)
+
+    def preparer(self) -> FramePreparer:
+        """What :meth:`process` takes as ``prepared``, made ahead of it (:mod:`rovslam.pipeline.prepare`)."""
+        watch = self.sunlight_watch
+        return FramePreparer(self.config, self.scale, watch.opening_px, lambda: watch.removing)
 
     # ------------------------------------------------------------------ the run's records
     def landmark_rows(self) -> list[dict]:
@@ -148,9 +155,17 @@ class SlamPipeline:
         )
 
     # ------------------------------------------------------------------ the loop
-    def process(self, frame: Frame) -> FrameResult:
-        """One frame: the paper's loop (steps 1 to 8), then the back end fed with what the frame measured."""
-        step = self._steps(frame)
+    def process(self, frame: Frame, prepared: PreparedFrame | None = None) -> FrameResult:
+        """One frame: the paper's loop (steps 1 to 8), then the back end fed with what the frame measured.
+
+        ``prepared``: the frame's :class:`~rovslam.pipeline.prepare.PreparedFrame` from this pipeline's
+        :meth:`preparer` (made ahead, on another thread), or None; the results are the same either way.
+        """
+        self._prepared = prepared if prepared is not None and prepared.image is frame.image else None
+        try:
+            step = self._steps(frame)
+        finally:
+            self._prepared = None
         meas = self.records.measurements(step, self.heading.compass_sigma_rad)
         estimate = self._back_end(meas, step.heading)  # the iSAM2 smoother is fed here (else: the EKF's estimate)
         return self.records.result(step, meas, estimate)
@@ -222,10 +237,15 @@ class SlamPipeline:
         """``(H, W) float32`` band-passed template channel, or the reason the frame is unusable."""
         if frame.image is None or frame.error is not None:
             return None, frame.error or "no image"
-        watch = self.sunlight_watch
-        img, bright, reason = tracking_image(
-            frame.image, self.config.bandpass, self.scale, watch.opening_px, watch.removing
-        )
+        watch, ahead = self.sunlight_watch, self._prepared
+        if ahead is not None and ahead.without_bright == watch.removing:  # made ahead as it would be now
+            img, bright, reason = ahead.track_img, ahead.bright, ahead.reason
+            if img is not None and ahead.small is not None:
+                self.tokens.offer_prior(img, ahead.small, ahead.prev_small, ahead.prior)
+        else:
+            img, bright, reason = tracking_image(
+                frame.image, self.config.bandpass, self.scale, watch.opening_px, watch.removing
+            )
         if bright is not None:
             watch.bright = bright
         return img, reason
@@ -366,7 +386,11 @@ class SlamPipeline:
     # ------------------------------------------------------------------ step 8
     def _extract_tokens(self, track_img: np.ndarray, mask: np.ndarray) -> None:
         """Step 8: fresh speed templates for the next frame, away from the inhibited pixels."""
-        self.tokens.extract(track_img, local_variance(track_img, self.config.speed_templates.size_px), mask)
+        ahead = self._prepared
+        variance = ahead.variance if ahead is not None and ahead.track_img is track_img else None
+        if variance is None:
+            variance = local_variance(track_img, self.config.speed_templates.size_px)
+        self.tokens.extract(track_img, variance, mask)
 
     # ------------------------------------------------------------------ unusable frames
     def _skip(self, frame: Frame, dt_s: float, prior: HeadingPrior, reason: str) -> FrameStep:

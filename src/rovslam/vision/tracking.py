@@ -248,6 +248,23 @@ def global_shift(prev: np.ndarray, curr: np.ndarray) -> tuple[np.ndarray, float]
     return np.array([du, dv], dtype=np.float64), float(response)
 
 
+def reduce_for_shift(img: np.ndarray) -> np.ndarray:
+    """``(H', W') float32`` the ``(H, W)`` image reduced to :func:`global_scale` (itself at scale 1)."""
+    return reduce_image(img.astype(np.float32, copy=False), global_scale(img.shape))
+
+
+def shift_between(
+    prev_small: np.ndarray, small: np.ndarray, shape_hw: tuple[int, int]
+) -> tuple[np.ndarray | None, float]:
+    """``(shift (2,) in full-image px or None, confidence)``: :func:`global_shift` of two images reduced by
+    :func:`reduce_for_shift` from ``shape_hw`` images; ``(None, nan)`` when their shapes differ."""
+    if small.shape != prev_small.shape:
+        return None, float("nan")
+    scale = global_scale(shape_hw)
+    g_small, g_conf = global_shift(prev_small, small)
+    return g_small / scale, g_conf
+
+
 def global_scale(shape_hw: tuple[int, int]) -> float:
     """The power-of-two reduction at which :func:`global_shift` runs: the smaller side stays >= 128 px.
 
@@ -450,15 +467,33 @@ class TokenTracker:
             return self._prior
         prior: tuple[np.ndarray | None, float] = (None, float("nan"))
         if self.tracker_config.global_search and self._prev_small is not None:
-            scale = global_scale(img.shape)
-            small = reduce_image(img.astype(np.float32, copy=False), scale)
-            if scale < 1.0:  # a new array (at scale 1 it is the caller's image): the same frame's extract() reuses it
+            small = reduce_for_shift(img)
+            if small is not img:  # a new array (at scale 1 it is the image): the same frame's extract() reuses it
                 self._reduced = (track_img, small)
-            if small.shape == self._prev_small.shape:
-                g_small, g_conf = global_shift(self._prev_small, small)
-                prior = (g_small / scale, g_conf)
+            prior = shift_between(self._prev_small, small, img.shape)
         self._prior_for, self._prior = img, prior
         return prior
+
+    def offer_prior(
+        self,
+        track_img: np.ndarray,
+        small: np.ndarray,
+        prev_small: np.ndarray | None,
+        prior: tuple[np.ndarray | None, float],
+    ) -> None:
+        """Take :meth:`motion_prior`'s work for ``track_img`` done elsewhere (ahead, on another thread).
+
+        ``small`` is ``reduce_for_shift(track_img)``; ``prior`` is :func:`shift_between` of
+        ``prev_small`` and ``small``. The prior is taken only when ``prev_small`` is this tracker's
+        previous reduced image itself (the same object), so the result is what :meth:`motion_prior`
+        would compute; otherwise it is computed there as before.
+        """
+        if not self.tracker_config.global_search:
+            return
+        if small is not track_img:
+            self._reduced = (track_img, small)
+        if self._prev_small is not None and prev_small is self._prev_small:
+            self._prior_for, self._prior = np.asarray(track_img), prior
 
     def reselect_for_motion(self, shift_uv_px: np.ndarray) -> bool:
         """Choose the previous frame's tokens again where the seabed stays in view after ``shift_uv_px``.
