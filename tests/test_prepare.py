@@ -105,3 +105,34 @@ def test_read_ahead_gives_the_same_results_bit_for_bit(swell, monkeypatch):
         a, b = (swell / "inline" / name), (swell / "ahead" / name)
         if a.exists() or b.exists():
             assert a.read_bytes() == b.read_bytes(), name
+
+
+def test_a_video_read_ahead_gives_the_same_results(swell, tmp_path):
+    """A video is decoded as it is read: read ahead, the decoding moves to the other thread too."""
+    import av
+    import cv2
+
+    from rovslam.io.source import InputOptions
+
+    images = sorted((swell / "seq" / "images").iterdir())[:60]
+    h, w = cv2.imread(str(images[0])).shape[:2]
+    video = tmp_path / "dive.mp4"
+    with av.open(str(video), "w") as c:
+        st = c.add_stream("libx264", rate=5)
+        st.width, st.height, st.pix_fmt = w, h, "yuv420p"
+        for p in images:
+            for pkt in st.encode(av.VideoFrame.from_ndarray(cv2.imread(str(p))[:, :, ::-1].copy(), format="rgb24")):
+                c.mux(pkt)
+        for pkt in st.encode():
+            c.mux(pkt)
+    text = (swell / "seq" / "sequence.toml").read_text(encoding="utf-8").split("[metadata]")[0]
+    camera = tmp_path / "camera.toml"
+    camera.write_text("\n".join(ln for ln in text.splitlines() if not ln.startswith("format =")) + "\n")
+    opts = InputOptions(camera_file=camera)
+    seen = []
+    for ahead in (False, True):
+        s = run_sequence(video, tmp_path / f"out{ahead}", inputs=opts, read_ahead=ahead)
+        seen.append(s.frames)
+    assert seen == [60, 60]
+    for name in ("trajectory.csv", "landmarks.csv", "measurements.csv", "landmark_measurements.csv"):
+        assert (tmp_path / "outFalse" / name).read_bytes() == (tmp_path / "outTrue" / name).read_bytes(), name
