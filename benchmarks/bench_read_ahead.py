@@ -41,27 +41,25 @@ INPUTS = {
 def _video(seq: Path, fps: int) -> tuple[Path, Path]:
     """``(video.mp4, camera.toml)`` made from a sequence folder's images (once; kept beside it)."""
     import av
-    import cv2
+
+    from rovslam.io.sequence import open_sequence
+    from rovslam.sim.sitl import write_camera_file
 
     mp4, cam = seq.with_name(seq.name + ".mp4"), seq.with_name(seq.name + "-camera.toml")
     if not (mp4.is_file() and cam.is_file()):
-        images = sorted((seq / "images").iterdir())
-        h, w = cv2.imread(str(images[0])).shape[:2]
+        source = open_sequence(seq)
         part = mp4.with_suffix(".part.mp4")
         with av.open(str(part), "w") as c:
             st = c.add_stream("libx264", rate=fps)
-            st.width, st.height, st.pix_fmt = w, h, "yuv420p"
+            st.width, st.height, st.pix_fmt = source.info.camera.width_px, source.info.camera.height_px, "yuv420p"
             st.options = {"crf": "18", "preset": "veryfast"}
-            for p in images:
-                frame = av.VideoFrame.from_ndarray(cv2.imread(str(p))[:, :, ::-1].copy(), format="rgb24")
-                for pkt in st.encode(frame):
+            for f in source.frames(prefetch=0):
+                for pkt in st.encode(av.VideoFrame.from_ndarray(f.image, format="rgb24")):
                     c.mux(pkt)
             for pkt in st.encode():
                 c.mux(pkt)
         part.replace(mp4)
-        text = (seq / "sequence.toml").read_text(encoding="utf-8")
-        keep = [ln for ln in text.split("[metadata]")[0].splitlines() if not ln.startswith("format =")]
-        cam.write_text("\n".join(keep) + "\n", encoding="utf-8")
+        write_camera_file(cam, source.info)
     return mp4, cam
 
 

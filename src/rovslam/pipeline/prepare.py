@@ -1,18 +1,17 @@
 """A frame's work that depends on the frame alone, done ahead of the loop on a second core.
 
 :class:`FramePreparer` makes for each frame what the loop would otherwise make first thing:
-the tracking image (:func:`rovslam.pipeline.image.tracking_image`, the sunlight taken out or not as
-the loop did last), its
-local variance over the speed template size (step 8) and its reduction with the phase
-correlation against the previous frame's (the tokens' motion prior,
+the tracking image (:func:`rovslam.pipeline.image.tracking_image`, the sunlight taken out or not
+as the loop did last), its local variance over the speed template size (step 8) and its reduction
+with the phase correlation against the previous frame's (the tokens' motion prior,
 :meth:`rovslam.vision.tracking.TokenTracker.motion_prior`). None of it reads the loop's state.
 
 :func:`prepared_frames` runs a preparer on another thread a few frames ahead of the loop, when
 the process may use two cores or more; OpenCV releases Python's lock while it filters, so the
 two threads work at once. The loop takes each piece only where it is what it would have made
 itself (the same image object, the sunlight taken out or not as it is now, the same previous
-reduced image) and
-makes it again otherwise: the results are the same, bit for bit, with or without it.
+reduced image) and makes it again otherwise: the results are the same, bit for bit, with or
+without it.
 """
 
 from __future__ import annotations
@@ -104,7 +103,7 @@ class _Failed:
 
 
 def prepared_frames(
-    frames: Iterator[Frame], preparer: FramePreparer, ahead: bool
+    frames: Iterator[Frame], preparer: Callable[[Frame], PreparedFrame | None], ahead: bool
 ) -> Generator[tuple[Frame, PreparedFrame | None], None, None]:
     """``(frame, prepared)`` for each of ``frames``: prepared on another thread when ``ahead``, else None.
 
