@@ -66,9 +66,36 @@ def test_moving_share_ignores_lost_tokens_and_one_wrong_match():
     assert share < 0.02
     assert np.isnan(moving_light_share(prev, curr, np.zeros((0, 2)), np.zeros((0, 2))))
     assert np.isnan(moving_light_share(prev, curr, uv_prev[:1], np.full((1, 2), np.nan)))
-    # Faint bright structures say nothing: the same light scaled below MIN_BRIGHT_RMS gives no share.
+    # Light fainter than MIN_BRIGHT_RMS is no bright structure: even unrelated from frame to frame, none moved.
     faint = prev * np.float32(0.1 * MIN_BRIGHT_RMS / np.sqrt(np.mean(prev**2)))
-    assert np.isnan(moving_light_share(faint, _bright(3) * faint.max() / _bright(3).max(), uv_prev, uv_prev))
+    assert moving_light_share(faint, _bright(3) * faint.max() / _bright(3).max(), uv_prev, uv_prev) == 0.0
+
+
+def test_tokens_away_from_the_light_lower_the_share():
+    """The share is a median over every token, a token with no bright structure around it counting 0.
+
+    Once the wide opening is on, the tokens are cut from an image without the bright specks, so fewer of
+    them sit on bright structures: over marine snow (the 44-minute rough-turns trial) those that did were
+    mostly the snow's, and a median over them alone rose from 0.018 to 0.026 a frame, never again below
+    the off-threshold: the seabed's own specks were taken out of the last 9,062 frames.
+    """
+    rng = np.random.default_rng(7)
+    prev = _bright(8)
+    uv = rng.uniform([40, 40], [220, 160], size=(9, 2))
+    unrelated = _bright(9)  # light that did not move with the seabed, around every token
+    every = moving_light_share(prev, unrelated, uv, uv)
+    assert every > 0.5
+    # The same light where only three of the nine tokens have any: the other six saw none move.
+    dark = np.ones(prev.shape, dtype=bool)
+    for u, v in uv[:3]:
+        dark[int(v) - 12 : int(v) + 13, int(u) - 12 : int(u) + 13] = False
+    few_p, few_c = np.where(dark, 0.0, prev).astype(np.float32), np.where(dark, 0.0, unrelated).astype(np.float32)
+    assert moving_light_share(few_p, few_c, uv, uv) == 0.0
+    # Five of nine lit: the median is a lit token's.
+    for u, v in uv[3:5]:
+        dark[int(v) - 12 : int(v) + 13, int(u) - 12 : int(u) + 13] = False
+    five_p, five_c = np.where(dark, 0.0, prev).astype(np.float32), np.where(dark, 0.0, unrelated).astype(np.float32)
+    assert moving_light_share(five_p, five_c, uv, uv) > 0.5
 
 
 def test_monitor_switches_on_after_the_smoothed_share_passes_and_off_with_hysteresis():
