@@ -343,13 +343,15 @@ def test_a_compass_deviation_stays_inside_the_bounds_it_is_given(tmp_path):
     # ellipse along the lanes, which on a grid covers the deviation's turn too (99.5 % without the term);
     # so does the laser rig's share of the depth in b (altitude_scale_sigma: 92.7 % without the term), and the relief
     # off the laser spots' plane in the altitude and the landmarks' observations (relief_altitude_gain,
-    # landmark_relief_gain: 100 % without the term).
+    # landmark_relief_gain: 100 % without the term), and the zoom between frames with the relief-weighted
+    # turn (token_scale, relief_turn_gain: 97.2 % without the term).
     cfg = dataclasses.replace(
         cfg,
         slam=dataclasses.replace(
             cfg.slam, altitude_bias_relief=False, altitude_scale_sigma=0.0, landmark_relief_gain=0.0
         ),
         laser=dataclasses.replace(cfg.laser, relief_altitude_gain=0.0),
+        odometry=dataclasses.replace(cfg.odometry, token_scale=False, relief_turn_gain=0.0),
     )
 
     def offset(sigma_rad: float) -> RunConfig:
