@@ -19,18 +19,6 @@ What tells the sunlight from the seabed's own bright specks is motion. The brigh
 between the two widths, ``B = open(I, despeckle_px) - open(I, sunlight_px)``, are compared around
 each speed token where it was in the previous frame and where it was found in this one
 (:func:`moving_light_share`): the seabed's own specks moved with the token, the sunlight did not.
-The share is the median over every token, one with no bright structure around it counting 0: the
-sunlight is a network over the whole seabed, around every token, while marine snow and the seabed's
-lamp-lit specks are around a few. A median over the lit tokens alone trapped the watch: once the wide
-opening is on, the tokens are cut from an image without the bright specks, fewer of them sit on any
-(over marine snow, 54 % of them against 78 %), those that do are mostly on the snow, and their
-median rose from 0.018 to 0.026 a frame. On the 44-minute ``rough-turns`` trial, which has no
-sunlight, the smoothed share once crossed 0.03 and never again fell below 0.015: the seabed's own
-bright specks were taken out of its last 9,062 frames (ATE 0.419 cm against 0.371 cm). Counted over
-every token, its share is 0.014 a frame (median), its smoothed share at most 0.027, and the watch
-never switches on; the swell's caustics, around every token, give the same 0.072 as before and are
-taken out from the same frame. The share can only have fallen, frame by frame, from what the
-median over the lit tokens gave: the figures below were measured that way.
 The comparison spans at least 0.15 s (:class:`BrightHistory`: at 10 Hz the frame 2 back, the tokens
 carried back through the frame between), as at the 5 Hz the thresholds were measured at.
 :class:`SunlightMonitor` smooths that share over about 10 frames and switches the wide opening
@@ -43,6 +31,19 @@ of the consensus's tokens, turn and scale followed): median per-frame share 0.03
 under the simulator's caustics (slow, fast, small cells), the smoothed share never falling
 below 0.021 once on; 0.006 to 0.012 on the presets without them (real-photo survey and turns,
 relief, turbid), the smoothed share at most 0.028; 0.017 on the real Sparus video.
+
+The share is the median over every token, one with no bright structure around it counting 0: the
+sunlight is a network over the whole seabed, around every token, while marine snow and the seabed's
+lamp-lit specks are around a few. A median over the lit tokens alone trapped the watch: once the wide
+opening is on, the tokens are cut from an image without the bright specks, fewer of them sit on any
+(over marine snow, 54 % of them against 78 %), those that do are mostly on the snow, and their
+median rose from 0.018 to 0.026 a frame. On the 44-minute ``rough-turns`` trial, which has no
+sunlight, the smoothed share once crossed 0.03 and never again fell below 0.015: the seabed's own
+bright specks were taken out of its last 9,062 frames (ATE 0.419 cm against 0.371 cm). Counted over
+every token, its share is 0.014 a frame (median), its smoothed share at most 0.027, and the watch
+never switches on; the swell's caustics, around every token, give the same 0.072 as before and are
+taken out from the same frame. The share can only have fallen, frame by frame, from what the
+median over the lit tokens gave: the figures above were measured that way.
 
 Each frame's share enters the average as the median of it and the two frames before
 (``SUNLIGHT_MEDIAN_FRAMES``; of the first two, the smaller), or as itself when that is smaller:
