@@ -108,13 +108,20 @@ def test_sitl_and_live_on_loopback_match_the_offline_run(tmp_path):
     # every frame but the last one or two: FFmpeg hands a frame out when the next ones begin, and none follows
     assert FRAMES - 2 <= live["frames_received"] == live["frames_processed"] and live["frames_dropped"] == 0
 
-    # accuracy: within 10 % of the offline run's ATE, the truth inside 2-sigma as often
+    # the same frames give the same estimate: the frames live received (--record), run offline
     ev = evaluate_run(out, truth / "groundtruth.csv")
     assert ev.frames == live["frames_processed"]
-    assert abs(ev.slam.ate_rmse_m - offline.slam.ate_rmse_m) <= 0.10 * offline.slam.ate_rmse_m, (
-        ev.slam.ate_rmse_m,
-        offline.slam.ate_rmse_m,
+    run_sequence(out / "sequence", tmp_path / "replay")
+    replay = evaluate_run(tmp_path / "replay", truth / "groundtruth.csv")
+    print(
+        f"\nATE: live {ev.slam.ate_rmse_m * 1000:.3f} mm, its frames offline {replay.slam.ate_rmse_m * 1000:.3f} mm, "
+        f"the lossless frames offline {offline.slam.ate_rmse_m * 1000:.3f} mm"
     )
+    assert ev.slam.ate_rmse_m == pytest.approx(replay.slam.ate_rmse_m, rel=1e-6)
+    # accuracy: the stream's H.264 costs at most 10 % of the offline run's ATE over the lossless frames (its loss may
+    # fall either way: 2.88 mm live against 3.27 mm offline on this dive since the zoom between frames is on), the
+    # truth inside 2-sigma as often
+    assert ev.slam.ate_rmse_m <= 1.10 * offline.slam.ate_rmse_m, (ev.slam.ate_rmse_m, offline.slam.ate_rmse_m)
     assert ev.consistency.coverage_2sigma >= offline.consistency.coverage_2sigma - 0.05
 
     # what the vehicle received is the filter's
