@@ -223,13 +223,9 @@ def test_over_the_relief_trial_with_a_noisy_compass_the_truth_stays_inside(tmp_p
     # As it was measured: without the terms added since that widen this dive's ellipse (the relief off the laser
     # spots' plane in the altitude, on since 7f125a4: the default then reached 100 %; the laser rig's share of the
     # depth in b; the relief off the plane in the landmarks; the zoom between frames and the relief-weighted turn).
-    base_cfg = RunConfig()
-    base_cfg = dataclasses.replace(
-        base_cfg,
-        odometry=dataclasses.replace(base_cfg.odometry, token_scale=False, relief_turn_gain=0.0),
-        laser=dataclasses.replace(base_cfg.laser, relief_altitude_gain=0.0),
-        slam=dataclasses.replace(base_cfg.slam, altitude_scale_sigma=0.0, landmark_relief_gain=0.0),
-    )
+    from test_consistency import without_widening_terms
+
+    base_cfg = without_widening_terms(RunConfig())
     on = dataclasses.replace(base_cfg, slam=dataclasses.replace(base_cfg.slam, altitude_bias_relief=True))
     inside, _ = _inside_2sigma(tmp_path / "seq", on)
     assert inside >= 0.95
@@ -246,15 +242,10 @@ def test_the_worst_real_photo_dive_stays_inside_its_bounds(tmp_path):
     # Nor with the other terms added since that widen this dive's ellipse (the laser rig's share of the depth in b,
     # the relief off the laser spots' plane in the altitude and the landmarks, the zoom between frames and the
     # relief-weighted turn): with them the control reached 97.7 %.
-    base_cfg = RunConfig()
-    base_cfg = dataclasses.replace(
-        base_cfg,
-        odometry=dataclasses.replace(base_cfg.odometry, token_scale=False, relief_turn_gain=0.0),
-        laser=dataclasses.replace(base_cfg.laser, relief_altitude_gain=0.0),
-    )
-    no_s = dataclasses.replace(
-        base_cfg.slam, seabed_offset_sigma_m=0.0, altitude_scale_sigma=0.0, landmark_relief_gain=0.0
-    )
+    from test_consistency import without_widening_terms
+
+    base_cfg = without_widening_terms(RunConfig())
+    no_s = dataclasses.replace(base_cfg.slam, seabed_offset_sigma_m=0.0)
     seq = _photo_turns(tmp_path, 2, 1500)
     inside, _ = _inside_2sigma(
         seq, dataclasses.replace(base_cfg, slam=dataclasses.replace(no_s, altitude_bias_relief=True))

@@ -179,7 +179,7 @@ def test_the_worst_real_photo_dive_with_turns_stays_inside_its_bounds(tmp_path, 
     false``): the relief under the tokens in ``b`` takes this dive to 98.3 % (tests/test_relief_scale.py),
     and the turns' part is what this test isolates."""
     from synth import photo_available
-    from test_consistency import TWO_SIGMA_NEES
+    from test_consistency import TWO_SIGMA_NEES, without_widening_terms
     from test_consistency import _run as run_dive
 
     from rovslam.sim import simulate
@@ -191,18 +191,11 @@ def test_the_worst_real_photo_dive_with_turns_stays_inside_its_bounds(tmp_path, 
     # laser rig's share of the depth in b, on since 51dc7c1: the control then reached 98.3 %; the seabed offset s;
     # the relief off the laser spots' plane in the altitude and the landmarks; the zoom between frames and the
     # relief-weighted turn).
-    cfg = RunConfig()
+    cfg = without_widening_terms(RunConfig())
     cfg = dataclasses.replace(
         cfg,
-        odometry=dataclasses.replace(cfg.odometry, turn_noise_learned=learned, token_scale=False, relief_turn_gain=0.0),
-        slam=dataclasses.replace(
-            cfg.slam,
-            altitude_bias_relief=False,
-            altitude_scale_sigma=0.0,
-            landmark_relief_gain=0.0,
-            seabed_offset_sigma_m=0.0,
-        ),
-        laser=dataclasses.replace(cfg.laser, relief_altitude_gain=0.0),
+        odometry=dataclasses.replace(cfg.odometry, turn_noise_learned=learned),
+        slam=dataclasses.replace(cfg.slam, altitude_bias_relief=False, seabed_offset_sigma_m=0.0),
     )
     _, _, nees = run_dive(tmp_path / "seq", cfg)
     assert least <= np.mean(nees < TWO_SIGMA_NEES) <= most
