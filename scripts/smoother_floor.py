@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rovslam.eval.metrics import trajectory_errors
 from rovslam.io.measurements import read_measurements
 from rovslam.runner import run_config_for
 from rovslam.sim.scenarios import SCENARIOS
@@ -39,16 +40,17 @@ from rovslam.sim.vehicle import read_sensors, simulate_trajectory
 from rovslam.slam.smoother import Isam2Smoother
 
 
-def _rmse_mm(err_m: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.sum(err_m**2, axis=1)))) * 1000.0
+def _ate_mm(path_m: np.ndarray, truth_m: np.ndarray) -> float:
+    """``rovslam eval``'s ATE RMSE of an (N, 2) path against the truth, in millimetres."""
+    return trajectory_errors(path_m, truth_m).ate_rmse_m * 1000.0
 
 
-def _shape_rmse_mm(path_m: np.ndarray, truth_m: np.ndarray) -> float:
+def _shape_ate_mm(path_m: np.ndarray, truth_m: np.ndarray) -> float:
     """ATE after the rotation and shift that best align the path to the truth (its shape's error)."""
     p, q = path_m - path_m.mean(axis=0), truth_m - truth_m.mean(axis=0)
     u, _, vt = np.linalg.svd(q.T @ p)
     r = u @ np.diag([1.0, np.linalg.det(u @ vt)]) @ vt
-    return _rmse_mm(p @ r.T - q)
+    return _ate_mm(p @ r.T, q)
 
 
 def _smooth(frames, config) -> np.ndarray:
@@ -85,14 +87,14 @@ def cell_figures(cell: Path) -> dict[str, float]:
     true_heading = _smooth(exact, dataclasses.replace(config, heading_bias_sigma_rad=0.0))
     tilt = _tilt_offset_m(traj, nav)
     return {
-        "online": _rmse_mm(online - truth),
-        "smoothed": _rmse_mm(smoothed - truth),
-        "online_no_tilt": _rmse_mm(online - truth - tilt),
-        "smoothed_no_tilt": _rmse_mm(smoothed - truth - tilt),
-        "true_heading_no_tilt": _rmse_mm(true_heading - truth - tilt),
-        "tilt_term": _rmse_mm(tilt),
-        "online_shape": _shape_rmse_mm(online, truth),
-        "smoothed_shape": _shape_rmse_mm(smoothed, truth),
+        "online": _ate_mm(online, truth),
+        "smoothed": _ate_mm(smoothed, truth),
+        "online_no_tilt": _ate_mm(online - tilt, truth),
+        "smoothed_no_tilt": _ate_mm(smoothed - tilt, truth),
+        "true_heading_no_tilt": _ate_mm(true_heading - tilt, truth),
+        "tilt_term": _ate_mm(tilt, np.zeros_like(tilt)),
+        "online_shape": _shape_ate_mm(online, truth),
+        "smoothed_shape": _shape_ate_mm(smoothed, truth),
     }
 
 
