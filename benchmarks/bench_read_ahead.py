@@ -4,13 +4,17 @@ Run: ``python benchmarks/bench_read_ahead.py [--pairs 6]`` (``python -m benchmar
 :func:`rovslam.runner.run_sequence` reads ahead (``read_ahead=None``) when the process may use two
 cores or more: a thread decodes the frames (when the source decodes as it is read: videos, image
 folders, bags; a sequence folder processed at its own size) and prepares each
-(:mod:`rovslam.pipeline.prepare`) while the loop runs. This script runs the same input with
+(:mod:`rovslam.pipeline.prepare`) while the loop runs; a sequence folder of 600 frames or more
+processed at its own size is read and prepared in a second process instead
+(:mod:`rovslam.pipeline.prepare_process`). This script runs the same input with
 ``read_ahead=True`` and ``False`` in turn, in one process (so that both meet the same machine),
 ``--pairs`` times, the order alternating, and prints the median frames/s of each and the median of
 the per-pair ratios, with how many pairs read-ahead won. The inputs, made once and kept under the
 benchmarks' temporary folder:
 
-* ``360x272 PNG folder``: the benchmarks' simulated survey (600 frames, ``benchmarks/_harness.py``);
+* ``360x272 PNG folder``: the benchmarks' simulated survey (600 frames, ``benchmarks/_harness.py``),
+  read in a second process; ``... on a thread``: the same on a thread, as shorter folders are;
+  ``... 3,000 frames``: the survey flown for 5 minutes (the process's start is a smaller share);
 * ``360x272 H.264``: the same frames as an MP4 video (libx264, CRF 18) with its camera file;
 * ``1920x1080 H.264``: the HD survey's frames (120) as an MP4 video.
 
@@ -31,10 +35,18 @@ if __package__ in (None, ""):
 
 from benchmarks._harness import Case, machine, sequence_folder  # noqa: E402
 
+try:
+    from rovslam.pipeline.prepare_process import MIN_FRAMES as _MIN_FRAMES
+except ImportError:  # a build from before the second process
+    _MIN_FRAMES = 10**9
+
+# name: (case, video frame rate or None for the folder itself, read ahead on a thread even where a process would)
 INPUTS = {
-    "360x272 PNG folder": (Case("360x272", "sim", "png", 600), None),
-    "360x272 H.264": (Case("360x272", "sim", "png", 600), 10),
-    "1920x1080 H.264": (Case("1920x1080", "sim", "jpg", 120), 25),
+    "360x272 PNG folder": (Case("360x272", "sim", "png", 600), None, False),
+    "  ... on a thread": (Case("360x272", "sim", "png", 600), None, True),
+    "  ... 3,000 frames": (Case("360x272", "sim", "png", 3000), None, False),
+    "360x272 H.264": (Case("360x272", "sim", "png", 600), 10, False),
+    "1920x1080 H.264": (Case("1920x1080", "sim", "jpg", 120), 25, False),
 }
 
 
@@ -63,9 +75,12 @@ def _video(seq: Path, fps: int) -> tuple[Path, Path]:
     return mp4, cam
 
 
-def _pairs(path: Path, camera: Path | None, pairs: int, tmp: Path) -> dict:
+def _pairs(path: Path, camera: Path | None, pairs: int, tmp: Path, thread: bool) -> dict:
+    import rovslam.pipeline.prepare_process as process
     from rovslam.io.source import InputOptions
     from rovslam.runner import run_sequence
+
+    process.MIN_FRAMES = 10**9 if thread else _MIN_FRAMES
 
     opts = InputOptions(camera_file=camera) if camera is not None else None
 
@@ -100,10 +115,10 @@ def main() -> int:
     print(f"machine: {m['cpu']}, {m['cores']} cores; load average {m['load_average'][0]:.1f}")
     print(f"{'input':<22}{'read-ahead':>12}{'without':>10}{'ratio':>8}  pairs won")
     with tempfile.TemporaryDirectory(prefix="rovslam-bench-ahead-") as tmp:
-        for name, (case, fps) in INPUTS.items():
+        for name, (case, fps, thread) in INPUTS.items():
             seq = sequence_folder(case, log=lambda *a: None)
             path, camera = (seq, None) if fps is None else _video(seq, fps)
-            r = _pairs(path, camera, pairs, Path(tmp))
+            r = _pairs(path, camera, pairs, Path(tmp), thread)
             print(
                 f"{name:<22}{r['with']:>12.1f}{r['without']:>10.1f}{r['ratio']:>8.3f}  {r['won']}/{r['pairs']}",
                 flush=True,

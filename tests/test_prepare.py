@@ -83,8 +83,9 @@ def swell(tmp_path_factory):
     return root
 
 
-def test_read_ahead_gives_the_same_results_bit_for_bit(swell, monkeypatch):
-    made_in_loop = []
+def counting_tracking_images(monkeypatch) -> list:
+    """The loop's tracking images counted: the list returned grows by one at each it makes."""
+    made_in_loop: list = []
     original = loop.tracking_image
 
     def counted(*args, **kwargs):
@@ -92,6 +93,11 @@ def test_read_ahead_gives_the_same_results_bit_for_bit(swell, monkeypatch):
         return original(*args, **kwargs)
 
     monkeypatch.setattr(loop, "tracking_image", counted)
+    return made_in_loop
+
+
+def test_read_ahead_gives_the_same_results_bit_for_bit(swell, monkeypatch):
+    made_in_loop = counting_tracking_images(monkeypatch)
     run_sequence(swell / "seq", swell / "inline", read_ahead=False)
     inline_calls = len(made_in_loop)
     made_in_loop.clear()

@@ -29,7 +29,7 @@ import math
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -50,8 +50,8 @@ from rovslam.io.camera_file import CAMERA_TABLES
 from rovslam.io.results import GalleryWriter, ResultWriter, describe_os_error, prepare_output_folder
 from rovslam.io.sequence import Sequence, open_sequence
 from rovslam.io.source import InputOptions, SourceDescription, option_flag
-from rovslam.pipeline import FrameResult, SlamPipeline
-from rovslam.pipeline.prepare import prepared_frames
+from rovslam.pipeline import FrameResult, SlamPipeline, prepare_process
+from rovslam.pipeline.prepare import PreparedFrame, prepared_frames
 from rovslam.process import keep_freed_memory, opencv_threads, usable_cores
 from rovslam.tallies import MapTally, SourceTally, TimeGaps
 from rovslam.vision.scale import processing_scale
@@ -462,7 +462,7 @@ class _Run:
             self.total = len(seq) if max_frames is None else (min(len(seq), max_frames) if len(seq) else max_frames)
             if on_start is not None:
                 on_start(self.total)
-            frames = prepared_frames(self._source_frames(max_frames), pipe.preparer(), self.read_ahead)
+            frames = self._frames(max_frames)
             for frame, prepared in frames:
                 if self.stop.signum is not None:
                     break
@@ -514,6 +514,20 @@ class _Run:
             unusable.summary = summary  # type: ignore[attr-defined]
             raise unusable
         return summary
+
+    def _frames(self, max_frames: int | None) -> Generator[tuple[Frame, PreparedFrame | None], None, None]:
+        """The frames with what was prepared of them ahead (none without read-ahead): a long sequence folder
+        processed at its own size in a second process (:mod:`rovslam.pipeline.prepare_process`), any other
+        source on a second thread (:mod:`rovslam.pipeline.prepare`; larger frames' decoding and reduction
+        outweigh the loop, docs/performance.md)."""
+        if (
+            self.read_ahead
+            and type(self.seq) is Sequence
+            and self.pipe.scale.identity
+            and self.total >= prepare_process.MIN_FRAMES
+        ):
+            return prepare_process.prepared_in_process(self.seq, max_frames, self.pipe.preparer())
+        return prepared_frames(self._source_frames(max_frames), self.pipe.preparer(), self.read_ahead)
 
     def _source_frames(self, max_frames: int | None) -> Iterator[Frame]:
         """The source's frames. Read ahead, a sequence folder whose frames are processed at their own size

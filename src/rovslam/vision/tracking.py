@@ -467,7 +467,9 @@ class TokenTracker:
             return self._prior
         prior: tuple[np.ndarray | None, float] = (None, float("nan"))
         if self.tracker_config.global_search and self._prev_small is not None:
-            small = reduce_for_shift(img)
+            offered = self._reduced
+            # offered with a prior not taken (made against another previous image): its reduction still holds
+            small = offered[1] if offered is not None and offered[0] is track_img else reduce_for_shift(img)
             if small is not img:  # a new array (at scale 1 it is the image): the same frame's extract() reuses it
                 self._reduced = (track_img, small)
             prior = shift_between(self._prev_small, small, img.shape)
