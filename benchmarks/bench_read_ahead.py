@@ -116,7 +116,7 @@ def main() -> int:
     print(f"{'input':<22}{'read-ahead':>12}{'without':>10}{'ratio':>8}  pairs won")
     with tempfile.TemporaryDirectory(prefix="rovslam-bench-ahead-") as tmp:
         for name, (case, fps, thread) in INPUTS.items():
-            seq = sequence_folder(case, log=lambda *a: None)
+            seq = sequence_folder(case, log=lambda *a, **k: None)
             path, camera = (seq, None) if fps is None else _video(seq, fps)
             r = _pairs(path, camera, pairs, Path(tmp), thread)
             print(
