@@ -131,6 +131,8 @@ class _Worker:
     @classmethod
     def start(cls, seq: Sequence, preparer: FramePreparer) -> _Worker | None:
         """The process, started; None when it cannot be (the frames are then read in this process)."""
+        if not hasattr(os, "posix_fallocate"):  # not Linux: the thread does it
+            return None
         slot_bytes = _slot_bytes(seq, preparer.scale)
         size = _ALIGN + SLOTS * slot_bytes
         buf = None
@@ -151,6 +153,7 @@ class _Worker:
                 [sys.executable, "-c", _SERVE, str(commands_r), str(results_w), str(memory), str(slot_bytes)],
                 pass_fds=(commands_r, results_w, memory),
                 stdin=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,  # what goes wrong there comes back through the pipe, or the loop reads on
                 env=env,
                 process_group=0,  # a Ctrl-C at the terminal is the loop's to handle, not this process's
             )
