@@ -343,8 +343,8 @@ def run_sequence(
     returning the current map as landmarks.csv rows (the live viewer; called only when given).
     ``overwrite``: replace an earlier run's results in ``out_dir`` (never files rovslam did not write).
     ``inputs``: how to open an input that is not a sequence folder (camera file, NAV.csv, topics, times).
-    ``read_ahead``: prepare the frames on a second thread, ahead of the loop
-    (:func:`rovslam.pipeline.prepare.prepared_frames`; the same results, sooner); None: when the
+    ``read_ahead``: prepare the frames ahead of the loop, on a thread or in a process (:mod:`~rovslam.pipeline.prepare`,
+    :mod:`~rovslam.pipeline.prepare_process`; the same results, sooner); None: when the
     process may use two cores or more and the source allows it (a live stream does not: its newest
     frame is the one to process).
     """
@@ -428,7 +428,7 @@ class _Run:
         self.max_distance_m = float(max_distance_m)
         self.n = 0
         self.total = len(seq)
-        self.read_ahead = False  # frames prepared on a second thread (rovslam.pipeline.prepare)
+        self.read_ahead = False  # frames prepared ahead (rovslam.pipeline.prepare, prepare_process)
         self.sonar_rejected: list[tuple[int, float, str]] = []
         self.status = "running"
         self.reason: str | None = None
