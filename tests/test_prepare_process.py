@@ -142,9 +142,26 @@ def test_short_runs_and_other_sources_keep_the_thread(swell, monkeypatch):
     assert (swell / "long" / "trajectory.csv").read_bytes() == (swell / "short" / "trajectory.csv").read_bytes()
 
 
-def test_without_room_for_the_shared_file_the_frames_are_read_here(swell, workers, monkeypatch, tmp_path):
+def test_without_room_for_the_shared_file_the_frames_are_prepared_on_a_thread(swell, workers, monkeypatch, tmp_path):
     monkeypatch.setattr(pp, "_shared_dir", lambda: str(tmp_path / "missing"))
     seq = open_sequence(swell / "seq")
     out = list(pp.prepared_in_process(seq, 15, _preparer(seq)))
     assert workers == [None]  # no process was started
-    assert [f.index for f, _ in out] == list(range(15)) and all(p is None for _, p in out)
+    assert [f.index for f, _ in out] == list(range(15))
+    assert all(p is not None for _, p in out)  # prepared on a thread, as without the process
+
+
+def test_the_frames_handed_over_while_the_run_goes_on_give_the_same_results(swell, monkeypatch):
+    """Started as a run starts it: the first frames prepared on a thread, the rest by the process from
+    wherever the loop is when it is ready (here within the 120 frames or not at all: either way the same)."""
+    started = []
+    original = pp._Worker.start.__func__
+    monkeypatch.setattr(
+        pp._Worker, "start", classmethod(lambda cls, s, p: started.append(original(cls, s, p)) or started[-1])
+    )
+    monkeypatch.setattr(pp, "MIN_FRAMES", 0)
+    run_sequence(swell / "seq", swell / "handed", read_ahead=True)
+    run_sequence(swell / "seq", swell / "alone", read_ahead=False)
+    assert len(started) == 1 and started[0] is not None
+    for name in ("trajectory.csv", "landmarks.csv", "tokens.csv", "observations.csv", "landmark_measurements.csv"):
+        assert (swell / "alone" / name).read_bytes() == (swell / "handed" / name).read_bytes(), name

@@ -8,8 +8,8 @@ beside a preparing thread).
 
 * The process is a fresh interpreter (``python -c``, this process's ``sys.path``): no lock of
   this process's threads is copied into it, and no script of the caller's is imported again. It
-  needs about a second to import; the loop meanwhile reads and processes the first frames
-  itself, then hands the rest of the folder over from the next frame. It is in a process group
+  needs about a second to import; meanwhile the first frames are read and prepared on a thread,
+  as without it, then the rest of the folder is handed over from the next frame. It is in a process group
   of its own: a Ctrl-C at the terminal reaches the loop, which stops it.
 * Each prepared frame comes back through one of :data:`SLOTS` slots of a shared memory file
   (the image, the tracking image, the bright structures, the local variance and the reduced
@@ -45,7 +45,7 @@ import numpy as np
 from rovslam.core import Frame
 from rovslam.errors import RovslamError
 from rovslam.io.sequence import Sequence
-from rovslam.pipeline.prepare import AHEAD_FRAMES, FramePreparer, PreparedFrame
+from rovslam.pipeline.prepare import AHEAD_FRAMES, FramePreparer, PreparedFrame, prepared_frames
 from rovslam.vision.scale import ProcessingScale
 
 __all__ = ["MIN_FRAMES", "SLOTS", "START_INLINE", "prepared_in_process", "serve"]
@@ -54,8 +54,8 @@ __all__ = ["MIN_FRAMES", "SLOTS", "START_INLINE", "prepared_in_process", "serve"
 SLOTS = AHEAD_FRAMES + 1
 # Fewer frames than this are read in the loop's process: a second process would start as they end.
 MIN_FRAMES = 600
-# Whether the loop reads the first frames itself while the process starts (False: it waits for the process,
-# as the tests do to see every frame but the first come from it).
+# Whether the first frames are read and prepared on a thread while the process starts (False: the loop
+# waits for the process, as the tests do, so that every frame comes from it).
 START_INLINE = True
 _START_S = 60.0  # how long the loop waits for the process when it does not start inline
 _ALIGN = 64
@@ -73,23 +73,24 @@ def prepared_in_process(
 ) -> Generator[tuple[Frame, PreparedFrame | None], None, None]:
     """``(frame, prepared)`` for each frame of ``seq`` up to ``stop``, prepared in a second process.
 
-    Until the process is ready the frames come from this process, unprepared (None: the loop
-    makes the pieces itself); then from the process, each with its
+    Until the process is ready the frames come from this process, prepared on a thread
+    (:func:`~rovslam.pipeline.prepare.prepared_frames`); then from the process, each with its
     :class:`~rovslam.pipeline.prepare.PreparedFrame` (None where its preparation failed). The
     process reads ``preparer.removing()`` as this generator last saw it, a few frames behind.
     """
     worker = _Worker.start(seq, preparer)
-    inline: Generator[Frame, None, None] = seq.frames(stop=stop, prefetch=0)  # type: ignore[assignment]
+    # Meanwhile a thread prepares the frames, as without the process (what it read ahead is read again there).
+    inline = prepared_frames(seq.frames(stop=stop, prefetch=0), preparer, True)
     position = 0
     try:
         if worker is not None and not START_INLINE:
             worker.ready(_START_S)
         while worker is None or not worker.ready():
-            frame = next(inline, None)
-            if frame is None:
+            item = next(inline, None)
+            if item is None:
                 return
             position += 1
-            yield frame, None
+            yield item
         inline.close()
         for item in worker.frames(position, stop):
             position += 1
@@ -115,8 +116,8 @@ def _aligned(n: int) -> int:
 class _Worker:
     """The preparing process, the shared memory file of its slots and its two pipes (commands in, frames out).
 
-    The file's first :data:`_ALIGN` bytes are the loop's word to it (byte 0: whether the sunlight is
-    being taken out); the slots follow.
+    The file's first :data:`_ALIGN` bytes are the loop's word to it (whether the sunlight is being
+    taken out, stop, how many frames it has taken); the :data:`SLOTS` slots follow.
     """
 
     def __init__(self, proc: subprocess.Popen, path: Path, buf: mmap.mmap, slot_bytes: int, commands, results) -> None:
@@ -162,7 +163,7 @@ class _Worker:
             commands, results = os.fdopen(commands_w, "wb"), os.fdopen(results_r, "rb")
             worker = cls(proc, path, buf, slot_bytes, commands, results)
             # The sequence goes to the process on a thread: it reads it once it has imported (a second),
-            # and a long folder's rows fill the pipe; the loop meanwhile reads the first frames itself.
+            # and a long folder's rows fill the pipe; meanwhile the first frames are read and prepared on a thread.
             data = pickle.dumps((seq, preparer.config, preparer.scale, preparer.opening_px), pickle.HIGHEST_PROTOCOL)
             worker._handing = threading.Thread(target=_write_all, args=(commands_w, data), name="rovslam-hand-over")
             worker._handing.start()
