@@ -46,6 +46,15 @@ def workers(monkeypatch):
     return started
 
 
+@pytest.fixture
+def shm(tmp_path, monkeypatch):
+    """The folder the shared file is made in, this test's own: what is left in it is what a run left."""
+    folder = tmp_path / "shm"
+    folder.mkdir()
+    monkeypatch.setattr(pp, "_shared_dir", lambda: str(folder))
+    return folder
+
+
 def _preparer(seq: Sequence) -> FramePreparer:
     return SlamPipeline(seq.info, RunConfig()).preparer()
 
@@ -86,17 +95,18 @@ def test_what_the_process_prepares_is_what_the_loop_would_make(swell, workers):
             assert np.array_equal(prepared.prior[0], expected.prior[0]) and prepared.prior[1] == expected.prior[1]
 
 
-def test_stopping_early_stops_the_process_and_leaves_no_file(swell, workers):
+def test_stopping_early_stops_the_process_and_leaves_no_file(swell, workers, shm):
     seq = open_sequence(swell / "seq")
     gen = pp.prepared_in_process(seq, None, _preparer(seq))
     assert [next(gen)[0].index for _ in range(5)] == [0, 1, 2, 3, 4]
     worker = workers[0]
+    assert worker is not None and list(shm.iterdir()) == []  # shared while the process runs, yet no file
     gen.close()
     assert worker.proc.returncode == 0  # it stopped by itself, at once
-    assert not worker.path.exists()
+    assert list(shm.iterdir()) == []
 
 
-def test_a_process_that_dies_leaves_the_rest_of_the_folder_to_the_loop(swell, workers):
+def test_a_process_that_dies_leaves_the_rest_of_the_folder_to_the_loop(swell, workers, shm):
     seq = open_sequence(swell / "seq")
     got = []
     for frame, _ in pp.prepared_in_process(seq, 40, _preparer(seq)):
@@ -104,10 +114,10 @@ def test_a_process_that_dies_leaves_the_rest_of_the_folder_to_the_loop(swell, wo
         if frame.index == 10:
             os.kill(workers[0].proc.pid, signal.SIGKILL)
     assert got == list(range(40))
-    assert workers[0].died and not workers[0].path.exists()
+    assert workers[0].died and list(shm.iterdir()) == []
 
 
-def test_the_sources_error_comes_after_the_frames_before_it(swell, workers):
+def test_the_sources_error_comes_after_the_frames_before_it(swell, workers, shm):
     seq = open_sequence(swell / "seq")
     rows = list(seq.rows[:20])
     rows[12] = dataclasses.replace(rows[12], image=None)  # a row the folder cannot be read at: a TypeError
@@ -117,7 +127,7 @@ def test_the_sources_error_comes_after_the_frames_before_it(swell, workers):
         for frame, _ in pp.prepared_in_process(broken, None, _preparer(seq)):
             got.append(frame.index)
     assert got == list(range(12))
-    assert not workers[0].path.exists() and workers[0].proc.returncode is not None
+    assert list(shm.iterdir()) == [] and workers[0].proc.returncode is not None
 
 
 def test_an_error_that_cannot_cross_the_pipe_keeps_its_type_and_message():

@@ -19,8 +19,8 @@ beside a preparing thread).
 * The loop takes each piece only where it is what it would make itself, as with a thread: the
   results are the same, bit for bit.
 * A source's error is raised in the loop, after the frames before it; a process that dies
-  leaves the rest of the folder to the loop (read and prepared in its own thread, as without
-  read-ahead); closing the generator stops the process after the frame it is reading.
+  leaves the rest of the folder to a thread, as before it started; closing the generator stops
+  the process after the frame it is reading.
 """
 
 from __future__ import annotations
@@ -37,7 +37,6 @@ import sys
 import tempfile
 import threading
 from collections.abc import Callable, Generator, Iterator
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -48,7 +47,7 @@ from rovslam.io.sequence import Sequence
 from rovslam.pipeline.prepare import AHEAD_FRAMES, FramePreparer, PreparedFrame, prepared_frames
 from rovslam.vision.scale import ProcessingScale
 
-__all__ = ["MIN_FRAMES", "SLOTS", "START_INLINE", "prepared_in_process", "serve"]
+__all__ = ["MIN_FRAMES", "SHARED_PREFIX", "SLOTS", "START_INLINE", "prepared_in_process", "serve"]
 
 # Frames in flight: the ones prepared ahead plus the one the loop is copying out.
 SLOTS = AHEAD_FRAMES + 1
@@ -59,6 +58,7 @@ MIN_FRAMES = 600
 START_INLINE = True
 _START_S = 60.0  # how long the loop waits for the process when it does not start inline
 _ALIGN = 64
+SHARED_PREFIX = "rovslam-frames-"  # the shared file's name in /dev/shm, for the moment between making and removing it
 # The file's first _ALIGN bytes: the loop's word to the process.
 _REMOVING = 0  # byte: whether the loop takes the sunlight out now
 _STOP = 1  # byte: stop now
@@ -95,8 +95,9 @@ def prepared_in_process(
         for item in worker.frames(position, stop):
             position += 1
             yield item
-        if worker.died:  # what the process did not deliver, read here
-            yield from ((f, None) for f in seq.frames(start=position, stop=stop, prefetch=0))
+        if worker.died:  # what the process did not deliver, read and prepared here as before it started
+            inline = prepared_frames(seq.frames(start=position, stop=stop, prefetch=0), preparer, True)
+            yield from inline
     finally:
         inline.close()
         if worker is not None:
@@ -120,11 +121,12 @@ class _Worker:
     taken out, stop, how many frames it has taken); the :data:`SLOTS` slots follow.
     """
 
-    def __init__(self, proc: subprocess.Popen, path: Path, buf: mmap.mmap, slot_bytes: int, commands, results) -> None:
+    def __init__(
+        self, proc: subprocess.Popen, buf: mmap.mmap, slot_bytes: int, commands, results, removing: Callable[[], bool]
+    ) -> None:
         self.proc, self.buf, self.slot_bytes = proc, buf, slot_bytes
-        self.path = path  # the shared file's name, removed as soon as it was made
         self.commands, self.results = commands, results  # binary files of the two pipes
-        self.removing: Callable[[], bool] = lambda: False
+        self.removing = removing  # whether the loop takes the sunlight out now
         self.died = False
         self._ready = False
         self._handing: threading.Thread | None = None  # the thread writing the sequence to the process
@@ -139,10 +141,9 @@ class _Worker:
         buf = None
         fds: list[int] = []
         try:
-            memory, name = tempfile.mkstemp(prefix="rovslam-frames-", dir=_shared_dir())
+            memory, name = tempfile.mkstemp(prefix=SHARED_PREFIX, dir=_shared_dir())
             fds.append(memory)
-            path = Path(name)
-            path.unlink()  # the two processes share it by its descriptor: nothing is left behind, whatever happens
+            os.unlink(name)  # the two processes share it by its descriptor: nothing is left behind, whatever happens
             # Reserved now: a full /dev/shm fails here (the frames are then read in the loop), not as a SIGBUS later.
             os.posix_fallocate(memory, 0, size)
             buf = mmap.mmap(memory, size)
@@ -161,7 +162,7 @@ class _Worker:
             for fd in (commands_r, results_w, memory):
                 os.close(fd)
             commands, results = os.fdopen(commands_w, "wb"), os.fdopen(results_r, "rb")
-            worker = cls(proc, path, buf, slot_bytes, commands, results)
+            worker = cls(proc, buf, slot_bytes, commands, results, preparer.removing)
             # The sequence goes to the process on a thread: it reads it once it has imported (a second),
             # and a long folder's rows fill the pipe; meanwhile the first frames are read and prepared on a thread.
             data = pickle.dumps((seq, preparer.config, preparer.scale, preparer.opening_px), pickle.HIGHEST_PROTOCOL)
@@ -174,7 +175,6 @@ class _Worker:
             if buf is not None:
                 buf.close()
             return None
-        worker.removing = preparer.removing
         return worker
 
     def _send(self, message: Any) -> None:
@@ -184,11 +184,9 @@ class _Worker:
     def ready(self, timeout_s: float = 0.0) -> bool:
         """Whether the process has started and mapped the slots (it then waits for :meth:`frames`)."""
         if not self._ready and select.select([self.results], [], [], timeout_s)[0]:
-            try:
-                self._ready = pickle.load(self.results) == ("ready",)
-            except (EOFError, OSError, pickle.UnpicklingError):
-                pass
-            self._ready = True  # or it died starting: frames() finds that out and leaves the rest to the loop
+            with contextlib.suppress(EOFError, OSError, pickle.UnpicklingError):
+                pickle.load(self.results)  # ("ready",)
+            self._ready = True  # or it died starting: frames() finds that out and leaves the rest to a thread
         return self._ready
 
     def frames(self, start: int, stop: int | None) -> Iterator[tuple[Frame, PreparedFrame | None]]:
@@ -224,7 +222,7 @@ class _Worker:
         base = _ALIGN + slot * self.slot_bytes
         arrays = {}
         for key, where, shape, dtype in placed:
-            if where is None:  # it did not fit in the slot: it came in the message
+            if where is None:  # it did not fit in the slot: the array itself came in the message, as its shape
                 arrays[key] = shape
             else:
                 n = int(np.prod(shape))
