@@ -31,3 +31,23 @@ def test_exclusive_times_add_up_to_the_total():
     assert clock.seconds["inner"] == 2.0  # each inner call spans one tick
     assert clock.seconds["loop and glue"] == 3.0  # the glue's 5 ticks less the inner calls' 2: exclusive
     assert total == 7.0
+
+
+def test_the_library_profile_counts_each_loop_sample_by_its_innermost_frame():
+    from benchmarks.profile_libraries import LOOP_FRAME, tally
+
+    loop = f"<module> (run.py:1);{LOOP_FRAME}rovslam/pipeline/loop.py:166);_steps (rovslam/pipeline/loop.py:182)"
+    raw = [
+        f"{loop};match_template (rovslam/vision/tracking.py:186);0x7f00 (cv2.abi3.so) 6",
+        f"{loop};median0 (rovslam/averages.py:36);array_subscript (numpy/_core/_multiarray_umath.cpython-311.so) 3",
+        f"{loop};median0 (rovslam/averages.py:36);DOUBLE_subtract_X86_V3 (numpy/_core/_multiarray_umath.so) 1",
+        f"{loop};fuse (rovslam/vision/laser.py:9);fromnumeric (numpy/_core/fromnumeric.py:86) 2",
+        f"{loop};fuse (rovslam/vision/laser.py:9);0x7f11 (libc.so.6) 4",
+        "<module> (run.py:1);read_image (rovslam/io/sequence.py:443);0x7f00 (cv2.abi3.so) 50",  # outside the loop
+        "not a sample line",
+    ]
+    total, kinds, funcs = tally(raw)
+    assert total == 16
+    assert kinds == {"OpenCV": 6, "NumPy dispatch": 3, "NumPy compute": 1, "Python": 2, "C library": 4}
+    assert funcs["median0  averages.py"] == 4 and funcs["fuse  vision/laser.py"] == 6
+    assert funcs["match_template  vision/tracking.py"] == 6
