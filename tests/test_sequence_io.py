@@ -342,3 +342,31 @@ def test_angles_that_look_like_degrees_are_warned_of_not_refused(tmp_path):
     assert _seq_with_angles(tmp_path / "r_rad", survey_rad, np.deg2rad(roll_deg)).warnings == []
     w = _seq_with_angles(tmp_path / "r_deg", survey_rad, roll_deg).warnings
     assert len(w) == 1 and "roll_rad is 1.20 rad (69 degrees)" in w[0]
+
+
+def test_a_jpeg_is_read_as_stored_in_rgb_order_its_exif_orientation_ignored(tmp_path):
+    import struct
+
+    import cv2
+
+    rng = np.random.default_rng(7)
+    cam = Camera(64, 48, 100.0, 100.0, 31.5, 23.5)
+    bgr = rng.integers(0, 256, size=(48, 64, 3), dtype=np.uint8)
+    bgr[:, :32] = (20, 60, 200)  # a red half: the channel order shows
+    ok, buf = cv2.imencode(".jpg", bgr)
+    # An EXIF orientation of 6 (turn 90 degrees): a viewer turns the image, the pixels on file stay as they are.
+    exif = b"Exif\x00\x00MM\x00\x2a\x00\x00\x00\x08\x00\x01\x01\x12\x00\x03\x00\x00\x00\x01\x00\x06\x00\x00\x00\x00\x00\x00"
+    data = buf[:2].tobytes() + b"\xff\xe1" + struct.pack(">H", len(exif) + 2) + exif + buf[2:].tobytes()
+    assert cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR).shape == (64, 48, 3)  # the tag is read
+    (tmp_path / "c.jpg").write_bytes(data)
+    img = read_image(tmp_path / "c.jpg", cam)
+    stored = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert img.shape == (48, 64, 3) and img.dtype == np.uint8
+    np.testing.assert_array_equal(img, stored[:, :, ::-1])  # the stored pixels, RGB
+    assert img[10, 5, 0] > 150 and img[10, 5, 2] < 80  # red is channel 0
+    ok, gbuf = cv2.imencode(".jpg", bgr[:, :, 1])
+    (tmp_path / "g.jpg").write_bytes(gbuf.tobytes())
+    grey = read_image(tmp_path / "g.jpg", cam)
+    g = cv2.imdecode(gbuf, cv2.IMREAD_UNCHANGED)
+    assert g.ndim == 2
+    np.testing.assert_array_equal(grey, np.dstack([g, g, g]))  # grey replicated
