@@ -32,7 +32,7 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks._harness import sequence_folder  # noqa: E402
+from benchmarks._harness import pin_one_core, sequence_folder  # noqa: E402
 from benchmarks.bench_pipeline import CASES  # noqa: E402
 
 LOOP_FRAME = "SlamPipeline.process ("
@@ -54,7 +54,7 @@ def kind_of(leaf: str) -> str:
     where = where.rstrip(")")
     if re.search(r"\.py:\d+$", where) or where.startswith("<"):
         return "Python"
-    if "_multiarray_umath" in where or "_umath" in where:
+    if "_umath" in where:  # numpy/_core/_multiarray_umath
         return "NumPy compute" if _NUMPY_COMPUTE.search(name) else "NumPy dispatch"
     if "cv2" in where:
         return "OpenCV"
@@ -96,16 +96,10 @@ def main() -> int:
         code = _RUN.format(seq=str(folder), out=str(Path(tmp) / "out"))
         cmd = [spy, "record", "--native", "--rate", str(args.rate), "--format", "raw", "-o", str(raw), "--"]
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-        # py-spy and the run on the same core: py-spy stops the run for each native stack, and from
-        # another core it falls behind (most of its time in the kernel) on this 2-core VM
-        one = {min(os.sched_getaffinity(0))}
-        done = subprocess.run(
-            [*cmd, sys.executable, "-c", code],
-            capture_output=True,
-            text=True,
-            env=env,
-            preexec_fn=lambda: os.sched_setaffinity(0, one),
-        )
+        # py-spy and the run on the same core (both inherit this process's): py-spy stops the run for each
+        # native stack, and from the other core of a 2-core VM it fell behind, most of its time in the kernel
+        pin_one_core()
+        done = subprocess.run([*cmd, sys.executable, "-c", code], capture_output=True, text=True, env=env)
         if done.returncode != 0 or not raw.is_file():
             print(f"py-spy failed ({done.returncode}): {done.stderr.strip()[-500:]}", file=sys.stderr)
             return 1
