@@ -311,6 +311,14 @@ def test_cli_guide_without_poi_and_a_bad_poi_file_are_one_line_errors(tmp_path):
     bad.write_text("name,x_m,y_m\nrock,0.1,\n", encoding="utf-8")
     p = _live_cli(tmp_path, "--poi", str(bad), "--guide")
     assert p.returncode == 2 and "poi.csv, line 2" in p.stderr and "Traceback" not in p.stderr
+    p = _live_cli(tmp_path, "--approach-gain-per-s", "0.3")
+    assert p.returncode == 2 and "--approach-gain-per-s needs --poi" in p.stderr and "Traceback" not in p.stderr
+    good = tmp_path / "good.csv"
+    good.write_text("name,x_m,y_m\nrock,0.1,0\n", encoding="utf-8")
+    p = _live_cli(tmp_path, "--poi", str(good), "--guide", "--approach-gain-per-s", "-1")
+    assert (
+        p.returncode == 2 and "--approach-gain-per-s must be a number > 0" in p.stderr and "Traceback" not in p.stderr
+    )
 
 
 def test_the_end_of_the_run_while_steering_sends_a_last_zero_setpoint(tmp_path):

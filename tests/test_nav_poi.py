@@ -80,6 +80,14 @@ def test_a_missing_file_is_named(tmp_path):
             ["--poi", "GOOD", "--scenario", "portofino", "--survey-s", "-1"],
             "--survey-s must be a number of seconds >= 0",
         ),
+        (
+            ["--poi", "GOOD", "--scenario", "portofino", "--approach-gain-per-s", "0"],
+            "--approach-gain-per-s must be a number > 0 (per second), got 0.0",
+        ),
+        (
+            ["--poi", "GOOD", "--scenario", "portofino", "--approach-gain-per-s", "inf"],
+            "--approach-gain-per-s must be a number > 0 (per second), got inf",
+        ),
     ],
 )
 def test_navigate_refuses_bad_input_in_one_line_with_exit_2(tmp_path, args, needle):

@@ -27,6 +27,12 @@ def navigate(
     hold_s: float = typer.Option(
         10.0, "--hold-s", help="Station keeping at each point, unless its hold_s says otherwise (s)."
     ),
+    approach_gain_per_s: float | None = typer.Option(
+        None,
+        "--approach-gain-per-s",
+        help="How hard the vehicle is steered back to a point: the desired speed per metre off it "
+        "(default 0.2; 0.3 holds closer and arrives sooner on a rough sea, see docs/navigation.md).",
+    ),
     seed: int = typer.Option(0, help="Random seed of the seabed, the current and the sensors."),
     config: Path | None = typer.Option(None, "--config", "-c", help="TOML configuration of the pipeline."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the results of an earlier run in --out."),
@@ -41,6 +47,7 @@ def navigate(
     from rovslam.errors import InvalidArgumentError
     from rovslam.io.poi import read_poi_csv
     from rovslam.nav.estimate import check_estimator
+    from rovslam.nav.guidance import guidance_config
     from rovslam.navigate import navigate as fly
     from rovslam.runner import StopRequest
     from rovslam.sim import SCENARIOS
@@ -53,6 +60,7 @@ def navigate(
             raise InvalidArgumentError(f"{name} must be a number of seconds >= 0, got {v}")
     if seed < 0:
         raise InvalidArgumentError(f"--seed must be a whole number >= 0, got {seed}")
+    guidance = guidance_config(hold_s, approach_gain_per_s)
     pois = read_poi_csv(poi)
     cfg = load_config(config) if config is not None else RunConfig()
     rate = SCENARIOS[scenario].frame_rate_hz
@@ -71,7 +79,19 @@ def navigate(
                 ),
             }
         )
-        summary = fly(scenario, pois, out, estimator, survey_s, hold_s, seed, cfg, overwrite=overwrite, **callbacks)  # type: ignore[arg-type]
+        summary = fly(
+            scenario,
+            pois,
+            out,
+            estimator,
+            survey_s,
+            hold_s,
+            seed,
+            cfg,
+            guidance=guidance,
+            overwrite=overwrite,
+            **callbacks,  # type: ignore[arg-type]
+        )
         late.ignore_after = summary.status == "interrupted"
     rows = summary.arrivals
     errs = [r["true_err_m"] for r in rows if r["reached"]]

@@ -55,6 +55,12 @@ _POI_OPT = typer.Option(
     help="Points of interest to go to (CSV of rovslam navigate: "
     "name,x_m,y_m[,hold_s] or name,landmark_id[,hold_s]); without --guide a dry run.",
 )
+_APPROACH_GAIN_OPT = typer.Option(
+    None,
+    "--approach-gain-per-s",
+    help="How hard --guide steers back to a point: the desired speed per metre off it "
+    "(default 0.2; 0.3 holds closer and arrives sooner on a rough sea, see docs/navigation.md).",
+)
 _GUIDE_OPT = typer.Option(
     False, "--guide", help="Send the velocity setpoints to the autopilot (only while it is armed and in GUIDED)."
 )
@@ -91,6 +97,7 @@ def live(
     hold_s: float = _HOLD_S_OPT,
     estimator: str = _ESTIMATOR_OPT,
     guide_pace: float = _GUIDE_PACE_OPT,
+    approach_gain_per_s: float | None = _APPROACH_GAIN_OPT,
 ) -> None:
     """Live on the vehicle: the camera stream and the autopilot's telemetry in, a position with covariance out
     to the autopilot over MAVLink (like a DVL), the results folder of `rovslam run` written as the dive goes."""
@@ -126,7 +133,7 @@ def live(
         wait_s=wait_s,
         heartbeat_timeout_s=heartbeat_timeout_s,
         video_delay_s=video_delay_s,
-        guide=_guide_options(poi, guide, survey_s, hold_s, estimator, guide_pace),
+        guide=_guide_options(poi, guide, survey_s, hold_s, estimator, guide_pace, approach_gain_per_s),
     )
 
     def say(text: str) -> None:
@@ -170,17 +177,35 @@ def live(
     typer.echo(line)
 
 
-def _guide_options(poi: Path | None, guide: bool, survey_s: float, hold_s: float, estimator: str, pace: float):
+def _guide_options(
+    poi: Path | None,
+    guide: bool,
+    survey_s: float,
+    hold_s: float,
+    estimator: str,
+    pace: float,
+    approach_gain_per_s: float | None = None,
+):
     """The :class:`rovslam.live.guide.GuideOptions` of ``--poi`` (None without it)."""
     from rovslam.errors import InvalidArgumentError
 
     if poi is None:
         if guide:
             raise InvalidArgumentError("--guide needs --poi POI.csv (the points to go to)")
+        if approach_gain_per_s is not None:
+            raise InvalidArgumentError("--approach-gain-per-s needs --poi POI.csv (it steers to the points)")
         return None
     from rovslam.io.poi import read_poi_csv
     from rovslam.live.guide import GuideOptions
+    from rovslam.nav.guidance import guidance_config
 
+    guidance = guidance_config(hold_s, approach_gain_per_s) if approach_gain_per_s is not None else None
     return GuideOptions(
-        tuple(read_poi_csv(poi)), guide=guide, survey_s=survey_s, hold_s=hold_s, estimator=estimator, pace=pace
+        tuple(read_poi_csv(poi)),
+        guide=guide,
+        survey_s=survey_s,
+        hold_s=hold_s,
+        estimator=estimator,
+        pace=pace,
+        guidance=guidance,
     )

@@ -376,6 +376,7 @@ class Guide:
             "estimator": self.opts.estimator,
             "survey_s": self.opts.survey_s,
             "hold_s": self.opts.hold_s,
+            "approach_gain_per_s": self.cfg.approach_gain_per_s,
             "pace": self.pace,
             "setpoints_sent": c.setpoints_sent,
             "zero_setpoints_sent": c.zero_setpoints_sent,

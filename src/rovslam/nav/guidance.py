@@ -49,6 +49,7 @@ __all__ = [
     "Mission",
     "NavEstimate",
     "arrival_state",
+    "guidance_config",
     "body_command",
     "ellipse_semi_major_m",
     "saturate",
@@ -116,6 +117,20 @@ class GuidanceConfig:
             raise InvalidArgumentError(
                 f"GuidanceConfig.cruise_speed_mps ({self.cruise_speed_mps}) exceeds max_speed_mps ({self.max_speed_mps})"
             )
+
+
+def guidance_config(hold_s: float, approach_gain_per_s: float | None = None) -> GuidanceConfig:
+    """The :class:`GuidanceConfig` of the commands' ``--hold-s`` and ``--approach-gain-per-s`` (None: its default).
+
+    A larger gain holds the vehicle closer to a point and arrives sooner where the current estimate
+    lags a changing current; docs/navigation.md ("The approach gain") has the measured trade-off.
+    """
+    if approach_gain_per_s is None:
+        return GuidanceConfig(hold_s=float(hold_s))
+    g = approach_gain_per_s
+    if isinstance(g, bool) or not (isinstance(g, (int, float)) and math.isfinite(g) and g > 0):
+        raise InvalidArgumentError(f"--approach-gain-per-s must be a number > 0 (per second), got {g!r}")
+    return GuidanceConfig(hold_s=float(hold_s), approach_gain_per_s=float(g))
 
 
 @dataclass(frozen=True)
